@@ -1,0 +1,40 @@
+# replaybench: `make run` installs and runs the main job on a bundled fixture bag;
+# `make test` installs and runs lint, types and the test suite.
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: install run test lint typecheck pytest bench fixtures clean
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+run: install
+	$(BIN)/replaybench run fixtures/bags/rgb8_raw.mcap --backend hsv --backend null --out replaybench-runs/demo --force
+
+lint: install
+	$(BIN)/ruff check replaybench tests benchmarks
+	$(BIN)/ruff format --check replaybench tests benchmarks
+
+typecheck: install
+	$(BIN)/mypy
+
+pytest: install
+	$(BIN)/pytest -n 2 -q
+
+test: lint typecheck pytest
+
+bench: install
+	$(BIN)/python -m benchmarks
+
+fixtures: install
+	$(BIN)/replaybench fixtures --out fixtures/bags
+
+clean:
+	rm -rf $(VENV) replaybench-runs .pytest_cache .mypy_cache .ruff_cache

@@ -1,0 +1,5 @@
+"""``python -m replaybench``."""
+
+from replaybench.cli import main
+
+main()

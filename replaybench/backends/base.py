@@ -1,0 +1,62 @@
+"""The backend seam: a Protocol every detector implements, and the options it is given."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple, Protocol, runtime_checkable
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+    from pathlib import Path
+
+    from replaybench.types import BackendResult, Frame
+
+__all__ = ['Availability', 'Backend', 'BackendOptions']
+
+
+class Availability(NamedTuple):
+    """Whether a backend can run on this machine, and why not."""
+
+    ok: bool
+    reason: str = ''
+
+
+@dataclass(frozen=True, slots=True)
+class BackendOptions:
+    """Options common to all backends; backend-specific ones go in ``extra``."""
+
+    threads: int | None = None
+    config: Path | None = None
+    model: Path | None = None
+    device: int = 0
+    extra: Mapping[str, str] = field(default_factory=dict)
+
+
+@runtime_checkable
+class Backend(Protocol):
+    """A detector the replay drives one frame at a time.
+
+    Lifecycle: ``available()`` (class level, cheap, imports nothing heavy when it can) ->
+    ``__init__(options)`` -> ``open()`` (load models, pick devices; may raise BackendError /
+    BackendUnavailableError) -> ``detect(frame)`` per frame -> ``close()``.
+
+    ``detect`` must time its own stages (``StageTimes``), synchronising any device first, and
+    return boxes in source-image pixels. It must be deterministic: the same frame gives the same
+    detections in the same order.
+    """
+
+    name: ClassVar[str]
+    description: ClassVar[str]
+
+    @classmethod
+    def available(cls) -> Availability: ...
+
+    def open(self) -> None: ...
+
+    def detect(self, frame: Frame) -> BackendResult: ...
+
+    def info(self) -> dict[str, Any]:
+        """Configuration and engine facts recorded in run.json (JSON-serialisable)."""
+        ...
+
+    def close(self) -> None: ...

@@ -1,0 +1,381 @@
+"""The ``replaybench`` command line: a thin layer over the library."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path  # noqa: TC003 - typer reads the annotations at run time
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from replaybench import __version__
+from replaybench.errors import ReplaybenchError
+
+if TYPE_CHECKING:
+    from replaybench.results.stats import Summary
+
+__all__ = ['app', 'main']
+
+EXIT_INTERRUPTED = 130
+
+app = typer.Typer(
+    name='replaybench',
+    help='Replay camera logs through detectors and measure latency, FPS and accuracy.\n\n'
+    'Example: replaybench run bag.mcap --backend hsv --backend null',
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+    context_settings={'help_option_names': ['-h', '--help']},
+)
+
+
+def _fail(err: ReplaybenchError) -> typer.Exit:
+    typer.echo(f'replaybench: error: {err}', err=True)
+    return typer.Exit(err.exit_code)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f'replaybench {__version__}')
+        raise typer.Exit
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool, typer.Option('--version', callback=_version, is_eager=True, help='Print the version.')
+    ] = False,
+) -> None:
+    """Replay camera logs through detectors and measure latency, FPS and accuracy.
+
+    Example: replaybench run bag.mcap --backend hsv --backend null
+    """
+
+
+class _Progress:
+    """A one-line progress bar on stderr, drawn only when stderr is a terminal."""
+
+    def __init__(self) -> None:
+        self.enabled = sys.stderr.isatty()
+        self.last = -1
+
+    def __call__(self, done: int, total: int) -> None:
+        if not self.enabled or total <= 0:
+            return
+        pct = min(100, done * 100 // total)
+        if pct == self.last and done != total:
+            return
+        self.last = pct
+        bar = '#' * (pct // 4) + '.' * (25 - pct // 4)
+        sys.stderr.write(f'\r[{bar}] {pct:3d}% {done}/{total} frames')
+        if done >= total:
+            sys.stderr.write('\n')
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.enabled and self.last >= 0:
+            sys.stderr.write('\n')
+
+
+def _fmt(value: float | None, digits: int = 2) -> str:
+    return '-' if value is None else f'{value:.{digits}f}'
+
+
+def _print_summary(summaries: list[Summary]) -> None:
+    header = (
+        'backend',
+        'topic',
+        'frames',
+        'drop',
+        'skip',
+        'fps',
+        'p50 ms',
+        'p99 ms',
+        'det/frame',
+        'P@.5',
+        'R@.5',
+        'mAP@.5',
+    )
+    rows = []
+    for s in summaries:
+        acc = s.accuracy or {}
+        rows.append(
+            (
+                s.backend,
+                s.topic,
+                str(s.measured),
+                str(s.dropped),
+                str(s.skipped),
+                _fmt(s.throughput_fps, 1),
+                _fmt(s.latency_ms_p50),
+                _fmt(s.latency_ms_p99),
+                _fmt(s.detections_per_frame),
+                _fmt(acc.get('precision50'), 3),
+                _fmt(acc.get('recall50'), 3),
+                _fmt(acc.get('map50'), 3),
+            )
+        )
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
+    for row in (header, *rows):
+        typer.echo(
+            '  '.join(
+                c.ljust(w) if i < 2 else c.rjust(w)
+                for i, (c, w) in enumerate(zip(row, widths, strict=True))
+            )
+        )
+
+
+@app.command()
+def run(
+    bags: Annotated[
+        list[Path],
+        typer.Argument(
+            help='Bag files or rosbag2 folders, replayed one after another.', show_default=False
+        ),
+    ],
+    backend: Annotated[
+        list[str],
+        typer.Option(
+            '--backend',
+            '-b',
+            help='Backend to run (repeat for several; see `replaybench backends`).',
+        ),
+    ] = [],  # noqa: B006
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            '--out', '-o', help='Run folder (default: a new folder under ./replaybench-runs/).'
+        ),
+    ] = None,
+    force: Annotated[
+        bool, typer.Option('--force', help='Write into a non-empty --out folder.')
+    ] = False,
+    rate: Annotated[
+        str,
+        typer.Option('--rate', help='max, recorded, 2x / 0.5x (scaled recorded), or 30hz (fixed).'),
+    ] = 'max',
+    queue_depth: Annotated[
+        int,
+        typer.Option(
+            '--queue-depth', min=1, help='Per-topic queue depth in timed modes (newest kept).'
+        ),
+    ] = 1,
+    warmup: Annotated[
+        int | None,
+        typer.Option(
+            '--warmup',
+            min=0,
+            help='Warm-up frames per backend and topic (default 10, at most a tenth of the topic).',
+        ),
+    ] = None,
+    threads: Annotated[
+        int | None,
+        typer.Option('--threads', min=1, help='CPU threads for OpenCV and the backends.'),
+    ] = None,
+    max_frames: Annotated[
+        int | None, typer.Option('--max-frames', min=1, help='At most N frames of each topic.')
+    ] = None,
+    start: Annotated[
+        float | None, typer.Option('--start', min=0.0, help='Skip the first S seconds of each bag.')
+    ] = None,
+    duration: Annotated[
+        float | None, typer.Option('--duration', min=0.0, help='Replay only S seconds.')
+    ] = None,
+    topic: Annotated[
+        list[str],
+        typer.Option(
+            '--topic',
+            '-t',
+            help='Image topic to replay (repeat; default: every non-depth image topic).',
+        ),
+    ] = [],  # noqa: B006
+    ground_truth: Annotated[
+        str | None,
+        typer.Option(
+            '--ground-truth',
+            help='Detection2DArray topic holding ground truth '
+            '(default: /ground_truth/detections when present).',
+        ),
+    ] = None,
+    config: Annotated[
+        Path | None,
+        typer.Option(
+            '--config', help='Backend configuration file (TOML), e.g. hsv colour classes.'
+        ),
+    ] = None,
+    no_report: Annotated[bool, typer.Option('--no-report', help='Skip report.html.')] = False,
+) -> None:
+    """Replay bags through backends and write detections, CSVs, run.json and a report.
+
+    Example: replaybench run fixtures/bags/rgb8_raw.mcap --backend hsv --backend null --out runs/a
+    """
+    from replaybench.backends.base import BackendOptions
+    from replaybench.replay.rate import parse_rate
+    from replaybench.replay.runner import (
+        DEFAULT_GROUND_TRUTH_TOPIC,
+        RunConfig,
+        new_run_dir,
+        run_benchmark,
+    )
+
+    progress = _Progress()
+    try:
+        run_config = RunConfig(
+            inputs=bags,
+            backends=backend,
+            out_dir=out if out is not None else new_run_dir(),
+            force=force,
+            rate=parse_rate(rate),
+            queue_depth=queue_depth,
+            warmup=warmup,
+            threads=threads,
+            max_frames=max_frames,
+            start_s=start,
+            duration_s=duration,
+            topics=topic or None,
+            ground_truth_topic=ground_truth or DEFAULT_GROUND_TRUTH_TOPIC,
+            ground_truth_explicit=ground_truth is not None,
+            options=BackendOptions(threads=threads, config=config),
+            command=['replaybench', *sys.argv[1:]],
+            report=not no_report,
+        )
+        outcome = run_benchmark(run_config, progress=progress)
+    except ReplaybenchError as err:
+        progress.close()
+        raise _fail(err) from None
+    _print_summary(outcome.summaries)
+    for warning in (w for inp in outcome.run['inputs'] for w in inp['warnings']):
+        typer.echo(f'replaybench: warning: {warning}', err=True)
+    skipped = outcome.run.get('skipped') or {}
+    for reason, count in skipped.items():
+        typer.echo(f'replaybench: warning: skipped {count} message(s): {reason}', err=True)
+    report = outcome.run_dir / 'report.html'
+    typer.echo(f'Run folder: {outcome.run_dir}')
+    if report.exists():
+        typer.echo(f'Report: {report}')
+    if outcome.status == 'interrupted':
+        typer.echo('replaybench: interrupted: outputs hold the frames done so far', err=True)
+        raise typer.Exit(EXIT_INTERRUPTED)
+
+
+@app.command()
+def info(
+    bag: Annotated[Path, typer.Argument(help='Bag file or rosbag2 folder.', show_default=False)],
+) -> None:
+    """Show the camera topics of a bag: types, counts, rates, sizes, encodings and duration.
+
+    Example: replaybench info fixtures/bags/two_camera.mcap
+    """
+    from replaybench.decode.probe import probe_topics
+    from replaybench.sources import open_source
+
+    try:
+        with open_source(bag) as source:
+            topics = source.topics()
+            cameras = {c.name: c for c in probe_topics(source)}
+            truncated = source.truncated
+            warnings = list(source.warnings)
+    except ReplaybenchError as err:
+        raise _fail(err) from None
+    first = min((t.first_ns for t in topics), default=0)
+    last = max((t.last_ns for t in topics), default=0)
+    total = sum(t.count for t in topics)
+    typer.echo(f'path:       {bag}')
+    typer.echo(f'format:     {source.format}{" (truncated)" if truncated else ""}')
+    typer.echo(f'duration:   {(last - first) / 1e9:.3f} s')
+    typer.echo(f'messages:   {total}')
+    typer.echo('camera topics:')
+    if not cameras:
+        typer.echo('  (none)')
+    for cam in cameras.values():
+        span = (cam.last_ns - cam.first_ns) / 1e9
+        hz = (cam.count - 1) / span if cam.count > 1 and span > 0 else None
+        size = f'{cam.width}x{cam.height}' if cam.width else '?'
+        flags = ' depth' if cam.is_depth else ''
+        extra = f'  camera_info: {cam.camera_info_topic}' if cam.camera_info_topic else ''
+        problem = f'  error: {cam.error}' if cam.error else ''
+        rate = f'{_fmt(hz, 1)} Hz'
+        typer.echo(
+            f'  {cam.name}  {cam.msgtype}  {cam.count} msgs  {rate}  {size}  '
+            f'{cam.encoding}{flags}{extra}{problem}'
+        )
+    others = [t for t in topics if t.name not in cameras]
+    if others:
+        typer.echo('other topics:')
+        for t in others:
+            typer.echo(f'  {t.name}  {t.msgtype}  {t.count} msgs')
+    for warning in warnings:
+        typer.echo(f'replaybench: warning: {warning}', err=True)
+
+
+@app.command()
+def backends() -> None:
+    """List the backends, whether each is available on this machine, and why not.
+
+    Example: replaybench backends
+    """
+    from replaybench.backends import backend_table
+
+    rows = backend_table()
+    width = max((len(r.name) for r in rows), default=4)
+    for r in rows:
+        state = 'available' if r.availability.ok else f'unavailable: {r.availability.reason}'
+        typer.echo(f'{r.name.ljust(width)}  {state}  - {r.description} [{r.origin}]')
+
+
+@app.command()
+def fixtures(
+    out: Annotated[Path, typer.Option('--out', '-o', help='Folder to write the bags into.')],
+    frames: Annotated[int, typer.Option('--frames', min=1, help='Frames per camera.')] = 30,
+    size: Annotated[str, typer.Option('--size', help='Image size WxH.')] = '320x240',
+) -> None:
+    """Generate the synthetic fixture bags (MCAP raw/jpeg, rosbag2 .db3, ROS 1 .bag, two cameras).
+
+    Example: replaybench fixtures --out /tmp/bags --frames 300 --size 1920x1080
+    """
+    from replaybench.errors import UsageError
+    from replaybench.fixtures import generate_fixtures
+
+    try:
+        w, _, h = size.lower().partition('x')
+        if not (w.isdigit() and h.isdigit() and int(w) >= 32 and int(h) >= 32):
+            msg = f'invalid --size {size!r}: use WxH with both at least 32, e.g. 640x480'
+            raise UsageError(msg)
+        paths = generate_fixtures(out, frames=frames, size=(int(w), int(h)))
+    except ReplaybenchError as err:
+        raise _fail(err) from None
+    for path in paths:
+        typer.echo(str(path))
+
+
+@app.command()
+def report(
+    run_dir: Annotated[
+        Path, typer.Argument(help='A run folder written by `replaybench run`.', show_default=False)
+    ],
+) -> None:
+    """Render report.html again from a run folder (run.json, frames.csv, samples/).
+
+    Example: replaybench report replaybench-runs/20261122-101500
+    """
+    from replaybench.report import render_report
+
+    try:
+        path = render_report(run_dir)
+    except ReplaybenchError as err:
+        raise _fail(err) from None
+    typer.echo(f'Report: {path}')
+
+
+def main() -> None:
+    """Console-script entry point."""
+    try:
+        app()
+    except KeyboardInterrupt:
+        sys.stderr.write('replaybench: interrupted\n')
+        sys.exit(EXIT_INTERRUPTED)
+
+
+if __name__ == '__main__':
+    main()

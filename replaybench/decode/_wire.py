@@ -1,0 +1,136 @@
+"""Hand-written readers for the fixed layouts of sensor_msgs Image and CompressedImage.
+
+They read the few header fields and return where the payload lies in the buffer, so the
+payload is never copied. CDR: a 4-byte encapsulation header, then fields aligned to their size
+relative to the byte after it (every field here aligns to at most 4, and the header is 4 bytes,
+so absolute offsets align the same way); strings carry a trailing NUL in their length.
+ROS 1: little endian, no alignment, no NUL.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import NamedTuple
+
+from replaybench.errors import DecodeError
+
+__all__ = ['CompressedFields', 'ImageFields', 'as_bytes_view', 'parse_compressed', 'parse_image']
+
+
+class ImageFields(NamedTuple):
+    """The header fields of a sensor_msgs/Image and where its pixel data lies."""
+
+    stamp_ns: int
+    frame_id: str
+    height: int
+    width: int
+    encoding: str
+    is_bigendian: int
+    step: int
+    offset: int
+    size: int
+
+
+class CompressedFields(NamedTuple):
+    """The header fields of a sensor_msgs/CompressedImage and where its payload lies."""
+
+    stamp_ns: int
+    frame_id: str
+    format: str
+    offset: int
+    size: int
+
+
+class _Layout(NamedTuple):
+    u32: struct.Struct
+    u32x2: struct.Struct
+    stamp: struct.Struct
+    start: int  # offset of the header stamp
+    align: int  # alignment mask (3 for CDR, 0 for ROS 1)
+    nul: bool  # strings count a trailing NUL
+
+
+_CDR_LE = _Layout(struct.Struct('<I'), struct.Struct('<II'), struct.Struct('<iI'), 4, 3, True)
+_CDR_BE = _Layout(struct.Struct('>I'), struct.Struct('>II'), struct.Struct('>iI'), 4, 3, True)
+# ROS 1: header.seq u32, then stamp secs u32 / nsecs u32
+_ROS1 = _Layout(struct.Struct('<I'), struct.Struct('<II'), struct.Struct('<II'), 4, 0, False)
+
+
+def as_bytes_view(data: memoryview | bytes) -> memoryview:
+    """``data`` as a flat unsigned-byte memoryview (no copy)."""
+    view = data if isinstance(data, memoryview) else memoryview(data)
+    if view.format != 'B' or view.ndim != 1:
+        view = view.cast('B')
+    return view
+
+
+def _layout(buf: memoryview, serialization: str) -> _Layout:
+    if serialization == 'ros1':
+        return _ROS1
+    if serialization != 'cdr':
+        msg = f'unsupported serialization {serialization!r}'
+        raise DecodeError(msg)
+    if len(buf) < 4 or buf[0] != 0 or buf[1] > 1:
+        msg = f'not a plain CDR message (encapsulation header {bytes(buf[:4]).hex()})'
+        raise DecodeError(msg)
+    return _CDR_LE if buf[1] == 1 else _CDR_BE
+
+
+def _string(buf: memoryview, pos: int, lay: _Layout) -> tuple[str, int]:
+    pos = (pos + lay.align) & ~lay.align
+    (n,) = lay.u32.unpack_from(buf, pos)
+    pos += 4
+    end = pos + n
+    if end > len(buf):
+        raise IndexError
+    stop = end - 1 if lay.nul and n and buf[end - 1] == 0 else end
+    return str(buf[pos:stop], 'utf-8', 'replace'), end
+
+
+def _header(buf: memoryview, lay: _Layout) -> tuple[int, str, int]:
+    sec, nsec = lay.stamp.unpack_from(buf, lay.start)
+    frame_id, pos = _string(buf, lay.start + 8, lay)
+    return sec * 1_000_000_000 + nsec, frame_id, pos
+
+
+def _payload(buf: memoryview, pos: int, lay: _Layout) -> tuple[int, int]:
+    pos = (pos + lay.align) & ~lay.align
+    (size,) = lay.u32.unpack_from(buf, pos)
+    pos += 4
+    if pos + size > len(buf):
+        msg = f'data length {size} runs past the end of the message ({len(buf) - pos} bytes left)'
+        raise DecodeError(msg)
+    return pos, size
+
+
+def parse_image(buf: memoryview, serialization: str) -> ImageFields:
+    """Read a sensor_msgs/Image (``'cdr'`` or ``'ros1'``) without touching its pixels."""
+    lay = _layout(buf, serialization)
+    try:
+        stamp_ns, frame_id, pos = _header(buf, lay)
+        pos = (pos + lay.align) & ~lay.align
+        height, width = lay.u32x2.unpack_from(buf, pos)
+        encoding, pos = _string(buf, pos + 8, lay)
+        is_bigendian = buf[pos]
+        pos = (pos + 1 + lay.align) & ~lay.align
+        (step,) = lay.u32.unpack_from(buf, pos)
+        offset, size = _payload(buf, pos + 4, lay)
+    except (struct.error, IndexError):
+        msg = f'truncated sensor_msgs/Image message ({len(buf)} bytes)'
+        raise DecodeError(msg) from None
+    return ImageFields(
+        stamp_ns, frame_id, height, width, encoding, is_bigendian, step, offset, size
+    )
+
+
+def parse_compressed(buf: memoryview, serialization: str) -> CompressedFields:
+    """Read a sensor_msgs/CompressedImage (``'cdr'`` or ``'ros1'``) without copying its data."""
+    lay = _layout(buf, serialization)
+    try:
+        stamp_ns, frame_id, pos = _header(buf, lay)
+        fmt, pos = _string(buf, pos, lay)
+        offset, size = _payload(buf, pos, lay)
+    except (struct.error, IndexError):
+        msg = f'truncated sensor_msgs/CompressedImage message ({len(buf)} bytes)'
+        raise DecodeError(msg) from None
+    return CompressedFields(stamp_ns, frame_id, fmt, offset, size)

@@ -1,0 +1,221 @@
+"""CameraInfo decoding, and matching camera_info topics and messages to image frames."""
+
+from __future__ import annotations
+
+import bisect
+import functools
+from typing import TYPE_CHECKING, Any
+
+from replaybench.decode.kinds import message_kind
+from replaybench.errors import DecodeError
+from replaybench.types import CameraInfo
+
+if TYPE_CHECKING:
+    from collections.abc import Collection, Iterable
+
+    from replaybench.decode.kinds import MessageSource
+    from replaybench.types import RawMessage
+
+__all__ = [
+    'TRANSPORT_SUFFIXES',
+    'CameraInfoIndex',
+    'camera_info_topic_for',
+    'camera_namespace',
+    'decode_camera_info',
+]
+
+CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
+
+#: Last topic components image_transport plugins append to the base image topic.
+TRANSPORT_SUFFIXES = frozenset(
+    {'compressed', 'compressedDepth', 'theora', 'zstd', 'ffmpeg', 'h264', 'qoi'}
+)
+
+
+@functools.cache
+def _rosbags_store(ros1: bool) -> Any:
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+
+
+def _floats(values: Any) -> tuple[float, ...]:
+    return tuple(float(v) for v in values)
+
+
+def _from_ros(msg: RawMessage) -> CameraInfo:
+    ros1 = msg.serialization == 'ros1'
+    store = _rosbags_store(ros1)
+    try:
+        if ros1:
+            m = store.deserialize_ros1(msg.data, CAMERA_INFO)
+            d, k, r, p = m.D, m.K, m.R, m.P
+        else:
+            m = store.deserialize_cdr(msg.data, CAMERA_INFO)
+            d, k, r, p = m.d, m.k, m.r, m.p
+    except Exception as err:
+        text = f'invalid sensor_msgs/CameraInfo ({msg.serialization}) on {msg.topic}: {err}'
+        raise DecodeError(text) from None
+    stamp = m.header.stamp
+    roi = m.roi
+    return CameraInfo(
+        stamp_ns=int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec),
+        frame_id=m.header.frame_id,
+        width=int(m.width),
+        height=int(m.height),
+        distortion_model=m.distortion_model,
+        d=_floats(d),
+        k=_floats(k),
+        r=_floats(r),
+        p=_floats(p),
+        binning_x=int(m.binning_x),
+        binning_y=int(m.binning_y),
+        roi=(
+            int(roi.x_offset),
+            int(roi.y_offset),
+            int(roi.height),
+            int(roi.width),
+            bool(roi.do_rectify),
+        ),
+        log_time_ns=msg.log_time_ns,
+        topic=msg.topic,
+    )
+
+
+def _from_foxglove(msg: RawMessage) -> CameraInfo:
+    from replaybench.decode._protobuf import parse_protobuf, stamp_ns
+
+    pb = parse_protobuf(msg)
+    return CameraInfo(
+        stamp_ns=stamp_ns(pb.timestamp),
+        frame_id=pb.frame_id,
+        width=int(pb.width),
+        height=int(pb.height),
+        distortion_model=pb.distortion_model,
+        d=_floats(pb.D),
+        k=_floats(pb.K),
+        r=_floats(pb.R),
+        p=_floats(pb.P),
+        log_time_ns=msg.log_time_ns,
+        topic=msg.topic,
+    )
+
+
+def decode_camera_info(msg: RawMessage) -> CameraInfo:
+    """Decode sensor_msgs/CameraInfo (cdr, ros1) or foxglove.CameraCalibration (protobuf)."""
+    if message_kind(msg.msgtype) != 'camera_info':
+        text = f'{msg.msgtype} is not a camera info message'
+        raise DecodeError(text)
+    foxglove = msg.msgtype.startswith('foxglove.')
+    if foxglove != (msg.serialization == 'protobuf'):
+        text = f'{msg.msgtype} in {msg.serialization} serialization is not supported'
+        raise DecodeError(text)
+    return _from_foxglove(msg) if foxglove else _from_ros(msg)
+
+
+def camera_namespace(image_topic: str) -> str:
+    """The camera namespace of an image topic, without leading or trailing slashes.
+
+    A trailing transport suffix is dropped, then the image name: '/cam/image_raw/compressed'
+    -> 'cam'.
+    """
+    parts = image_topic.strip('/').split('/')
+    if len(parts) > 1 and parts[-1] in TRANSPORT_SUFFIXES:
+        parts.pop()
+    return '/'.join(parts[:-1])
+
+
+def camera_info_topic_for(
+    image_topic: str, candidates: Iterable[str], image_topics: Iterable[str] | None = None
+) -> str | None:
+    """The camera_info topic belonging to ``image_topic`` among ``candidates``.
+
+    '<namespace>/camera_info' when present. Otherwise, when there is exactly one candidate and
+    every image topic (``image_topics``, or just ``image_topic`` when not given) lies in one
+    camera namespace, that candidate. Else None.
+    """
+    names = list(candidates)
+    ns = camera_namespace(image_topic)
+    wanted = f'{ns}/camera_info' if ns else 'camera_info'
+    for name in names:
+        if name.strip('/') == wanted:
+            return name
+    if len(names) != 1:
+        return None
+    others = [image_topic] if image_topics is None else [*image_topics, image_topic]
+    if {camera_namespace(t) for t in others} == {ns}:
+        return names[0]
+    return None
+
+
+class CameraInfoIndex:
+    """CameraInfo messages by topic, looked up for an image frame by nearest header stamp."""
+
+    def __init__(
+        self,
+        infos: Iterable[CameraInfo] = (),
+        image_topics: Iterable[str] | None = None,
+        *,
+        skipped: int = 0,
+    ) -> None:
+        self._all = list(infos)
+        by_topic: dict[str, list[CameraInfo]] = {}
+        for info in self._all:
+            by_topic.setdefault(info.topic, []).append(info)
+        self._infos = {t: sorted(v, key=lambda i: i.stamp_ns) for t, v in by_topic.items()}
+        self._stamps = {t: [i.stamp_ns for i in v] for t, v in self._infos.items()}
+        self._image_topics = None if image_topics is None else list(image_topics)
+        self._topic_for: dict[str, str | None] = {}
+        #: Messages of the camera_info topics that could not be decoded.
+        self.skipped = skipped
+
+    @classmethod
+    def from_source(
+        cls, source: MessageSource, camera_info_topics: Collection[str]
+    ) -> CameraInfoIndex:
+        """Read every message of ``camera_info_topics`` (skipping undecodable ones)."""
+        image_topics = [
+            t.name
+            for t in source.topics()
+            if message_kind(t.msgtype) in {'image', 'compressed_image'}
+        ]
+        infos: list[CameraInfo] = []
+        skipped = 0
+        if camera_info_topics:
+            for raw in source.messages(topics=list(camera_info_topics)):
+                try:
+                    infos.append(decode_camera_info(raw))
+                except DecodeError:
+                    skipped += 1
+        return cls(infos, image_topics, skipped=skipped)
+
+    def __len__(self) -> int:
+        return len(self._all)
+
+    def topics(self) -> list[str]:
+        """The camera_info topics holding at least one message, sorted."""
+        return sorted(self._infos)
+
+    def all(self) -> list[CameraInfo]:
+        """Every CameraInfo in the order it was read."""
+        return list(self._all)
+
+    def topic_for(self, image_topic: str) -> str | None:
+        """The camera_info topic used for ``image_topic`` (cached)."""
+        try:
+            return self._topic_for[image_topic]
+        except KeyError:
+            topic = camera_info_topic_for(image_topic, self._infos, self._image_topics)
+            self._topic_for[image_topic] = topic
+            return topic
+
+    def lookup(self, image_topic: str, stamp_ns: int) -> CameraInfo | None:
+        """The CameraInfo of ``image_topic``'s camera nearest to ``stamp_ns``; ties -> earlier."""
+        topic = self.topic_for(image_topic)
+        if topic is None:
+            return None
+        stamps = self._stamps[topic]
+        i = bisect.bisect_left(stamps, stamp_ns)
+        if i == len(stamps) or (i > 0 and stamp_ns - stamps[i - 1] <= stamps[i] - stamp_ns):
+            i -= 1
+        return self._infos[topic][i]

@@ -1,0 +1,42 @@
+"""The few error classes of replaybench.
+
+Every error the CLI turns into one line on stderr derives from ``ReplaybenchError``;
+``exit_code`` is the process exit status the CLI uses for it.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    'BackendError',
+    'BackendUnavailableError',
+    'DecodeError',
+    'ReplaybenchError',
+    'SourceError',
+    'UsageError',
+]
+
+
+class ReplaybenchError(Exception):
+    """Base of all replaybench errors."""
+
+    exit_code = 2
+
+
+class UsageError(ReplaybenchError):
+    """Bad options or arguments."""
+
+
+class SourceError(ReplaybenchError):
+    """A container that cannot be opened or read at all."""
+
+
+class DecodeError(ReplaybenchError):
+    """One message that cannot be decoded; the replay skips it and counts it."""
+
+
+class BackendError(ReplaybenchError):
+    """A backend that cannot be configured or fails while running."""
+
+
+class BackendUnavailableError(BackendError):
+    """A backend whose hardware or libraries are missing on this machine."""

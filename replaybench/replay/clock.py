@@ -1,0 +1,48 @@
+"""Clocks the scheduler runs on: the real monotonic clock, and a virtual one for tests."""
+
+from __future__ import annotations
+
+import time
+from typing import Protocol
+
+__all__ = ['Clock', 'MonotonicClock', 'VirtualClock']
+
+
+class Clock(Protocol):
+    """Seconds on a monotonic time line, and a way to wait for a point on it."""
+
+    def now(self) -> float: ...
+
+    def sleep_until(self, t: float) -> None: ...
+
+
+class MonotonicClock:
+    """``time.perf_counter``; ``sleep_until`` sleeps, then spins the last half millisecond."""
+
+    def now(self) -> float:
+        return time.perf_counter()
+
+    def sleep_until(self, t: float) -> None:
+        while True:
+            left = t - time.perf_counter()
+            if left <= 0:
+                return
+            if left > 0.0015:
+                time.sleep(left - 0.001)
+
+
+class VirtualClock:
+    """A clock that moves only when told to: ``sleep_until`` jumps, ``advance`` adds."""
+
+    def __init__(self, start: float = 0.0) -> None:
+        self._t = start
+
+    def now(self) -> float:
+        return self._t
+
+    def sleep_until(self, t: float) -> None:
+        self._t = max(self._t, t)
+
+    def advance(self, seconds: float) -> None:
+        """Let ``seconds`` pass, as a backend of declared service time does inside ``detect``."""
+        self._t += seconds

@@ -1,0 +1,246 @@
+"""One row per (backend, frame): the ``FrameRecord`` model and the frames.csv reader/writer."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal, NamedTuple, get_args
+
+from replaybench.errors import SourceError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterable
+    from types import TracebackType
+    from typing import IO, Self
+
+__all__ = [
+    'FRAMES_CSV_COLUMNS',
+    'FrameRecord',
+    'FrameStatus',
+    'FramesCsvWriter',
+    'read_frames_csv',
+]
+
+FrameStatus = Literal['ok', 'dropped', 'skipped']
+
+_STATUSES: frozenset[str] = frozenset(get_args(FrameStatus))
+
+
+class FrameRecord(NamedTuple):
+    """One frames.csv row: what happened to one frame in one backend.
+
+    Times ending in ``_s`` are seconds since the backend's replay start; ``_ms`` are durations.
+    ``None`` means the value does not apply (a stage the backend does not have, or a frame that
+    was dropped or skipped) and is written as an empty cell.
+    """
+
+    input: int
+    backend: str
+    topic: str
+    seq: int
+    log_time_ns: int
+    stamp_ns: int | None
+    status: FrameStatus
+    note: str
+    warmup: bool
+    dropped: bool
+    release_s: float
+    start_s: float | None = None
+    done_s: float | None = None
+    queue_wait_ms: float | None = None
+    read_decode_ms: float | None = None
+    preprocess_ms: float | None = None
+    infer_ms: float | None = None
+    postprocess_ms: float | None = None
+    h2d_ms: float | None = None
+    d2h_ms: float | None = None
+    latency_ms: float | None = None
+    detections: int | None = None
+
+
+FRAMES_CSV_COLUMNS: tuple[str, ...] = FrameRecord._fields
+
+_INT_FIELDS = frozenset({'input', 'seq', 'log_time_ns', 'stamp_ns', 'detections'})
+_BOOL_FIELDS = frozenset({'warmup', 'dropped'})
+_STR_FIELDS = frozenset({'backend', 'topic', 'status', 'note'})
+_OPTIONAL_FIELDS = frozenset(
+    {
+        'stamp_ns',
+        'start_s',
+        'done_s',
+        'queue_wait_ms',
+        'read_decode_ms',
+        'preprocess_ms',
+        'infer_ms',
+        'postprocess_ms',
+        'h2d_ms',
+        'd2h_ms',
+        'latency_ms',
+        'detections',
+    },
+)
+
+
+def _float_format(name: str) -> str:
+    return '.6f' if name.endswith('_s') else '.4f'
+
+
+_FORMATS: tuple[tuple[str, str], ...] = tuple(
+    (name, _float_format(name))
+    for name in FRAMES_CSV_COLUMNS
+    if name not in _INT_FIELDS | _BOOL_FIELDS | _STR_FIELDS
+)
+_FLOAT_FORMAT = dict(_FORMATS)
+
+
+def _cell(name: str, value: object) -> str:
+    if value is None:
+        return ''
+    if name in _BOOL_FIELDS:
+        return '1' if value else '0'
+    if name in _FLOAT_FORMAT:
+        number = float(value)  # type: ignore[arg-type]
+        if not math.isfinite(number):
+            return ''
+        text = format(number, _FLOAT_FORMAT[name])
+        return '0' + text[2:] if text.startswith('-0') and float(text) == 0 else text
+    if name in _INT_FIELDS:
+        return str(int(value))  # type: ignore[call-overload]
+    return str(value)
+
+
+def _row(record: FrameRecord) -> list[str]:
+    return [_cell(name, value) for name, value in zip(FRAMES_CSV_COLUMNS, record, strict=True)]
+
+
+def _parse_bool(text: str) -> bool:
+    if text in {'1', 'true', 'True'}:
+        return True
+    if text in {'0', 'false', 'False', ''}:
+        return False
+    msg = f'not a boolean: {text!r}'
+    raise ValueError(msg)
+
+
+def _parser(name: str) -> Callable[[str], object]:
+    if name in _BOOL_FIELDS:
+        return _parse_bool
+    if name in _INT_FIELDS:
+        return int
+    if name in _FLOAT_FORMAT:
+        return float
+    return str
+
+
+_PARSERS: tuple[tuple[str, Callable[[str], object]], ...] = tuple(
+    (name, _parser(name)) for name in FRAMES_CSV_COLUMNS
+)
+
+
+def _parse_row(cells: list[str]) -> FrameRecord:
+    values: list[object] = []
+    for (name, parse), text in zip(_PARSERS, cells, strict=True):
+        if text == '' and name in _OPTIONAL_FIELDS:
+            values.append(None)
+        else:
+            values.append(parse(text))
+    record = FrameRecord(*values)  # type: ignore[arg-type]
+    if record.status not in _STATUSES:
+        msg = f'unknown status {record.status!r}'
+        raise ValueError(msg)
+    return record
+
+
+class FramesCsvWriter:
+    """Stream ``FrameRecord`` rows to frames.csv.
+
+    Rows go to ``<path>.part`` (flushed every ``flush_every`` rows, so a killed process leaves
+    the rows done so far); ``close()`` renames it to ``path``. Used as a context manager it
+    closes on exit also when an exception is raised, so an interrupted run still leaves a
+    complete CSV holding the rows written before the interruption.
+    """
+
+    def __init__(self, path: str | Path, *, flush_every: int = 100) -> None:
+        self.path = Path(path)
+        self.part_path = self.path.with_name(self.path.name + '.part')
+        self._flush_every = max(1, flush_every)
+        self._file: IO[str] | None = self.part_path.open('w', newline='', encoding='utf-8')
+        self._csv = csv.writer(self._file, lineterminator='\n')
+        self._csv.writerow(FRAMES_CSV_COLUMNS)
+        self._pending = 0
+        self.rows = 0
+
+    @property
+    def closed(self) -> bool:
+        """True once ``close()`` has run."""
+        return self._file is None
+
+    def write(self, record: FrameRecord) -> None:
+        """Append one row."""
+        if self._file is None:
+            msg = f'{self.path}: writer is closed'
+            raise ValueError(msg)
+        self._csv.writerow(_row(record))
+        self.rows += 1
+        self._pending += 1
+        if self._pending >= self._flush_every:
+            self._file.flush()
+            self._pending = 0
+
+    def write_many(self, records: Iterable[FrameRecord]) -> None:
+        """Append several rows."""
+        for record in records:
+            self.write(record)
+
+    def close(self) -> None:
+        """Flush, sync and move the file into place; a second call does nothing."""
+        if self._file is None:
+            return
+        file, self._file = self._file, None
+        try:
+            file.flush()
+            os.fsync(file.fileno())
+        finally:
+            file.close()
+        self.part_path.replace(self.path)
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def read_frames_csv(path: str | Path) -> list[FrameRecord]:
+    """Read a frames.csv written by ``FramesCsvWriter``; SourceError when it is not one."""
+    path = Path(path)
+    try:
+        with path.open(newline='', encoding='utf-8') as file:
+            reader = csv.reader(file)
+            header = next(reader, None)
+            if header is None or tuple(header) != FRAMES_CSV_COLUMNS:
+                msg = f'{path}: not a frames.csv (header does not match the expected columns)'
+                raise SourceError(msg) from None
+            records = []
+            for cells in reader:
+                if not cells:
+                    continue
+                try:
+                    records.append(_parse_row(cells))
+                except ValueError as err:
+                    msg = f'{path}:{reader.line_num}: bad row: {err}'
+                    raise SourceError(msg) from None
+    except OSError as err:
+        msg = f'{path}: cannot read frames.csv: {err.strerror or err}'
+        raise SourceError(msg) from None
+    except csv.Error as err:
+        msg = f'{path}: not a valid CSV: {err}'
+        raise SourceError(msg) from None
+    return records

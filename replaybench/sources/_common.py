@@ -1,0 +1,101 @@
+"""Helpers shared by the container readers: type names, decompression, read-only mapping."""
+
+from __future__ import annotations
+
+import contextlib
+import mmap
+import os
+from typing import TYPE_CHECKING
+
+from replaybench.errors import SourceError
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+__all__ = [
+    'MappedFile',
+    'decompress',
+    'decompress_partial',
+    'normalize_msgtype',
+    'normalize_topic',
+]
+
+
+def normalize_msgtype(name: str) -> str:
+    """ROS 2 spelling of a message type name.
+
+    ``sensor_msgs/Image`` (ROS 1) and ``sensor_msgs::msg::Image`` (IDL) both become
+    ``sensor_msgs/msg/Image``; names already in ROS 2 spelling are returned unchanged.
+    """
+    parts = [part for part in name.strip().replace('::', '/').split('/') if part]
+    if len(parts) == 2:
+        return f'{parts[0]}/msg/{parts[1]}'
+    return '/'.join(parts)
+
+
+def normalize_topic(name: str) -> str:
+    """Topic name with repeated slashes collapsed, as rosbags spells ROS 1 topics."""
+    if not name:
+        return name
+    lead = '/' if name[0] == '/' else ''
+    return lead + '/'.join(part for part in name.split('/') if part)
+
+
+def decompress(data: memoryview, compression: str, size: int) -> bytes:
+    """Decompress one whole chunk; ``size`` is its uncompressed size."""
+    if compression == 'zstd':
+        import zstandard
+
+        return bytes(zstandard.ZstdDecompressor().decompress(data, max_output_size=size))
+    if compression == 'lz4':
+        import lz4.frame
+
+        return bytes(lz4.frame.decompress(data))
+    if compression == 'bz2':
+        import bz2
+
+        return bz2.decompress(data)
+    msg = f'compression {compression!r} is not supported'
+    raise ValueError(msg)
+
+
+def decompress_partial(data: memoryview, compression: str) -> bytes:
+    """Decompress as much as possible of a chunk whose end is missing."""
+    if compression == 'zstd':
+        import zstandard
+
+        return bytes(zstandard.ZstdDecompressor().decompressobj().decompress(data))
+    if compression == 'lz4':
+        import lz4.frame
+
+        return bytes(lz4.frame.LZ4FrameDecompressor().decompress(data))
+    if compression == 'bz2':
+        import bz2
+
+        return bz2.BZ2Decompressor().decompress(data)
+    msg = f'compression {compression!r} is not supported'
+    raise ValueError(msg)
+
+
+class MappedFile:
+    """A file opened ``'rb'`` and mapped with ``mmap.ACCESS_READ``."""
+
+    def __init__(self, path: Path) -> None:
+        try:
+            with path.open('rb') as handle:
+                self.size = os.fstat(handle.fileno()).st_size
+                if self.size == 0:
+                    msg = f'{path}: file is empty'
+                    raise SourceError(msg)
+                self.map = mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
+        except OSError as err:
+            msg = f'{path}: cannot read: {err.strerror or err}'
+            raise SourceError(msg) from None
+        self.path = path
+        self.view = memoryview(self.map)
+
+    def close(self) -> None:
+        """Unmap; a mapping still referenced by yielded messages is freed when they are."""
+        with contextlib.suppress(BufferError):
+            self.view.release()
+            self.map.close()

@@ -1,0 +1,332 @@
+"""rosbag2: bag directories (metadata.yaml + .db3 or .mcap files) and bare ``.db3`` files.
+
+A directory with uncompressed mcap storage is read file by file with the fast MCAP reader
+(:class:`~replaybench.sources.mcap.McapSource`) and its files merged into one replay order.
+sqlite3 storage and compressed bags are read with ``rosbags``: each file's stream is
+re-ordered within equal timestamps (by topic) and the files are merged by
+(log time, topic, file, position), so a split bag replays as one input.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+from pathlib import Path, PurePath
+from typing import TYPE_CHECKING, Any
+
+from replaybench.errors import SourceError
+from replaybench.types import RawMessage, TopicInfo
+
+from ._common import normalize_msgtype
+from ._table import Channel
+from .mcap import McapSource
+
+if TYPE_CHECKING:
+    from collections.abc import Collection, Iterable, Iterator
+    from types import TracebackType
+    from typing import Self
+
+    from rosbags.interfaces import Connection
+    from rosbags.rosbag2 import Reader
+
+__all__ = ['RosbagsSource', 'open_rosbag2']
+
+#: (log time, topic, file number, position in file, channel, data)
+_Item = tuple[int, str, int, int, Channel, bytes]
+
+
+def _one_line(err: BaseException) -> str:
+    text = ' '.join(str(err).split())
+    return text or type(err).__name__
+
+
+def _metadata(path: Path) -> dict[str, Any]:
+    from ruamel.yaml import YAML
+
+    meta = path / 'metadata.yaml'
+    if not meta.is_file():
+        msg = f'{path}: directory has no metadata.yaml (not a rosbag2 bag)'
+        raise SourceError(msg)
+    try:
+        with meta.open('rb') as handle:
+            doc = YAML(typ='safe').load(handle)
+        info = doc['rosbag2_bagfile_information']
+        if not isinstance(info, dict):
+            raise TypeError
+    except OSError as err:
+        msg = f'{meta}: cannot read: {err.strerror or err}'
+        raise SourceError(msg) from None
+    except Exception as err:
+        msg = f'{meta}: not valid rosbag2 metadata ({_one_line(err)})'
+        raise SourceError(msg) from None
+    return info
+
+
+def open_rosbag2(path: str | Path) -> McapSource | RosbagsSource:
+    """Open a rosbag2 directory or a bare ``.db3`` file."""
+    path = Path(path)
+    files = [path]
+    if path.is_dir():
+        info = _metadata(path)
+        try:
+            files = [path / PurePath(name).name for name in info['relative_file_paths']]
+            storage = str(info.get('storage_identifier', ''))
+            mode = str(info.get('compression_mode', '') or '').lower()
+        except (KeyError, TypeError) as err:
+            msg = f'{path / "metadata.yaml"}: not valid rosbag2 metadata ({_one_line(err)})'
+            raise SourceError(msg) from None
+        if missing := [file.name for file in files if not file.is_file()]:
+            msg = f'{path}: data files listed in metadata.yaml are missing: {", ".join(missing)}'
+            raise SourceError(msg)
+        if storage == 'mcap' and mode in ('', 'none', 'storage'):  # storage: compressed chunks
+            return McapSource(path, files, fmt='rosbag2')
+
+    from rosbags.rosbag2 import Reader
+
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as err:
+        msg = f'{path}: cannot read rosbag2 bag: {_one_line(err)}'
+        raise SourceError(msg) from None
+    return RosbagsSource(path, reader, files)
+
+
+def _ties_by_topic(items: Iterable[_Item]) -> Iterator[_Item]:
+    """Re-order runs of equal log time by topic, keeping file order within a topic."""
+    group: list[_Item] = []
+    for item in items:
+        if group and item[0] != group[0][0]:
+            group.sort(key=lambda x: x[1])
+            yield from group
+            group.clear()
+        group.append(item)
+    group.sort(key=lambda x: x[1])
+    yield from group
+
+
+def _merge_key(item: _Item) -> tuple[int, str, int, int]:
+    return item[0], item[1], item[2], item[3]
+
+
+class RosbagsSource:
+    """A rosbag2 bag read through ``rosbags`` (sqlite3 storage, compressed bags)."""
+
+    def __init__(self, path: Path, reader: Reader, files: list[Path]) -> None:
+        self.path = path
+        self.format = 'rosbag2'
+        self.files = files
+        self._reader = reader
+        self._closed = False
+        self._truncated = False
+        self._warnings: list[str] = []
+        storage = reader.storage
+        storages = getattr(storage, 'storages', None)
+        self._storages: list[Any] = list(storages) if storages is not None else [storage]
+        self._message_compressed = reader.compression_mode == 'message'
+        self._chmaps: list[dict[int, Channel]] = []
+        for sub in self._storages:
+            chmap: dict[int, Channel] = {}
+            for conn in sub.connections:
+                fmt = getattr(conn.ext, 'serialization_format', 'cdr')
+                if fmt != 'cdr':
+                    self._warn(
+                        f'topic {conn.topic}: serialization {fmt!r} is not supported; skipped'
+                    )
+                    continue
+                chmap[conn.id] = Channel(conn.topic, normalize_msgtype(conn.msgtype), 'cdr', b'')
+            self._chmaps.append(chmap)
+        self._topics: list[TopicInfo] | None = None
+
+    # -- Source API -----------------------------------------------------------------------
+
+    @property
+    def truncated(self) -> bool:
+        """True when reading stopped at a damaged or cut file."""
+        return self._truncated
+
+    @property
+    def warnings(self) -> list[str]:
+        """Human-readable lines about truncation and skipped topics."""
+        return list(self._warnings)
+
+    def topics(self) -> list[TopicInfo]:
+        """Topics sorted by name, with message counts and first / last log times."""
+        self._check_open()
+        if self._topics is None:
+            stats: dict[str, list[int]] = {}
+            first_channel: dict[str, Channel] = {}
+            for i, sub in enumerate(self._storages):
+                per_conn = self._stats(i, sub)
+                for cid, channel in self._chmaps[i].items():
+                    first_channel.setdefault(channel.topic, channel)
+                    acc = stats.setdefault(channel.topic, [0, 0, 0])
+                    count, first, last = per_conn.get(cid, (0, 0, 0))
+                    if count:
+                        acc[1] = first if not acc[0] else min(acc[1], first)
+                        acc[2] = last if not acc[0] else max(acc[2], last)
+                        acc[0] += count
+            self._topics = [
+                TopicInfo(name, first_channel[name].msgtype, 'cdr', *stats[name])
+                for name in sorted(stats)
+            ]
+        return list(self._topics)
+
+    def messages(
+        self,
+        topics: Collection[str] | None = None,
+        start_ns: int | None = None,
+        end_ns: int | None = None,
+    ) -> Iterator[RawMessage]:
+        """Messages in replay order; ``start_ns`` inclusive, ``end_ns`` exclusive (log time)."""
+        self._check_open()
+        wanted = None if topics is None else ({topics} if isinstance(topics, str) else set(topics))
+        if start_ns is not None and end_ns is not None and end_ns <= start_ns:
+            return iter(())
+        streams: list[Iterator[_Item]] = []
+        for i, sub in enumerate(self._storages):
+            chmap = self._chmaps[i]
+            conns = [
+                conn
+                for conn in sub.connections
+                if conn.id in chmap and (wanted is None or chmap[conn.id].topic in wanted)
+            ]
+            if conns:
+                streams.append(_ties_by_topic(self._read(i, sub, conns, start_ns, end_ns)))
+        if not streams:
+            return iter(())
+        seq = self._counts_before(start_ns, wanted) if start_ns is not None else {}
+        return self._generate(streams, seq)
+
+    def close(self) -> None:
+        """Close the underlying rosbags reader."""
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(Exception):
+            self._reader.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f'{type(self).__name__}({str(self.path)!r})'
+
+    # -- internals ------------------------------------------------------------------------
+
+    def _warn(self, line: str) -> None:
+        if line not in self._warnings:
+            self._warnings.append(line)
+
+    def _check_open(self) -> None:
+        if self._closed:
+            msg = f'{self.path}: source is closed'
+            raise SourceError(msg)
+
+    def _file_name(self, i: int) -> str:
+        return self.files[i].name if i < len(self.files) else self.path.name
+
+    def _generate(
+        self, streams: list[Iterator[_Item]], seq: dict[str, int]
+    ) -> Iterator[RawMessage]:
+        merged = streams[0] if len(streams) == 1 else heapq.merge(*streams, key=_merge_key)
+        for log_time, topic, _, _, channel, data in merged:
+            n = seq.get(topic, 0)
+            seq[topic] = n + 1
+            yield RawMessage(topic, channel.msgtype, 'cdr', log_time, n, data, b'')
+
+    def _read(
+        self,
+        i: int,
+        sub: Any,
+        conns: list[Connection],
+        start_ns: int | None,
+        end_ns: int | None,
+    ) -> Iterator[_Item]:
+        chmap = self._chmaps[i]
+        decompress = _zstd_decompressor() if self._message_compressed else None
+        n = 0
+        try:
+            for conn, log_time, data in sub.messages(conns, start_ns, end_ns):
+                channel = chmap[conn.id]
+                payload = decompress(data) if decompress else data
+                yield log_time, channel.topic, i, n, channel, payload
+                n += 1
+        except Exception as err:
+            if self._closed:
+                return
+            self._truncated = True
+            self._warn(
+                f'{self._file_name(i)}: read error after {n} messages ({_one_line(err)}); '
+                'replaying the messages before it'
+            )
+
+    def _stats(self, i: int, sub: Any) -> dict[int, tuple[int, int, int]]:
+        """Per connection id: (count, first log time, last log time)."""
+        db = getattr(sub, 'dbconn', None)
+        try:
+            if db is not None:
+                rows = db.execute(
+                    'SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp) '
+                    'FROM messages GROUP BY topic_id'
+                ).fetchall()
+                return {int(r[0]): (int(r[1]), int(r[2]), int(r[3])) for r in rows}
+            stats: dict[int, tuple[int, int, int]] = {}
+            for conn, log_time, _ in sub.messages(list(sub.connections)):
+                count, first, last = stats.get(conn.id, (0, log_time, log_time))
+                stats[conn.id] = (count + 1, min(first, log_time), max(last, log_time))
+        except Exception as err:
+            self._truncated = True
+            self._warn(f'{self._file_name(i)}: cannot count messages ({_one_line(err)})')
+            return {}
+        return stats
+
+    def _counts_before(self, start_ns: int, wanted: set[str] | None) -> dict[str, int]:
+        """Messages per topic logged before ``start_ns`` (the seq of the first one yielded)."""
+        counts: dict[str, int] = {}
+        for i, sub in enumerate(self._storages):
+            chmap = self._chmaps[i]
+            per_conn: dict[int, int] = {}
+            db = getattr(sub, 'dbconn', None)
+            try:
+                if db is not None:
+                    rows = db.execute(
+                        'SELECT topic_id, COUNT(*) FROM messages WHERE timestamp < ? '
+                        'GROUP BY topic_id',
+                        (start_ns,),
+                    ).fetchall()
+                    per_conn = {int(r[0]): int(r[1]) for r in rows}
+                else:
+                    conns = [
+                        conn
+                        for conn in sub.connections
+                        if conn.id in chmap and (wanted is None or chmap[conn.id].topic in wanted)
+                    ]
+                    for conn, _, _ in sub.messages(conns, None, start_ns):
+                        per_conn[conn.id] = per_conn.get(conn.id, 0) + 1
+            except Exception as err:
+                self._warn(f'{self._file_name(i)}: cannot count messages ({_one_line(err)})')
+            for cid, count in per_conn.items():
+                if cid in chmap:
+                    topic = chmap[cid].topic
+                    counts[topic] = counts.get(topic, 0) + count
+        return counts
+
+
+def _zstd_decompressor() -> Any:
+    import zstandard
+
+    dctx = zstandard.ZstdDecompressor()
+
+    def decompress(data: bytes) -> bytes:
+        return bytes(dctx.decompressobj().decompress(data))
+
+    return decompress

@@ -1,0 +1,147 @@
+"""Value types shared by every stage: source -> decode -> backend -> sink/metrics -> report.
+
+They are immutable (NamedTuples / frozen dataclasses) and know nothing of any library.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Literal, NamedTuple
+
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
+__all__ = [
+    'CANONICAL_ENCODINGS',
+    'BackendResult',
+    'CameraInfo',
+    'Detection',
+    'Frame',
+    'RawMessage',
+    'Serialization',
+    'StageTimes',
+    'TopicInfo',
+]
+
+Serialization = Literal['cdr', 'ros1', 'protobuf']
+
+#: Encodings a decoded ``Frame.image`` can have. Everything else (bayer, yuv, nv12, 8UC3, ...)
+#: is converted to one of these by the decoder.
+CANONICAL_ENCODINGS = frozenset({'rgb8', 'bgr8', 'rgba8', 'bgra8', 'mono8', 'mono16', '32FC1'})
+
+
+class RawMessage(NamedTuple):
+    """One undecoded message as a source yields it, in replay order.
+
+    ``data`` is a zero-copy view into the container where the container allows it.
+    ``seq`` is the 0-based index of the message within its topic in this source, in replay order.
+    ``msgtype`` uses ROS 2 spelling (``sensor_msgs/msg/Image``) for ROS 1 and ROS 2 sources
+    alike; protobuf channels use their schema name (``foxglove.RawImage``).
+    ``schema`` is the schema data protobuf decoding needs (a FileDescriptorSet); ``b''`` otherwise.
+    """
+
+    topic: str
+    msgtype: str
+    serialization: Serialization
+    log_time_ns: int
+    seq: int
+    data: memoryview | bytes
+    schema: bytes = b''
+
+
+class TopicInfo(NamedTuple):
+    """One topic of a container, as its index or a scan tells it."""
+
+    name: str
+    msgtype: str
+    serialization: Serialization
+    count: int  # type: ignore[assignment]
+    first_ns: int
+    last_ns: int
+
+
+@dataclass(frozen=True, slots=True)
+class CameraInfo:
+    """sensor_msgs/CameraInfo, ROS 2 field names."""
+
+    stamp_ns: int
+    frame_id: str
+    width: int
+    height: int
+    distortion_model: str
+    d: tuple[float, ...]
+    k: tuple[float, ...]
+    r: tuple[float, ...]
+    p: tuple[float, ...]
+    binning_x: int = 0
+    binning_y: int = 0
+    roi: tuple[int, int, int, int, bool] = (
+        0,
+        0,
+        0,
+        0,
+        False,
+    )  # x_offset, y_offset, height, width, do_rectify
+    log_time_ns: int = 0
+    topic: str = ''
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Frame:
+    """A decoded camera frame as a backend receives it.
+
+    ``image`` is HxW (mono) or HxWxC, dtype uint8 / uint16 / float32, laid out as ``encoding``
+    says (one of ``CANONICAL_ENCODINGS``); it may be a read-only view into the container.
+    ``source_encoding`` is what the message said (``rgb8``, ``bayer_rggb8``, ``jpeg``, ...).
+    """
+
+    topic: str
+    seq: int
+    log_time_ns: int
+    stamp_ns: int
+    frame_id: str
+    image: npt.NDArray[np.generic]
+    encoding: str
+    source_encoding: str
+    is_depth: bool = False
+    camera_info: CameraInfo | None = None
+    input_index: int = 0
+
+    @property
+    def width(self) -> int:
+        return int(self.image.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.image.shape[0])
+
+
+class Detection(NamedTuple):
+    """One detected object; the box is in source-image pixels, x0 < x1, y0 < y1."""
+
+    class_index: int
+    label: str
+    score: float
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+
+
+class StageTimes(NamedTuple):
+    """A backend's own stage timings in nanoseconds; None where a stage does not apply."""
+
+    preprocess_ns: int | None = None
+    infer_ns: int | None = None
+    postprocess_ns: int | None = None
+    h2d_ns: int | None = None
+    d2h_ns: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class BackendResult:
+    """What ``Backend.detect`` returns for one frame."""
+
+    detections: tuple[Detection, ...]
+    stages: StageTimes = field(default_factory=StageTimes)

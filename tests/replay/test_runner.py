@@ -1,0 +1,327 @@
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bagtools import image_msg, noise_frames, write_mcap
+
+from replaybench.backends.base import Availability, BackendOptions
+from replaybench.errors import DecodeError, SourceError, UsageError
+from replaybench.replay import Rate, VirtualClock
+from replaybench.replay.runner import RunConfig, default_warmup, run_benchmark
+from replaybench.types import BackendResult, Detection, Frame, StageTimes
+
+NS = 1_000_000_000
+
+
+class ServiceTimeBackend:
+    """A backend of declared service time: it advances the virtual clock and finds one box."""
+
+    name: ClassVar[str] = 'service'
+    description: ClassVar[str] = 'declared service time'
+
+    def __init__(self, clock: VirtualClock, service_s: float) -> None:
+        self.clock = clock
+        self.service_s = service_s
+        self.seen: list[int] = []
+
+    @classmethod
+    def available(cls) -> Availability:
+        return Availability(True)
+
+    def open(self) -> None:
+        pass
+
+    def detect(self, frame: Frame) -> BackendResult:
+        self.clock.advance(self.service_s)
+        self.seen.append(frame.seq)
+        box = Detection(0, 'thing', 0.5, 1.0, 2.0, 10.0, 12.0)
+        return BackendResult((box,), StageTimes(infer_ns=int(self.service_s * 1e9)))
+
+    def info(self) -> dict[str, Any]:
+        return {'service_s': self.service_s}
+
+    def close(self) -> None:
+        pass
+
+
+def _rows(run_dir: Path) -> list[dict[str, str]]:
+    with (run_dir / 'frames.csv').open(newline='') as f:
+        return list(csv.DictReader(f))
+
+
+def _bag(path: Path, n: int = 30, hz: int = 30) -> Path:
+    frames = noise_frames(n)
+    t0 = 1_700_000_000 * NS
+    write_mcap(
+        path,
+        [
+            (
+                '/cam/image_raw',
+                t0 + i * NS // hz,
+                image_msg(t0 + i * NS // hz, frames[i]),
+                'sensor_msgs/msg/Image',
+            )
+            for i in range(n)
+        ],
+    )
+    return path
+
+
+def test_recorded_rate_with_a_slow_backend_drops_exactly_the_frames_it_should(tmp_path):
+    bag = _bag(tmp_path / 'cam.mcap', n=10, hz=10)
+    clock = VirtualClock()
+    backend = ServiceTimeBackend(clock, service_s=0.27)  # 270 ms per frame, a frame every 100 ms
+    outcome = run_benchmark(
+        RunConfig(
+            inputs=[bag],
+            backends=['service'],
+            out_dir=tmp_path / 'run',
+            rate=Rate('recorded'),
+            warmup=0,
+        ),
+        clock=clock,
+        backend_factory=lambda name, options: backend,
+    )
+    rows = _rows(outcome.run_dir)
+    assert len(rows) == 10
+    # 0 runs 0-0.27 s; 1 waits and is pushed out by 2 (0.2); 2 runs 0.27-0.54 while 3, 4, 5
+    # arrive (5 stays); 5 runs 0.54-0.81 while 6, 7, 8 arrive (8 stays); 8 runs 0.81-1.08;
+    # 9 waits and runs last.
+    dropped = [int(r['seq']) for r in rows if r['status'] == 'dropped']
+    assert dropped == [1, 3, 4, 6, 7]
+    assert backend.seen == [0, 2, 5, 8, 9]
+    assert [r['seq'] for r in rows] == [str(i) for i in range(10)]
+    summary = outcome.run['summary'][0]
+    assert summary['dropped'] == 5
+    assert summary['measured'] == 5
+    waits = {int(r['seq']): float(r['queue_wait_ms']) for r in rows if r['status'] == 'ok'}
+    assert waits == pytest.approx({0: 0.0, 2: 70.0, 5: 40.0, 8: 10.0, 9: 180.0}, abs=1e-3)
+    latencies = {int(r['seq']): float(r['latency_ms']) for r in rows if r['status'] == 'ok'}
+    assert latencies == pytest.approx({0: 270.0, 2: 340.0, 5: 310.0, 8: 280.0, 9: 450.0}, abs=1e-3)
+
+
+def test_a_fast_backend_at_recorded_rate_drops_nothing_and_latency_is_its_service_time(tmp_path):
+    bag = _bag(tmp_path / 'cam.mcap', n=12)
+    clock = VirtualClock()
+    backend = ServiceTimeBackend(clock, service_s=0.01)
+    outcome = run_benchmark(
+        RunConfig(
+            inputs=[bag],
+            backends=['service'],
+            out_dir=tmp_path / 'run',
+            rate=Rate('recorded'),
+            warmup=2,
+        ),
+        clock=clock,
+        backend_factory=lambda name, options: backend,
+    )
+    rows = _rows(outcome.run_dir)
+    assert [r['status'] for r in rows] == ['ok'] * 12
+    assert [r['warmup'] for r in rows] == ['1', '1'] + ['0'] * 10
+    assert {round(float(r['latency_ms']), 6) for r in rows} == {10.0}
+    summary = outcome.run['summary'][0]
+    assert summary['measured'] == 10
+    assert summary['latency_ms_p99'] == pytest.approx(10.0)
+
+
+def test_a_fixed_rate_releases_frames_at_that_rate_whatever_the_log_times(tmp_path):
+    bag = _bag(tmp_path / 'cam.mcap', n=10)
+    clock = VirtualClock()
+    backend = ServiceTimeBackend(clock, service_s=0.001)
+    outcome = run_benchmark(
+        RunConfig(
+            inputs=[bag], backends=['service'], out_dir=tmp_path / 'run', rate=Rate('fixed', hz=5.0)
+        ),
+        clock=clock,
+        backend_factory=lambda name, options: backend,
+    )
+    releases = [float(r['release_s']) for r in _rows(outcome.run_dir)]
+    assert releases == pytest.approx([i / 5 for i in range(10)])
+
+
+def test_one_undecodable_message_is_skipped_counted_and_kept_in_frames_csv(tmp_path):
+    frames = noise_frames(6)
+    t0 = 1_700_000_000 * NS
+    messages = []
+    for i in range(6):
+        msg = image_msg(t0 + i * NS // 10, frames[i])
+        if i == 3:  # step x height does not match the data
+            msg = image_msg(t0 + i * NS // 10, frames[i], data=bytes(100))
+        messages.append(('/cam/image_raw', t0 + i * NS // 10, msg, 'sensor_msgs/msg/Image'))
+    bag = tmp_path / 'bad.mcap'
+    write_mcap(bag, messages)
+    outcome = run_benchmark(
+        RunConfig(inputs=[bag], backends=['null'], out_dir=tmp_path / 'run', report=False)
+    )
+    rows = _rows(outcome.run_dir)
+    assert [r['status'] for r in rows] == ['ok', 'ok', 'ok', 'skipped', 'ok', 'ok']
+    assert rows[3]['note']
+    assert outcome.run['counts']['skipped'] == 1
+    assert sum(outcome.run['skipped'].values()) == 1
+
+
+def test_a_bag_where_no_frame_decodes_fails_with_the_reason(tmp_path):
+    frames = noise_frames(3)
+    bag = tmp_path / 'allbad.mcap'
+    write_mcap(
+        bag,
+        [
+            ('/cam/image_raw', i, image_msg(i, frames[i], data=bytes(10)), 'sensor_msgs/msg/Image')
+            for i in range(3)
+        ],
+    )
+    # the probe already finds the first message broken; either way the run stops with exit 2
+    with pytest.raises((DecodeError, SourceError, UsageError)):
+        run_benchmark(
+            RunConfig(inputs=[bag], backends=['null'], out_dir=tmp_path / 'run', report=False)
+        )
+
+
+def test_a_depth_only_bag_names_the_topics_and_runs_when_they_are_selected(tmp_path):
+    t0 = 1_700_000_000 * NS
+    depth = np.arange(48 * 64, dtype=np.uint16).reshape(48, 64)
+    messages = [
+        (
+            '/cam/depth/image_raw',
+            t0 + i,
+            image_msg(t0 + i, depth, encoding='16UC1', data=depth.tobytes()),
+            'sensor_msgs/msg/Image',
+        )
+        for i in range(3)
+    ]
+    for _, _, msg, _ in messages:
+        msg.step = 128  # type: ignore[attr-defined]
+    bag = tmp_path / 'depth.mcap'
+    write_mcap(bag, messages)
+    with pytest.raises(UsageError, match='--topic /cam/depth/image_raw'):
+        run_benchmark(RunConfig(inputs=[bag], backends=['null'], out_dir=tmp_path / 'run'))
+    assert not (tmp_path / 'run').exists()
+    outcome = run_benchmark(
+        RunConfig(
+            inputs=[bag],
+            backends=['null'],
+            out_dir=tmp_path / 'run',
+            topics=['/cam/depth/image_raw'],
+            report=False,
+        )
+    )
+    assert outcome.run['counts']['processed'] == 3
+
+
+def test_a_non_empty_output_folder_is_refused_without_force(tmp_path):
+    bag = _bag(tmp_path / 'cam.mcap', n=3)
+    out = tmp_path / 'run'
+    out.mkdir()
+    (out / 'keep.txt').write_text('mine')
+    with pytest.raises(UsageError, match='--force'):
+        run_benchmark(RunConfig(inputs=[bag], backends=['null'], out_dir=out, report=False))
+    run_benchmark(RunConfig(inputs=[bag], backends=['null'], out_dir=out, force=True, report=False))
+    assert (out / 'keep.txt').read_text() == 'mine'
+    assert (out / 'run.json').exists()
+
+
+def test_an_interrupted_run_leaves_valid_finalized_outputs_marked_interrupted(tmp_path):
+    bag = _bag(tmp_path / 'cam.mcap', n=20)
+    clock = VirtualClock()
+
+    class Interrupting(ServiceTimeBackend):
+        def detect(self, frame: Frame) -> BackendResult:
+            if frame.seq == 7:
+                raise KeyboardInterrupt
+            return super().detect(frame)
+
+    outcome = run_benchmark(
+        RunConfig(inputs=[bag], backends=['service'], out_dir=tmp_path / 'run', warmup=0),
+        clock=clock,
+        backend_factory=lambda name, options: Interrupting(clock, 0.01),
+    )
+    assert outcome.status == 'interrupted'
+    run = json.loads((outcome.run_dir / 'run.json').read_text())
+    assert run['status'] == 'interrupted'
+    assert len(_rows(outcome.run_dir)) == 7
+    from mcap.reader import make_reader
+
+    with (outcome.run_dir / 'detections.mcap').open('rb') as f:
+        messages = list(make_reader(f).iter_messages())
+    assert len([m for m in messages if m[1].topic.startswith('/replaybench/')]) == 7
+    assert not list(outcome.run_dir.glob('*.part'))
+
+
+def test_max_frames_start_and_duration_restrict_the_replay(tmp_path):
+    bag = _bag(tmp_path / 'cam.mcap', n=30)
+    outcome = run_benchmark(
+        RunConfig(
+            inputs=[bag], backends=['null'], out_dir=tmp_path / 'a', max_frames=5, report=False
+        )
+    )
+    assert [int(r['seq']) for r in _rows(outcome.run_dir)] == [0, 1, 2, 3, 4]
+    outcome = run_benchmark(
+        RunConfig(
+            inputs=[bag],
+            backends=['null'],
+            out_dir=tmp_path / 'b',
+            start_s=0.5,
+            duration_s=0.2,
+            report=False,
+        )
+    )
+    seqs = [int(r['seq']) for r in _rows(outcome.run_dir)]
+    assert seqs == [15, 16, 17, 18, 19, 20]  # log times 0.5 s <= t < 0.7 s after the first message
+
+
+def test_several_bags_are_separate_inputs_of_one_run(tmp_path):
+    a = _bag(tmp_path / 'a.mcap', n=4)
+    b = _bag(tmp_path / 'b.mcap', n=3)
+    outcome = run_benchmark(
+        RunConfig(inputs=[a, b], backends=['null'], out_dir=tmp_path / 'run', report=False)
+    )
+    rows = _rows(outcome.run_dir)
+    assert [(r['input'], r['seq']) for r in rows] == [
+        ('0', '0'),
+        ('0', '1'),
+        ('0', '2'),
+        ('0', '3'),
+        ('1', '0'),
+        ('1', '1'),
+        ('1', '2'),
+    ]
+    assert [i['path'] for i in outcome.run['inputs']] == [str(a), str(b)]
+    assert all(len(i['sha256']) == 64 for i in outcome.run['inputs'])
+
+
+@pytest.mark.parametrize(
+    ('frames', 'warmup'), [(0, 0), (3, 0), (9, 0), (10, 1), (55, 5), (100, 10), (5000, 10)]
+)
+def test_the_default_warmup_never_swallows_a_short_bag(frames, warmup):
+    assert default_warmup(frames) == warmup
+
+
+def test_backend_options_reach_the_backend(tmp_path):
+    bag = _bag(tmp_path / 'cam.mcap', n=2)
+    seen: list[BackendOptions] = []
+
+    def factory(name: str, options: BackendOptions) -> ServiceTimeBackend:
+        seen.append(options)
+        return ServiceTimeBackend(VirtualClock(), 0.0)
+
+    run_benchmark(
+        RunConfig(
+            inputs=[bag],
+            backends=['service'],
+            out_dir=tmp_path / 'run',
+            threads=1,
+            options=BackendOptions(threads=1),
+            report=False,
+        ),
+        backend_factory=factory,
+    )
+    assert seen[0].threads == 1

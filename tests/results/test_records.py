@@ -1,0 +1,151 @@
+"""frames.csv: column order, fixed formatting, streaming and atomic writes, round trip."""
+
+from __future__ import annotations
+
+import csv
+from typing import TYPE_CHECKING
+
+import pytest
+
+from replaybench.errors import SourceError
+from replaybench.results.records import (
+    FRAMES_CSV_COLUMNS,
+    FrameRecord,
+    FramesCsvWriter,
+    read_frames_csv,
+)
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+
+def _ok(seq: int, **kw: object) -> FrameRecord:
+    values: dict[str, object] = {
+        'input': 0,
+        'backend': 'hsv',
+        'topic': '/cam/image_raw',
+        'seq': seq,
+        'log_time_ns': 1_700_000_000_000_000_000 + seq,
+        'stamp_ns': 1_699_999_999_000_000_000 + seq,
+        'status': 'ok',
+        'note': '',
+        'warmup': False,
+        'dropped': False,
+        'release_s': round(seq * 0.033333, 6),
+        'start_s': round(seq * 0.033333 + 0.0001, 6),
+        'done_s': round(seq * 0.033333 + 0.0051, 6),
+        'queue_wait_ms': 0.1,
+        'read_decode_ms': 0.25,
+        'preprocess_ms': 1.5,
+        'infer_ms': 2.75,
+        'postprocess_ms': 0.5,
+        'h2d_ms': None,
+        'd2h_ms': None,
+        'latency_ms': 5.1,
+        'detections': 3,
+    }
+    values.update(kw)
+    return FrameRecord(**values)  # type: ignore[arg-type]
+
+
+def test_columns_are_in_the_documented_order() -> None:
+    assert FRAMES_CSV_COLUMNS == (
+        'input', 'backend', 'topic', 'seq', 'log_time_ns', 'stamp_ns', 'status', 'note',
+        'warmup', 'dropped', 'release_s', 'start_s', 'done_s', 'queue_wait_ms',
+        'read_decode_ms', 'preprocess_ms', 'infer_ms', 'postprocess_ms', 'h2d_ms', 'd2h_ms',
+        'latency_ms', 'detections',
+    )  # fmt: skip
+
+
+def test_every_kind_of_row_round_trips(tmp_path: Path) -> None:
+    records = [
+        _ok(0, warmup=True),
+        _ok(1, h2d_ms=0.125, d2h_ms=0.0625),
+        FrameRecord(
+            1, 'null', '/b', 7, 123, None, 'dropped', 'pushed out, "queue" full', False, True, 0.25
+        ),
+        _ok(
+            2,
+            status='skipped',
+            note='bad\njpeg; ünïcode',
+            stamp_ns=None,
+            infer_ms=None,
+            preprocess_ms=None,
+            postprocess_ms=None,
+            latency_ms=None,
+            detections=None,
+        ),
+    ]
+    path = tmp_path / 'frames.csv'
+    with FramesCsvWriter(path) as writer:
+        writer.write_many(records)
+    assert read_frames_csv(path) == records
+    assert writer.rows == 4
+    assert writer.closed
+
+
+def test_values_are_written_with_fixed_precision(tmp_path: Path) -> None:
+    path = tmp_path / 'frames.csv'
+    record = _ok(
+        0, release_s=1 / 3, start_s=-1e-9, done_s=2.0, latency_ms=1 / 3, queue_wait_ms=-0.00001
+    )
+    with FramesCsvWriter(path) as writer:
+        writer.write(record)
+    with path.open(newline='') as file:
+        row = dict(zip(FRAMES_CSV_COLUMNS, list(csv.reader(file))[1], strict=True))
+    assert row['release_s'] == '0.333333'
+    assert row['start_s'] == '0.000000'
+    assert row['done_s'] == '2.000000'
+    assert row['latency_ms'] == '0.3333'
+    assert row['queue_wait_ms'] == '0.0000'
+    assert row['warmup'] == '0'
+    assert row['h2d_ms'] == ''
+    assert row['stamp_ns'] == '1699999999000000000'
+
+
+def test_an_exception_inside_the_writer_still_leaves_a_complete_csv(tmp_path: Path) -> None:
+    path = tmp_path / 'frames.csv'
+    with pytest.raises(KeyboardInterrupt), FramesCsvWriter(path) as writer:
+        for seq in range(250):
+            writer.write(_ok(seq))
+        raise KeyboardInterrupt
+    assert path.exists()
+    assert not (tmp_path / 'frames.csv.part').exists()
+    records = read_frames_csv(path)
+    assert [r.seq for r in records] == list(range(250))
+
+
+def test_rows_reach_the_part_file_while_the_run_goes_on(tmp_path: Path) -> None:
+    path = tmp_path / 'frames.csv'
+    writer = FramesCsvWriter(path, flush_every=100)
+    for seq in range(150):
+        writer.write(_ok(seq))
+    assert not path.exists()
+    lines = (tmp_path / 'frames.csv.part').read_text().splitlines()
+    assert len(lines) == 1 + 100
+    writer.close()
+    writer.close()
+    assert len(read_frames_csv(path)) == 150
+    with pytest.raises(ValueError, match='closed'):
+        writer.write(_ok(151))
+
+
+def test_a_file_with_other_columns_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / 'frames.csv'
+    path.write_text('a,b,c\n1,2,3\n')
+    with pytest.raises(SourceError, match=r'not a frames\.csv'):
+        read_frames_csv(path)
+
+
+def test_a_bad_row_names_its_line(tmp_path: Path) -> None:
+    path = tmp_path / 'frames.csv'
+    with FramesCsvWriter(path) as writer:
+        writer.write(_ok(0))
+        writer.write(_ok(1, status='exploded'))
+    with pytest.raises(SourceError, match=r'frames\.csv:3: bad row'):
+        read_frames_csv(path)
+
+
+def test_a_missing_file_is_a_source_error(tmp_path: Path) -> None:
+    with pytest.raises(SourceError, match='cannot read'):
+        read_frames_csv(tmp_path / 'nope.csv')

@@ -5,7 +5,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: install run test lint typecheck pytest bench fixtures clean
+.PHONY: install run test lint typecheck pytest bench fuzz fixtures clean
 
 install: $(STAMP)
 
@@ -32,6 +32,9 @@ test: lint typecheck pytest
 
 bench: install
 	$(BIN)/python -m benchmarks
+
+fuzz: install
+	REPLAYBENCH_FUZZ=long $(BIN)/pytest tests/fuzz -q
 
 fixtures: install
 	$(BIN)/replaybench fixtures --out fixtures/bags

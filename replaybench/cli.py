@@ -204,6 +204,32 @@ def run(
             '--config', help='Backend configuration file (TOML), e.g. hsv colour classes.'
         ),
     ] = None,
+    model: Annotated[
+        Path | None,
+        typer.Option('--model', help='ONNX model for the DNN backends (default: the bundled one).'),
+    ] = None,
+    model_family: Annotated[
+        str | None,
+        typer.Option('--model-family', help='Output layout: yolox, yolov5, yolov8 or nms.'),
+    ] = None,
+    labels: Annotated[
+        str | None,
+        typer.Option('--labels', help='Class names: coco, or a file with one name per line.'),
+    ] = None,
+    conf: Annotated[
+        float | None,
+        typer.Option('--conf', min=0.0, max=1.0, help='Score threshold for DNN detections.'),
+    ] = None,
+    iou: Annotated[
+        float | None, typer.Option('--iou', min=0.0, max=1.0, help='IoU threshold for NMS.')
+    ] = None,
+    device: Annotated[int, typer.Option('--device', min=0, help='GPU index.')] = 0,
+    engine: Annotated[
+        str, typer.Option('--engine', help='GPU engine for the cuda backend: auto, ort or torch.')
+    ] = 'auto',
+    precision: Annotated[
+        str, typer.Option('--precision', help='fp32 or fp16 (GPU backends).')
+    ] = 'fp32',
     no_report: Annotated[bool, typer.Option('--no-report', help='Skip report.html.')] = False,
 ) -> None:
     """Replay bags through backends and write detections, CSVs, run.json and a report.
@@ -236,7 +262,18 @@ def run(
             topics=topic or None,
             ground_truth_topic=ground_truth or DEFAULT_GROUND_TRUTH_TOPIC,
             ground_truth_explicit=ground_truth is not None,
-            options=BackendOptions(threads=threads, config=config),
+            options=BackendOptions(
+                threads=threads,
+                config=config,
+                model=model,
+                model_family=model_family,
+                labels=labels,
+                conf=conf,
+                iou=iou,
+                device=device,
+                engine=engine,
+                precision=precision,
+            ),
             command=['replaybench', *sys.argv[1:]],
             report=not no_report,
         )

@@ -23,12 +23,22 @@ class Availability(NamedTuple):
 
 @dataclass(frozen=True, slots=True)
 class BackendOptions:
-    """Options common to all backends; backend-specific ones go in ``extra``."""
+    """Options common to all backends; backend-specific ones go in ``extra``.
+
+    ``model`` / ``model_family`` / ``labels`` / ``conf`` / ``iou`` configure ONNX detectors
+    (None: the backend's default); ``device`` / ``engine`` / ``precision`` the GPU ones.
+    """
 
     threads: int | None = None
     config: Path | None = None
     model: Path | None = None
+    model_family: str | None = None
+    labels: str | None = None
+    conf: float | None = None
+    iou: float | None = None
     device: int = 0
+    engine: str = 'auto'
+    precision: str = 'fp32'
     extra: Mapping[str, str] = field(default_factory=dict)
 
 

@@ -39,6 +39,7 @@ from replaybench.errors import (
     UsageError,
 )
 from replaybench.replay.clock import Clock, MonotonicClock
+from replaybench.replay.prefetch import Prefetcher
 from replaybench.replay.rate import Rate
 from replaybench.replay.scheduler import replay_timed
 from replaybench.results.records import FrameRecord, FramesCsvWriter
@@ -108,6 +109,7 @@ class RunConfig:
     options: BackendOptions = field(default_factory=BackendOptions)
     command: Sequence[str] = ()
     report: bool = True
+    prefetch: int = 4
 
 
 class RunOutcome(NamedTuple):
@@ -278,56 +280,53 @@ class _Pass:
                 warmup=False,
                 dropped=True,
                 release_s=release - self.t0,
-                start_s=None,
-                done_s=None,
-                queue_wait_ms=None,
-                read_decode_ms=None,
-                preprocess_ms=None,
-                infer_ms=None,
-                postprocess_ms=None,
-                h2d_ms=None,
-                d2h_ms=None,
-                latency_ms=None,
-                detections=None,
             )
         )
 
     def process(self, raw: RawMessage, release: float, start: float, read_s: float) -> None:
+        """Decode and detect one frame now (timed modes, and max rate without prefetch)."""
+        clock = self.run.clock
+        t_decode = clock.now()
+        decoded = _decode(raw)
+        read_decode_s = read_s + clock.now() - t_decode
+        self.complete(raw, decoded, release, start, start - release, read_decode_s)
+
+    def complete(
+        self,
+        raw: RawMessage,
+        decoded: DecodedImage | DecodeError,
+        release: float,
+        start: float,
+        queue_wait_s: float,
+        read_decode_s: float,
+    ) -> None:
+        """Run the backend on a decoded frame (or record its decode failure) and write the row.
+
+        ``latency = queue wait + read/decode + backend``: the backend part runs from here to the
+        detections; read/decode was measured where it ran (here, or in the prefetch thread).
+        """
         clock = self.run.clock
         run = self.run
-        t_decode = clock.now()
-        try:
-            decoded = decode_image(raw)
-        except DecodeError as err:
-            reason = str(err)
-            run.skip(reason, raw)
-            done = clock.now()
-            self.record(
-                FrameRecord(
-                    input=self.inp.number,
-                    backend=self.label,
-                    topic=raw.topic,
-                    seq=raw.seq,
-                    log_time_ns=raw.log_time_ns,
-                    stamp_ns=None,
-                    status='skipped',
-                    note=reason,
-                    warmup=False,
-                    dropped=False,
-                    release_s=release - self.t0,
-                    start_s=start - self.t0,
-                    done_s=done - self.t0,
-                    queue_wait_ms=(start - release) * 1e3,
-                    read_decode_ms=(read_s + done - t_decode) * 1e3,
-                    preprocess_ms=None,
-                    infer_ms=None,
-                    postprocess_ms=None,
-                    h2d_ms=None,
-                    d2h_ms=None,
-                    latency_ms=None,
-                    detections=None,
-                )
-            )
+        base = FrameRecord(
+            input=self.inp.number,
+            backend=self.label,
+            topic=raw.topic,
+            seq=raw.seq,
+            log_time_ns=raw.log_time_ns,
+            stamp_ns=None,
+            status='skipped',
+            note='',
+            warmup=False,
+            dropped=False,
+            release_s=release - self.t0,
+            start_s=start - self.t0,
+            queue_wait_ms=queue_wait_s * 1e3,
+            read_decode_ms=read_decode_s * 1e3,
+        )
+        if isinstance(decoded, DecodeError):
+            reason = str(decoded)
+            run.skip(reason)
+            self.record(base._replace(note=reason, done_s=clock.now() - self.t0))
             return
         frame = self.make_frame(raw, decoded)
         t_detect = clock.now()
@@ -336,7 +335,6 @@ class _Pass:
         key = (self.label, raw.topic)
         n_done = run.processed.get(key, 0)
         run.processed[key] = n_done + 1
-        warm = n_done < run.warmup_for(raw.topic)
         stages = result.stages
         run.detections_out.add(
             self.label,
@@ -350,35 +348,25 @@ class _Pass:
         if gt_key in self.inp.ground_truth:
             run.scored.setdefault(key, {})[(self.inp.number, *gt_key)] = result.detections
         if self.inp.sample_seq.get(raw.topic) == raw.seq:
-            sample_key = (self.inp.number, raw.topic)
-            if sample_key not in run.samples:
-                run.samples[sample_key] = _Sample(
-                    to_bgr8(frame.image, frame.encoding).copy(), f'{raw.topic} #{raw.seq}'
+            sample = run.samples.get((self.inp.number, raw.topic))
+            if sample is None:
+                image = to_bgr8(frame.image, frame.encoding).copy()
+                sample = run.samples[(self.inp.number, raw.topic)] = _Sample(
+                    image, f'{raw.topic} #{raw.seq}'
                 )
-            run.samples[sample_key].detections[self.label] = result.detections
+            sample.detections[self.label] = result.detections
         self.record(
-            FrameRecord(
-                input=self.inp.number,
-                backend=self.label,
-                topic=raw.topic,
-                seq=raw.seq,
-                log_time_ns=raw.log_time_ns,
+            base._replace(
                 stamp_ns=decoded.stamp_ns,
                 status='ok',
-                note='',
-                warmup=warm,
-                dropped=False,
-                release_s=release - self.t0,
-                start_s=start - self.t0,
+                warmup=n_done < run.warmup_for(raw.topic),
                 done_s=done - self.t0,
-                queue_wait_ms=(start - release) * 1e3,
-                read_decode_ms=(read_s + t_detect - t_decode) * 1e3,
                 preprocess_ms=_ms(stages.preprocess_ns),
                 infer_ms=_ms(stages.infer_ns),
                 postprocess_ms=_ms(stages.postprocess_ns),
                 h2d_ms=_ms(stages.h2d_ns),
                 d2h_ms=_ms(stages.d2h_ns),
-                latency_ms=(done - release) * 1e3,
+                latency_ms=(queue_wait_s + read_decode_s + done - t_detect) * 1e3,
                 detections=len(result.detections),
             )
         )
@@ -399,15 +387,23 @@ class _Pass:
         )
 
     def run_max(self) -> None:
+        """Every frame as fast as possible; reading and decoding run ahead in a bounded thread."""
         clock = self.run.clock
         self.t0 = clock.now()
-        it = self.messages()
-        while True:
-            release = clock.now()
-            raw = next(it, None)
-            if raw is None:
-                return
-            self.process(raw, release, release, clock.now() - release)
+        depth = self.run.config.prefetch
+        if depth < 1:
+            it = self.messages()
+            while True:
+                release = clock.now()
+                raw = next(it, None)
+                if raw is None:
+                    return
+                self.process(raw, release, release, clock.now() - release)
+        with Prefetcher(self.messages(), clock, depth) as frames:
+            for item in frames:
+                self.complete(
+                    item.raw, item.decoded, item.release, clock.now(), 0.0, item.read_decode_s
+                )
 
     def run_timed(self, rate: Rate) -> None:
         clock = self.run.clock
@@ -436,6 +432,13 @@ class _Pass:
             process=lambda item, release, start: self.process(item[0], release, start, item[1]),
             drop=lambda item, release: self.drop(item[0], release),
         )
+
+
+def _decode(raw: RawMessage) -> DecodedImage | DecodeError:
+    try:
+        return decode_image(raw)
+    except DecodeError as err:
+        return err
 
 
 def _ms(ns: int | None) -> float | None:
@@ -471,7 +474,7 @@ class _Run:
             return self.config.warmup
         return default_warmup(self.topic_frames.get(topic, 0))
 
-    def skip(self, reason: str, raw: RawMessage) -> None:
+    def skip(self, reason: str) -> None:
         short = reason.split(':', 1)[0] if len(reason) > 80 else reason
         self.skipped[short] = self.skipped.get(short, 0) + 1
 

@@ -3,6 +3,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# Reproducible property tests: the same examples on every run (CI included).
+settings.register_profile('repro', derandomize=True, database=None)
+settings.load_profile('repro')
 
 REPO = Path(__file__).resolve().parents[1]
 FIXTURE_BAGS = REPO / 'fixtures' / 'bags'

@@ -62,7 +62,10 @@ def test_corrupted_compressed_images_raise_only_decode_error(mk, ext, edits, cut
         decoded = decode_image(bad)
     except DecodeError:
         return
-    assert decoded.image.shape[:2] == (24, 32)
+    # a corrupted header may change the size; whatever decodes stays within the size limits
+    height, width = decoded.image.shape[:2]
+    assert 0 < height <= 32768
+    assert 0 < width <= 32768
 
 
 @SETTINGS

@@ -130,14 +130,15 @@ class _Input(NamedTuple):
     ground_truth: dict[tuple[str, int], tuple[Detection, ...]]
     start_ns: int | None
     end_ns: int | None
-    sample_seq: dict[str, int]
+    sample_index: dict[str, int]  # per topic: index among the replayed frames of the sample frame
 
 
 class _Sample:
     """The frame drawn for a topic, with each backend's detections on it."""
 
-    def __init__(self, image_bgr: Any, title: str) -> None:
+    def __init__(self, image_bgr: Any, seq: int, title: str) -> None:
         self.image_bgr = image_bgr
+        self.seq = seq
         self.title = title
         self.detections: dict[str, tuple[Detection, ...]] = {}
 
@@ -216,11 +217,15 @@ def _open_input(index: int, path: Path, config: RunConfig) -> _Input:
                 except DecodeError:
                     continue
                 ground_truth[(gt.frame_id, gt.stamp_ns)] = gt.detections
-        sample_seq = {t.name: max(0, t.count // 2) for t in topics}
-        if config.max_frames is not None:
-            sample_seq = {k: min(v, max(0, config.max_frames // 2)) for k, v in sample_seq.items()}
+        # the frame drawn in samples/: the middle one of the replayed frames (the first one when
+        # --start/--duration cut a window whose size is unknown before reading)
+        windowed = config.start_s is not None or config.duration_s is not None
+        sample_index = {
+            t.name: 0 if windowed else min(t.count, config.max_frames or t.count) // 2
+            for t in topics
+        }
         return _Input(
-            index, path, source, topics, camera_infos, ground_truth, start_ns, end_ns, sample_seq
+            index, path, source, topics, camera_infos, ground_truth, start_ns, end_ns, sample_index
         )
     except BaseException:
         source.close()
@@ -244,6 +249,7 @@ class _Pass:
         self.backend = backend
         self.inp = inp
         self.t0 = 0.0
+        self.taken: dict[str, int] = {}
 
     def messages(self) -> Iterator[RawMessage]:
         limit = self.run.config.max_frames
@@ -347,14 +353,7 @@ class _Pass:
         gt_key = (decoded.frame_id, decoded.stamp_ns)
         if gt_key in self.inp.ground_truth:
             run.scored.setdefault(key, {})[(self.inp.number, *gt_key)] = result.detections
-        if self.inp.sample_seq.get(raw.topic) == raw.seq:
-            sample = run.samples.get((self.inp.number, raw.topic))
-            if sample is None:
-                image = to_bgr8(frame.image, frame.encoding).copy()
-                sample = run.samples[(self.inp.number, raw.topic)] = _Sample(
-                    image, f'{raw.topic} #{raw.seq}'
-                )
-            sample.detections[self.label] = result.detections
+        self.sample(frame, result.detections)
         self.record(
             base._replace(
                 stamp_ns=decoded.stamp_ns,
@@ -370,6 +369,20 @@ class _Pass:
                 detections=len(result.detections),
             )
         )
+
+    def sample(self, frame: Frame, detections: tuple[Detection, ...]) -> None:
+        """Keep the sample frame of this topic (chosen by the first backend) and its boxes."""
+        key = (self.inp.number, frame.topic)
+        taken = self.taken.get(frame.topic, 0)
+        self.taken[frame.topic] = taken + 1
+        sample = self.run.samples.get(key)
+        if sample is None and taken == self.inp.sample_index.get(frame.topic):
+            image = to_bgr8(frame.image, frame.encoding).copy()
+            sample = self.run.samples[key] = _Sample(
+                image, frame.seq, f'{frame.topic} #{frame.seq}'
+            )
+        if sample is not None and sample.seq == frame.seq:
+            sample.detections[self.label] = detections
 
     def make_frame(self, raw: RawMessage, decoded: DecodedImage) -> Frame:
         return Frame(

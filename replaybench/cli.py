@@ -230,6 +230,14 @@ def run(
     precision: Annotated[
         str, typer.Option('--precision', help='fp32 or fp16 (GPU backends).')
     ] = 'fp32',
+    recorded_topic: Annotated[
+        str | None,
+        typer.Option(
+            '--recorded-topic',
+            help='Detection2DArray topic scored by the `recorded` backend '
+            '(detections made on the robot).',
+        ),
+    ] = None,
     no_report: Annotated[bool, typer.Option('--no-report', help='Skip report.html.')] = False,
 ) -> None:
     """Replay bags through backends and write detections, CSVs, run.json and a report.
@@ -276,6 +284,7 @@ def run(
             ),
             command=['replaybench', *sys.argv[1:]],
             report=not no_report,
+            recorded_topic=recorded_topic,
         )
         outcome = run_benchmark(run_config, progress=progress)
     except ReplaybenchError as err:

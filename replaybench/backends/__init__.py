@@ -37,6 +37,7 @@ ENTRY_POINT_GROUP = 'replaybench.backends'
 BUILTIN_BACKENDS: dict[str, str] = {
     'null': 'replaybench.backends.null:NullBackend',
     'hsv': 'replaybench.backends.hsv:HsvBackend',
+    'recorded': 'replaybench.backends.recorded:RecordedBackend',
 }
 
 _NAME_RE = re.compile(r'[A-Za-z0-9][A-Za-z0-9_-]*\Z')

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 from replaybench import __version__
 from replaybench.backends import get_backend
 from replaybench.backends.base import BackendOptions
+from replaybench.backends.recorded import RecordedBackend
 from replaybench.decode import (
     DecodedImage,
     decode_detections,
@@ -51,7 +52,7 @@ from replaybench.results.runfile import (
 )
 from replaybench.results.stats import Summary, summarize, summary_row
 from replaybench.sources import Source, open_source
-from replaybench.types import Detection, Frame
+from replaybench.types import Detection, Frame, TopicInfo
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Sequence
@@ -110,6 +111,7 @@ class RunConfig:
     command: Sequence[str] = ()
     report: bool = True
     prefetch: int = 4
+    recorded_topic: str | None = None
 
 
 class RunOutcome(NamedTuple):
@@ -131,6 +133,8 @@ class _Input(NamedTuple):
     start_ns: int | None
     end_ns: int | None
     sample_index: dict[str, int]  # per topic: index among the replayed frames of the sample frame
+    recorded: dict[tuple[str, int], tuple[Detection, ...]]  # for the `recorded` backend
+    recorded_topic: str | None
 
 
 class _Sample:
@@ -211,12 +215,12 @@ def _open_input(index: int, path: Path, config: RunConfig) -> _Input:
             msg = f'{path}: ground-truth topic {gt_topic} is not in this file'
             raise UsageError(msg)
         if gt_topic and gt_present:
-            for raw in source.messages(topics=[gt_topic]):
-                try:
-                    gt = decode_detections(raw)
-                except DecodeError:
-                    continue
-                ground_truth[(gt.frame_id, gt.stamp_ns)] = gt.detections
+            ground_truth = _read_detections(source, gt_topic)
+        recorded: dict[tuple[str, int], tuple[Detection, ...]] = {}
+        recorded_topic = None
+        if 'recorded' in config.backends:
+            recorded_topic = _recorded_topic(path, all_topics, config)
+            recorded = _read_detections(source, recorded_topic)
         # the frame drawn in samples/: the middle one of the replayed frames (the first one when
         # --start/--duration cut a window whose size is unknown before reading)
         windowed = config.start_s is not None or config.duration_s is not None
@@ -225,11 +229,55 @@ def _open_input(index: int, path: Path, config: RunConfig) -> _Input:
             for t in topics
         }
         return _Input(
-            index, path, source, topics, camera_infos, ground_truth, start_ns, end_ns, sample_index
+            index,
+            path,
+            source,
+            topics,
+            camera_infos,
+            ground_truth,
+            start_ns,
+            end_ns,
+            sample_index,
+            recorded,
+            recorded_topic,
         )
     except BaseException:
         source.close()
         raise
+
+
+def _read_detections(source: Source, topic: str) -> dict[tuple[str, int], tuple[Detection, ...]]:
+    """Detection2DArray messages of a topic keyed by (frame_id, stamp); bad messages skipped."""
+    table: dict[tuple[str, int], tuple[Detection, ...]] = {}
+    for raw in source.messages(topics=[topic]):
+        try:
+            found = decode_detections(raw)
+        except DecodeError:
+            continue
+        table[(found.frame_id, found.stamp_ns)] = found.detections
+    return table
+
+
+def _recorded_topic(path: Path, topics: Sequence[TopicInfo], config: RunConfig) -> str:
+    """The Detection2DArray topic the `recorded` backend replays: given, or the only candidate."""
+    candidates = [
+        t.name
+        for t in topics
+        if message_kind(t.msgtype) == 'detections' and t.name != config.ground_truth_topic
+    ]
+    if config.recorded_topic is not None:
+        if config.recorded_topic not in {t.name for t in topics}:
+            msg = f'{path}: --recorded-topic {config.recorded_topic} is not in this file'
+            raise UsageError(msg)
+        return config.recorded_topic
+    if len(candidates) == 1:
+        return candidates[0]
+    found = ', '.join(candidates) if candidates else 'none'
+    msg = (
+        f'{path}: the recorded backend needs --recorded-topic TOPIC '
+        f'(Detection2DArray topics besides the ground truth: {found})'
+    )
+    raise UsageError(msg)
 
 
 class _Pass:
@@ -250,6 +298,7 @@ class _Pass:
         self.inp = inp
         self.t0 = 0.0
         self.taken: dict[str, int] = {}
+        self.measures_latency = bool(getattr(backend, 'measures_latency', True))
 
     def messages(self) -> Iterator[RawMessage]:
         limit = self.run.config.max_frames
@@ -354,6 +403,17 @@ class _Pass:
         if gt_key in self.inp.ground_truth:
             run.scored.setdefault(key, {})[(self.inp.number, *gt_key)] = result.detections
         self.sample(frame, result.detections)
+        if not self.measures_latency:
+            self.record(
+                base._replace(
+                    stamp_ns=decoded.stamp_ns,
+                    status='ok',
+                    note='recorded detections: latency not measured',
+                    done_s=done - self.t0,
+                    detections=len(result.detections),
+                )
+            )
+            return
         self.record(
             base._replace(
                 stamp_ns=decoded.stamp_ns,
@@ -599,9 +659,17 @@ def _execute(
                 for name in config.backends:
                     label = name.replace('-', '_')
                     backend = factory(name, config.options)
+                    if isinstance(backend, RecordedBackend):
+                        backend.bind(
+                            ', '.join(sorted({i.recorded_topic or '' for i in inputs})),
+                            {
+                                (inp.number, *key): dets
+                                for inp in inputs
+                                for key, dets in inp.recorded.items()
+                            },
+                        )
                     backend.open()
                     try:
-                        backend_meta.append({'name': name, 'label': label, 'info': backend.info()})
                         for inp in inputs:
                             p = _Pass(run, name, label, backend, inp)
                             if config.rate.timed:
@@ -609,6 +677,8 @@ def _execute(
                             else:
                                 p.run_max()
                     finally:
+                        # after the passes: what the backend actually used and counted
+                        backend_meta.append({'name': name, 'label': label, 'info': backend.info()})
                         backend.close()
             except KeyboardInterrupt:
                 status = 'interrupted'

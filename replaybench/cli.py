@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path  # noqa: TC003 - typer reads the annotations at run time
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -12,6 +12,7 @@ from replaybench import __version__
 from replaybench.errors import ReplaybenchError
 
 if TYPE_CHECKING:
+    from replaybench.backends.base import BackendOptions
     from replaybench.results.stats import Summary
 
 __all__ = ['app', 'main']
@@ -116,7 +117,7 @@ def _print_summary(summaries: list[Summary]) -> None:
                 _fmt(acc.get('map50'), 3),
             )
         )
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
+    widths = [max([len(h), *(len(r[i]) for r in rows)]) for i, h in enumerate(header)]
     for row in (header, *rows):
         typer.echo(
             '  '.join(
@@ -238,13 +239,56 @@ def run(
             '(detections made on the robot).',
         ),
     ] = None,
+    ground_truth_file: Annotated[
+        Path | None,
+        typer.Option(
+            '--ground-truth-file',
+            help='COCO JSON or CVAT XML ground truth, instead of a topic (docs/ground-truth.md).',
+        ),
+    ] = None,
+    ground_truth_match: Annotated[
+        str,
+        typer.Option(
+            '--ground-truth-match',
+            help='Match --ground-truth-file to frames by stamp (header stamp) or seq (index '
+            'of the image within its topic).',
+        ),
+    ] = 'stamp',
+    ground_truth_image_topic: Annotated[
+        str | None,
+        typer.Option(
+            '--ground-truth-image-topic',
+            help='The image topic --ground-truth-file annotates (needed with several topics).',
+        ),
+    ] = None,
+    ground_truth_seq_offset: Annotated[
+        int,
+        typer.Option(
+            '--ground-truth-seq-offset',
+            help='Subtracted from image ids / frame numbers with --ground-truth-match seq '
+            '(1 for COCO files whose ids start at 1).',
+        ),
+    ] = 0,
+    annotations: Annotated[
+        bool,
+        typer.Option(
+            '--annotations',
+            help='Also write Foxglove ImageAnnotations (boxes and labels) into detections.mcap.',
+        ),
+    ] = False,
+    copy_images: Annotated[
+        bool,
+        typer.Option(
+            '--copy-images',
+            help='Copy the replayed image messages into detections.mcap (docs/foxglove.md).',
+        ),
+    ] = False,
     no_report: Annotated[bool, typer.Option('--no-report', help='Skip report.html.')] = False,
 ) -> None:
     """Replay bags through backends and write detections, CSVs, run.json and a report.
 
     Example: replaybench run fixtures/bags/rgb8_raw.mcap --backend hsv --backend null --out runs/a
     """
-    from replaybench.backends.base import BackendOptions
     from replaybench.replay.rate import parse_rate
     from replaybench.replay.runner import (
         DEFAULT_GROUND_TRUTH_TOPIC,
@@ -270,21 +314,18 @@ def run(
             topics=topic or None,
             ground_truth_topic=ground_truth or DEFAULT_GROUND_TRUTH_TOPIC,
             ground_truth_explicit=ground_truth is not None,
-            options=BackendOptions(
-                threads=threads,
-                config=config,
-                model=model,
-                model_family=model_family,
-                labels=labels,
-                conf=conf,
-                iou=iou,
-                device=device,
-                engine=engine,
-                precision=precision,
+            options=_backend_options(
+                threads, config, model, model_family, labels, conf, iou, device, engine, precision
             ),
             command=['replaybench', *sys.argv[1:]],
             report=not no_report,
             recorded_topic=recorded_topic,
+            ground_truth_file=ground_truth_file,
+            ground_truth_match=ground_truth_match,
+            ground_truth_image_topic=ground_truth_image_topic,
+            ground_truth_seq_offset=ground_truth_seq_offset,
+            annotations=annotations,
+            copy_images=copy_images,
         )
         outcome = run_benchmark(run_config, progress=progress)
     except ReplaybenchError as err:
@@ -393,6 +434,171 @@ def fixtures(
         raise _fail(err) from None
     for path in paths:
         typer.echo(str(path))
+
+
+def _backend_options(
+    threads: int | None,
+    config: Path | None,
+    model: Path | None,
+    model_family: str | None,
+    labels: str | None,
+    conf: float | None,
+    iou: float | None,
+    device: int,
+    engine: str,
+    precision: str,
+) -> BackendOptions:
+    from replaybench.backends.base import BackendOptions
+
+    return BackendOptions(
+        threads=threads,
+        config=config,
+        model=model,
+        model_family=model_family,
+        labels=labels,
+        conf=conf,
+        iou=iou,
+        device=device,
+        engine=engine,
+        precision=precision,
+    )
+
+
+@app.command()
+def peak(
+    bag: Annotated[Path, typer.Argument(help='Bag file or rosbag2 folder.', show_default=False)],
+    backend: Annotated[str, typer.Option('--backend', '-b', help='Backend to sweep.')],
+    out: Annotated[
+        Path | None,
+        typer.Option('--out', '-o', help='Folder for peak.json, peak.html and the trial runs.'),
+    ] = None,
+    force: Annotated[bool, typer.Option('--force', help='Write into a non-empty --out.')] = False,
+    max_drop: Annotated[
+        float,
+        typer.Option('--max-drop', min=0.0, max=1.0, help='Largest dropped fraction allowed.'),
+    ] = 0.05,
+    p99_ms: Annotated[
+        float | None, typer.Option('--p99-ms', min=0.0, help='Latency p99 bound in ms.')
+    ] = None,
+    trial_frames: Annotated[
+        int | None,
+        typer.Option('--trial-frames', min=2, help='Frames per trial (default: up to 300).'),
+    ] = None,
+    min_hz: Annotated[float, typer.Option('--min-hz', min=0.001, help='Lowest rate tried.')] = 1.0,
+    max_hz: Annotated[
+        float | None, typer.Option('--max-hz', min=0.001, help='Highest rate tried.')
+    ] = None,
+    refine_steps: Annotated[
+        int, typer.Option('--refine-steps', min=0, help='Bisection steps after the coarse search.')
+    ] = 4,
+    topic: Annotated[
+        list[str], typer.Option('--topic', '-t', help='Image topic(s) to replay.')
+    ] = [],  # noqa: B006
+    threads: Annotated[
+        int | None, typer.Option('--threads', min=1, help='CPU threads for OpenCV and backends.')
+    ] = None,
+    config: Annotated[Path | None, typer.Option('--config', help='Backend TOML file.')] = None,
+    model: Annotated[Path | None, typer.Option('--model', help='ONNX model.')] = None,
+    model_family: Annotated[str | None, typer.Option('--model-family', help='Layout.')] = None,
+    labels: Annotated[str | None, typer.Option('--labels', help='Class names.')] = None,
+    conf: Annotated[float | None, typer.Option('--conf', min=0.0, max=1.0)] = None,
+    iou: Annotated[float | None, typer.Option('--iou', min=0.0, max=1.0)] = None,
+    device: Annotated[int, typer.Option('--device', min=0, help='GPU index.')] = 0,
+    engine: Annotated[str, typer.Option('--engine', help='auto, ort or torch.')] = 'auto',
+    precision: Annotated[str, typer.Option('--precision', help='fp32 or fp16.')] = 'fp32',
+    no_report: Annotated[bool, typer.Option('--no-report', help='Skip peak.html.')] = False,
+) -> None:
+    """Find the highest replay rate a backend sustains without dropping frames.
+
+    Example: replaybench peak fixtures/bags/jpeg.mcap --backend hsv --max-drop 0.05 --out runs/peak
+    """
+    from replaybench.replay.peak import find_peak_rate
+    from replaybench.replay.runner import new_run_dir
+
+    def show(trial: Any) -> None:
+        verdict = 'pass' if trial.ok else 'fail'
+        typer.echo(
+            f'{trial.rate_hz:g} Hz: dropped {trial.dropped}/{trial.frames}, '
+            f'p99 {_fmt(trial.p99_ms)} ms, {verdict}',
+            err=True,
+        )
+
+    folder = out if out is not None else new_run_dir()
+    try:
+        result = find_peak_rate(
+            bag,
+            backend,
+            folder,
+            options=_backend_options(
+                threads, config, model, model_family, labels, conf, iou, device, engine, precision
+            ),
+            topics=topic or None,
+            max_drop=max_drop,
+            p99_bound_ms=p99_ms,
+            trial_frames=trial_frames,
+            min_hz=min_hz,
+            max_hz=max_hz,
+            refine_steps=refine_steps,
+            force=force,
+            report=not no_report,
+            threads=threads,
+            command=['replaybench', *sys.argv[1:]],
+            progress=show,
+        )
+    except ReplaybenchError as err:
+        raise _fail(err) from None
+    typer.echo(f'{"rate Hz":>10}  {"frames":>6}  {"dropped":>7}  {"p99 ms":>8}  verdict')
+    for t in result.trials:
+        verdict = 'pass' if t.ok else 'fail'
+        typer.echo(
+            f'{t.rate_hz:>10.3f}  {t.frames:>6}  {t.dropped:>7}  {_fmt(t.p99_ms):>8}  {verdict}'
+        )
+    if result.peak_hz is None:
+        typer.echo(f'{backend}: no rate tried met the limits')
+    else:
+        typer.echo(f'{backend}: peak sustainable rate {result.peak_hz:.3f} Hz')
+    typer.echo(f'Peak folder: {folder}')
+    if (folder / 'peak.html').exists():
+        typer.echo(f'Report: {folder / "peak.html"}')
+    if result.status == 'interrupted':
+        raise typer.Exit(EXIT_INTERRUPTED)
+
+
+@app.command()
+def compare(
+    run_dirs: Annotated[
+        list[Path],
+        typer.Argument(help='Run folders; the first is the baseline.', show_default=False),
+    ],
+    out: Annotated[
+        Path, typer.Option('--out', '-o', help='Folder for comparison.html/.csv/.json.')
+    ],
+    fail_if: Annotated[
+        list[str],
+        typer.Option(
+            '--fail-if',
+            help='Gate condition, e.g. "p99_ms > +10%" or "map50 < -0.02" (repeat).',
+        ),
+    ] = [],  # noqa: B006
+    strict: Annotated[
+        bool, typer.Option('--strict', help='Judge conditions on the point estimate, not the CI.')
+    ] = False,
+) -> None:
+    """Compare runs across backends, machines or GPUs, with confidence intervals and a CI gate.
+
+    Example: replaybench compare runs/baseline runs/candidate --out cmp --fail-if "p99_ms > +10%"
+    """
+    from replaybench.compare import main_compare
+
+    code = main_compare(
+        run_dirs,
+        out,
+        fail_if,
+        strict,
+        echo=typer.echo,
+        echo_err=lambda text: typer.echo(text, err=True),
+    )
+    raise typer.Exit(code)
 
 
 @app.command()

@@ -1,7 +1,9 @@
 """rosbags typestores with vision_msgs registered, and the serialisers replaybench writes with.
 
 ROS 2 uses the ``ROS2_HUMBLE`` store plus vision_msgs 4.x (Humble, Jazzy); these hash like
-the real package (RIHS01 of Detection2DArray: ``214274120007f4a6...``). ROS 1 uses the
+the real package (RIHS01 of Detection2DArray: ``214274120007f4a6...``). The ROS 2 store also
+holds the foxglove_msgs image-annotation types (``foxglove_msgs`` 2.x/3.x as released for
+Humble and Jazzy) that ``--annotations`` writes for the Foxglove Image panel. ROS 1 uses the
 ``ROS1_NOETIC`` store plus the vision_msgs definitions released for Noetic (0.0.2) with one
 change: ``ObjectHypothesisWithPose.id`` is a ``string`` holding the class name where Noetic has
 an ``int64`` class index, because accuracy is scored by class name and a bag has no table from
@@ -28,7 +30,9 @@ __all__ = [
     'CAMERA_INFO',
     'COMPRESSED_IMAGE',
     'DETECTION2DARRAY',
+    'FOXGLOVE_MSGS_ROS2',
     'IMAGE',
+    'IMAGE_ANNOTATIONS',
     'VISION_MSGS_ROS1',
     'VISION_MSGS_ROS2',
     'ros2msg_schema',
@@ -43,6 +47,7 @@ DETECTION2DARRAY = 'vision_msgs/msg/Detection2DArray'
 CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
 IMAGE = 'sensor_msgs/msg/Image'
 COMPRESSED_IMAGE = 'sensor_msgs/msg/CompressedImage'
+IMAGE_ANNOTATIONS = 'foxglove_msgs/msg/ImageAnnotations'
 
 
 def _msg(*lines: str) -> str:
@@ -110,18 +115,73 @@ VISION_MSGS_ROS1: dict[str, str] = {
 }
 
 
+#: foxglove_msgs (ROS 2) image annotations, field for field as in foxglove/schemas
+#: ``ros_foxglove_msgs/ros2`` (the ``foxglove_msgs`` 2.x/3.x packages), comments left out.
+FOXGLOVE_MSGS_ROS2: dict[str, str] = {
+    'foxglove_msgs/msg/ImageAnnotations': _msg(
+        'foxglove_msgs/CircleAnnotation[] circles',
+        'foxglove_msgs/PointsAnnotation[] points',
+        'foxglove_msgs/TextAnnotation[] texts',
+    ),
+    'foxglove_msgs/msg/CircleAnnotation': _msg(
+        'builtin_interfaces/Time timestamp',
+        'foxglove_msgs/Point2 position',
+        'float64 diameter',
+        'float64 thickness',
+        'foxglove_msgs/Color fill_color',
+        'foxglove_msgs/Color outline_color',
+    ),
+    'foxglove_msgs/msg/PointsAnnotation': _msg(
+        'builtin_interfaces/Time timestamp',
+        'uint8 UNKNOWN=0',
+        'uint8 POINTS=1',
+        'uint8 LINE_LOOP=2',
+        'uint8 LINE_STRIP=3',
+        'uint8 LINE_LIST=4',
+        'uint8 type',
+        'foxglove_msgs/Point2[] points',
+        'foxglove_msgs/Color outline_color',
+        'foxglove_msgs/Color[] outline_colors',
+        'foxglove_msgs/Color fill_color',
+        'float64 thickness',
+    ),
+    'foxglove_msgs/msg/TextAnnotation': _msg(
+        'builtin_interfaces/Time timestamp',
+        'foxglove_msgs/Point2 position',
+        'string text',
+        'float64 font_size',
+        'foxglove_msgs/Color text_color',
+        'foxglove_msgs/Color background_color',
+    ),
+    'foxglove_msgs/msg/Point2': _msg(
+        'float64 x',
+        'float64 y',
+    ),
+    'foxglove_msgs/msg/Color': _msg(
+        'float64 r',
+        'float64 g',
+        'float64 b',
+        'float64 a',
+    ),
+}
+
+
 _STORES: dict[bool, Typestore] = {}
 
 
 def typestore(ros1: bool = False) -> Typestore:
-    """Return the shared typestore: ROS 2 Humble or ROS 1 Noetic, with vision_msgs registered."""
+    """Return the shared typestore: ROS 2 Humble or ROS 1 Noetic, with vision_msgs registered.
+
+    The ROS 2 store also has the foxglove_msgs annotation types (``FOXGLOVE_MSGS_ROS2``).
+    """
     ros1 = bool(ros1)
     if (store := _STORES.get(ros1)) is None:
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
         store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
         types: dict[str, Any] = {}
-        for name, text in (VISION_MSGS_ROS1 if ros1 else VISION_MSGS_ROS2).items():
+        texts = VISION_MSGS_ROS1 if ros1 else {**VISION_MSGS_ROS2, **FOXGLOVE_MSGS_ROS2}
+        for name, text in texts.items():
             types.update(get_types_from_msg(text, name))
         store.register(types)
         store = _STORES.setdefault(ros1, store)

@@ -37,7 +37,11 @@ ENTRY_POINT_GROUP = 'replaybench.backends'
 BUILTIN_BACKENDS: dict[str, str] = {
     'null': 'replaybench.backends.null:NullBackend',
     'hsv': 'replaybench.backends.hsv:HsvBackend',
+    'onnx-cpu': 'replaybench.backends.onnx_cpu:OnnxCpuBackend',
     'recorded': 'replaybench.backends.recorded:RecordedBackend',
+    'cuda': 'replaybench.backends.gpu.cuda:CudaBackend',
+    'tensorrt': 'replaybench.backends.gpu.tensorrt:TensorrtBackend',
+    'hsv-cuda': 'replaybench.backends.gpu.hsv_cuda:HsvCudaBackend',
 }
 
 _NAME_RE = re.compile(r'[A-Za-z0-9][A-Za-z0-9_-]*\Z')

@@ -18,7 +18,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
 from replaybench import __version__
 from replaybench.backends import get_backend
@@ -42,7 +42,9 @@ from replaybench.errors import (
 from replaybench.replay.clock import Clock, MonotonicClock
 from replaybench.replay.prefetch import Prefetcher
 from replaybench.replay.rate import Rate
+from replaybench.replay.resources import ResourceSampler
 from replaybench.replay.scheduler import replay_timed
+from replaybench.results.agreement import Agreement, agreement_table
 from replaybench.results.records import FrameRecord, FramesCsvWriter
 from replaybench.results.runfile import (
     SCHEMA_VERSION,
@@ -58,6 +60,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Sequence
 
     from replaybench.backends.base import Backend
+    from replaybench.results.groundtruth import ExternalGroundTruth, MatchMode
     from replaybench.types import RawMessage
 
 __all__ = [
@@ -112,6 +115,12 @@ class RunConfig:
     report: bool = True
     prefetch: int = 4
     recorded_topic: str | None = None
+    ground_truth_file: Path | None = None
+    ground_truth_match: str = 'stamp'  # 'stamp' | 'seq'
+    ground_truth_image_topic: str | None = None
+    ground_truth_seq_offset: int = 0
+    annotations: bool = False
+    copy_images: bool = False
 
 
 class RunOutcome(NamedTuple):
@@ -135,6 +144,7 @@ class _Input(NamedTuple):
     sample_index: dict[str, int]  # per topic: index among the replayed frames of the sample frame
     recorded: dict[tuple[str, int], tuple[Detection, ...]]  # for the `recorded` backend
     recorded_topic: str | None
+    external: ExternalGroundTruth | None = None  # --ground-truth-file; replaces ground_truth
 
 
 class _Sample:
@@ -195,11 +205,15 @@ def _select_topics(
     return colour
 
 
-def _open_input(index: int, path: Path, config: RunConfig) -> _Input:
+def _open_input(
+    index: int, path: Path, config: RunConfig, external: ExternalGroundTruth | None = None
+) -> _Input:
     source = open_source(path)
     try:
         found = probe_topics(source)
         topics = _select_topics(path, found, config.topics)
+        if external is not None:
+            _check_external_topics(path, external, [t.name for t in topics])
         all_topics = source.topics()
         first = min((t.first_ns for t in all_topics), default=0)
         start_ns = first + round(config.start_s * _NS) if config.start_s else None
@@ -214,7 +228,7 @@ def _open_input(index: int, path: Path, config: RunConfig) -> _Input:
         if gt_topic and not gt_present and config.ground_truth_explicit:
             msg = f'{path}: ground-truth topic {gt_topic} is not in this file'
             raise UsageError(msg)
-        if gt_topic and gt_present:
+        if gt_topic and gt_present and external is None:
             ground_truth = _read_detections(source, gt_topic)
         recorded: dict[tuple[str, int], tuple[Detection, ...]] = {}
         recorded_topic = None
@@ -240,10 +254,29 @@ def _open_input(index: int, path: Path, config: RunConfig) -> _Input:
             sample_index,
             recorded,
             recorded_topic,
+            external,
         )
     except BaseException:
         source.close()
         raise
+
+
+def _check_external_topics(
+    path: Path, external: ExternalGroundTruth, replayed: Sequence[str]
+) -> None:
+    """Refuse a ground-truth file that cannot tell which replayed topic it annotates."""
+    if external.topic is not None and external.topic not in replayed:
+        msg = (
+            f'{path}: --ground-truth-image-topic {external.topic} is not replayed; '
+            f'replayed image topics: {", ".join(replayed)}'
+        )
+        raise UsageError(msg)
+    if external.topic is None and not external.topics and len(replayed) > 1:
+        msg = (
+            f'{external.path} does not say which image topic it annotates and {path} replays '
+            f'{len(replayed)}: add --ground-truth-image-topic (one of {", ".join(replayed)})'
+        )
+        raise UsageError(msg)
 
 
 def _read_detections(source: Source, topic: str) -> dict[tuple[str, int], tuple[Detection, ...]]:
@@ -301,20 +334,7 @@ class _Pass:
         self.measures_latency = bool(getattr(backend, 'measures_latency', True))
 
     def messages(self) -> Iterator[RawMessage]:
-        limit = self.run.config.max_frames
-        counts: dict[str, int] = {}
-        names = [t.name for t in self.inp.topics]
-        it = self.inp.source.messages(
-            topics=names, start_ns=self.inp.start_ns, end_ns=self.inp.end_ns
-        )
-        for raw in it:
-            n = counts.get(raw.topic, 0)
-            if limit is not None and n >= limit:
-                if all(counts.get(t, 0) >= limit for t in names):
-                    return
-                continue
-            counts[raw.topic] = n + 1
-            yield raw
+        return _replayed(self.inp, self.run.config)
 
     def record(self, rec: FrameRecord) -> None:
         self.run.records.append(rec)
@@ -388,6 +408,7 @@ class _Pass:
         result = self.backend.detect(frame)
         done = clock.now()
         key = (self.label, raw.topic)
+        run.detections.setdefault(key, {})[(self.inp.number, raw.seq)] = result.detections
         n_done = run.processed.get(key, 0)
         run.processed[key] = n_done + 1
         stages = result.stages
@@ -399,9 +420,16 @@ class _Pass:
             decoded.frame_id,
             result.detections,
         )
-        gt_key = (decoded.frame_id, decoded.stamp_ns)
-        if gt_key in self.inp.ground_truth:
-            run.scored.setdefault(key, {})[(self.inp.number, *gt_key)] = result.detections
+        if self.inp.external is not None:
+            truth = self.inp.external.lookup(raw.topic, raw.seq, decoded.stamp_ns)
+            if truth is not None:
+                frame_key = (self.inp.number, raw.topic, raw.seq)
+                run.ground_truth[frame_key] = truth
+                run.scored.setdefault(key, {})[frame_key] = result.detections
+        else:
+            gt_key = (decoded.frame_id, decoded.stamp_ns)
+            if gt_key in self.inp.ground_truth:
+                run.scored.setdefault(key, {})[(self.inp.number, *gt_key)] = result.detections
         self.sample(frame, result.detections)
         if not self.measures_latency:
             self.record(
@@ -537,6 +565,12 @@ class _Run:
         self.skipped: dict[str, int] = {}
         self.topic_frames: dict[str, int] = {}
         self.ground_truth: dict[tuple[int, str, int], tuple[Detection, ...]] = {}
+        # every backend's detections per frame, for the agreement between backends
+        self.detections: dict[tuple[str, str], dict[tuple[int, int], tuple[Detection, ...]]] = {}
+        self.resources: dict[str, dict[str, Any]] = {}
+        self.agreements: list[Agreement] = []
+        # taken before the replay, so that load average and the like describe the machine, not us
+        self.environment = environment()
         self.done = 0
         self.total = 0
         self.frames_csv: FramesCsvWriter
@@ -597,12 +631,13 @@ def run_benchmark(
     if config.threads is not None:
         _set_threads(config.threads)
 
+    external = _load_external(config)
     started = dt.datetime.now(dt.UTC)
     t_start = time.perf_counter()
     inputs: list[_Input] = []
     try:
         for index, path in enumerate(config.inputs):
-            inputs.append(_open_input(index, Path(path), config))
+            inputs.append(_open_input(index, Path(path), config, external))
         input_meta = [_input_meta(inp) for inp in inputs]
         _prepare_out_dir(config.out_dir, config.force)
         return _execute(
@@ -618,6 +653,59 @@ def run_benchmark(
     finally:
         for inp in inputs:
             inp.source.close()
+
+
+def _load_external(config: RunConfig) -> ExternalGroundTruth | None:
+    """The --ground-truth-file, read and checked against the other options."""
+    if config.ground_truth_file is None:
+        return None
+    from replaybench.results.groundtruth import load_ground_truth_file
+
+    if config.ground_truth_explicit:
+        msg = 'give --ground-truth (a topic) or --ground-truth-file, not both'
+        raise UsageError(msg)
+    if config.ground_truth_match == 'seq' and len(config.inputs) > 1:
+        msg = '--ground-truth-match seq needs a single BAG: seq numbers restart in every bag'
+        raise UsageError(msg)
+    return load_ground_truth_file(
+        config.ground_truth_file,
+        match=cast('MatchMode', config.ground_truth_match),
+        topic=config.ground_truth_image_topic,
+        seq_offset=config.ground_truth_seq_offset,
+    )
+
+
+def _replayed(inp: _Input, config: RunConfig) -> Iterator[RawMessage]:
+    """The image messages a pass replays: the window, at most --max-frames per topic."""
+    limit = config.max_frames
+    counts: dict[str, int] = {}
+    names = [t.name for t in inp.topics]
+    for raw in inp.source.messages(topics=names, start_ns=inp.start_ns, end_ns=inp.end_ns):
+        n = counts.get(raw.topic, 0)
+        if limit is not None and n >= limit:
+            if all(counts.get(t, 0) >= limit for t in names):
+                return
+            continue
+        counts[raw.topic] = n + 1
+        yield raw
+
+
+def _copy_images(inputs: list[_Input], config: RunConfig, writer: Any) -> dict[int, str]:
+    """--copy-images: the replayed image messages into detections.mcap, once each.
+
+    Returns a warning per input whose messages could not all be copied.
+    """
+    problems: dict[int, str] = {}
+    for inp in inputs:
+        failed, first = 0, ''
+        for raw in _replayed(inp, config):
+            try:
+                writer.add_raw(raw)
+            except DecodeError as err:
+                failed, first = failed + 1, first or str(err)
+        if failed:
+            problems[inp.number] = f'{failed} image message(s) not copied: {first}'
+    return problems
 
 
 def _execute(
@@ -643,6 +731,7 @@ def _execute(
             )
     run.total = sum(run.topic_frames.values()) * len(config.backends)
     backend_meta: list[dict[str, Any]] = []
+    copy_problems: dict[int, str] = {}
     status = 'complete'
     previous = signal.getsignal(signal.SIGTERM)
     with contextlib.suppress(ValueError):
@@ -650,7 +739,11 @@ def _execute(
     try:
         with (
             FramesCsvWriter(out / 'frames.csv') as frames_csv,
-            DetectionsWriter(out / 'detections.mcap') as detections_out,
+            DetectionsWriter(
+                out / 'detections.mcap',
+                annotations=config.annotations,
+                backends=[name.replace('-', '_') for name in config.backends],
+            ) as detections_out,
         ):
             run.frames_csv = frames_csv
             run.detections_out = detections_out
@@ -658,28 +751,10 @@ def _execute(
             try:
                 for name in config.backends:
                     label = name.replace('-', '_')
-                    backend = factory(name, config.options)
-                    if isinstance(backend, RecordedBackend):
-                        backend.bind(
-                            ', '.join(sorted({i.recorded_topic or '' for i in inputs})),
-                            {
-                                (inp.number, *key): dets
-                                for inp in inputs
-                                for key, dets in inp.recorded.items()
-                            },
-                        )
-                    backend.open()
-                    try:
-                        for inp in inputs:
-                            p = _Pass(run, name, label, backend, inp)
-                            if config.rate.timed:
-                                p.run_timed(config.rate)
-                            else:
-                                p.run_max()
-                    finally:
-                        # after the passes: what the backend actually used and counted
-                        backend_meta.append({'name': name, 'label': label, 'info': backend.info()})
-                        backend.close()
+                    with ResourceSampler(gpu_index=_gpu_index(name, config)) as sampler:
+                        _run_backend(run, name, label, factory, inputs, sampler, backend_meta)
+                if config.copy_images:
+                    copy_problems = _copy_images(inputs, config, detections_out)
             except KeyboardInterrupt:
                 status = 'interrupted'
     finally:
@@ -688,6 +763,17 @@ def _execute(
     for inp, meta in zip(inputs, input_meta, strict=True):
         meta['truncated'] = inp.source.truncated
         meta['warnings'] = list(inp.source.warnings)
+        if inp.number in copy_problems:
+            meta['warnings'].append(copy_problems[inp.number])
+        if inp.external is not None:
+            matched = sum(1 for key in run.ground_truth if key[0] == inp.number)
+            meta['ground_truth_frames'] = matched
+            meta['warnings'] += list(inp.external.warnings)
+            if not matched and run.done:
+                meta['warnings'].append(
+                    f'{inp.external.path} annotates none of the replayed frames '
+                    f'(matched by {inp.external.match}); see docs/ground-truth.md'
+                )
 
     if run.done and not any(r.status == 'ok' for r in run.records) and status == 'complete':
         reasons = '; '.join(f'{k} ({v})' for k, v in run.skipped.items())
@@ -696,6 +782,8 @@ def _execute(
         raise DecodeError(msg)
 
     summaries = _summaries(run)
+    if len(config.backends) > 1:
+        run.agreements = agreement_table(run.detections)
     write_summary_csv(out / 'summary.csv', summaries)
     sample_paths = _write_samples(out, run)
     record = _write_run_json(
@@ -706,6 +794,51 @@ def _execute(
 
         render_report(out)
     return RunOutcome(out, status, summaries, record)
+
+
+def _gpu_index(name: str, config: RunConfig) -> int | None:
+    """The GPU whose utilisation is sampled: --device for the GPU backends, none otherwise."""
+    return config.options.device if name in _GPU_BACKENDS else None
+
+
+_GPU_BACKENDS = frozenset({'cuda', 'tensorrt', 'hsv-cuda'})
+
+
+def _run_backend(
+    run: _Run,
+    name: str,
+    label: str,
+    factory: Callable[[str, BackendOptions], Backend],
+    inputs: list[_Input],
+    sampler: ResourceSampler,
+    backend_meta: list[dict[str, Any]],
+) -> None:
+    """One backend over every input, sampled for resource use; meta recorded even if cut short."""
+    config = run.config
+    backend = factory(name, config.options)
+    if isinstance(backend, RecordedBackend):
+        backend.bind(
+            ', '.join(sorted({i.recorded_topic or '' for i in inputs})),
+            {(inp.number, *key): dets for inp in inputs for key, dets in inp.recorded.items()},
+        )
+    backend.open()
+    try:
+        for inp in inputs:
+            p = _Pass(run, name, label, backend, inp)
+            if config.rate.timed:
+                p.run_timed(config.rate)
+            else:
+                p.run_max()
+    finally:
+        # after the passes: what the backend actually used and counted
+        sampler.stop()
+        summary = sampler.summary()
+        resources = {'summary': summary, 'series': sampler.series()}
+        run.resources[label] = summary
+        backend_meta.append(
+            {'name': name, 'label': label, 'info': backend.info(), 'resources': resources}
+        )
+        backend.close()
 
 
 def _raise_interrupt(signum: int, frame: object) -> None:
@@ -774,7 +907,7 @@ def _summaries(run: _Run) -> list[Summary]:
     for s in summaries:
         key = (s.backend, s.topic)
         scored = run.scored.get(key)
-        if scored is None:
+        if not scored:
             out.append(s)
             continue
         frames_gt = {k: run.ground_truth[k] for k in scored}
@@ -791,7 +924,7 @@ def _summaries(run: _Run) -> list[Summary]:
             'n_det': result.n_det,
         }
         out.append(replace(s, accuracy=accuracy))
-    return out
+    return [replace(s, resources=run.resources.get(s.backend)) for s in out]
 
 
 def _write_samples(out: Path, run: _Run) -> list[str]:
@@ -859,13 +992,23 @@ def _write_run_json(
             'duration_s': config.duration_s,
             'topics': list(config.topics) if config.topics else None,
             'ground_truth_topic': config.ground_truth_topic
-            if any(m['ground_truth_frames'] for m in input_meta)
+            if config.ground_truth_file is None
+            and any(m['ground_truth_frames'] for m in input_meta)
             else None,
+            'ground_truth_file': str(config.ground_truth_file)
+            if config.ground_truth_file is not None
+            else None,
+            'ground_truth_match': config.ground_truth_match
+            if config.ground_truth_file is not None
+            else None,
+            'annotations': config.annotations,
+            'copy_images': config.copy_images,
         },
         'inputs': input_meta,
-        'environment': environment(),
+        'environment': run.environment,
         'backends': backend_meta,
         'summary': rows,
+        'agreement': [a._asdict() for a in run.agreements],
         'counts': counts,
         'skipped': dict(run.skipped),
         'outputs': {

@@ -1,12 +1,28 @@
-"""The HTML report of a run folder, and the sample thumbnails it shows.
+"""The HTML report of a run folder, the sample thumbnails it shows, and the peak-rate page.
 
-The report is built from the run folder alone (run.json, frames.csv, samples/), so it can be
-rendered again later or on another machine.
+The report is built from the run folder alone (run.json, frames.csv, samples/), and peak.html
+from peak.json alone, so both can be rendered again later or on another machine.
 """
 
 from __future__ import annotations
 
-from replaybench.report.render import render_html, render_report
+from replaybench.report.render import (
+    PEAK_SCHEMA_VERSION,
+    load_peak,
+    render_html,
+    render_peak_html,
+    render_peak_report,
+    render_report,
+)
 from replaybench.report.samples import sample_relpath, write_sample
 
-__all__ = ['render_html', 'render_report', 'sample_relpath', 'write_sample']
+__all__ = [
+    'PEAK_SCHEMA_VERSION',
+    'load_peak',
+    'render_html',
+    'render_peak_html',
+    'render_peak_report',
+    'render_report',
+    'sample_relpath',
+    'write_sample',
+]

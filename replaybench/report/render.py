@@ -10,9 +10,11 @@ from html import escape
 from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Any
 
+from replaybench.errors import SourceError
 from replaybench.report.samples import sample_relpath
 from replaybench.report.svg import (
     Marks,
+    Rule,
     Segment,
     Series,
     bar_chart,
@@ -31,7 +33,14 @@ if TYPE_CHECKING:
     from replaybench.results.records import FrameRecord
     from replaybench.results.runfile import RunData
 
-__all__ = ['render_html', 'render_report']
+__all__ = [
+    'PEAK_SCHEMA_VERSION',
+    'load_peak',
+    'render_html',
+    'render_peak_html',
+    'render_peak_report',
+    'render_report',
+]
 
 _MAX_SAMPLE_BYTES = 4 << 20
 _CHART_PIXELS = 640  # plot-area width of the default 720 px charts
@@ -89,6 +98,7 @@ pre{background:var(--soft);border:1px solid var(--line);border-radius:6px;paddin
 overflow-x:auto;white-space:pre-wrap;overflow-wrap:anywhere}
 details{margin:8px 0}summary{cursor:pointer;font-weight:600}
 .muted{color:var(--muted)}
+tr.peak td{font-weight:600;background:#eef7ee}
 footer{margin-top:36px;color:var(--muted);font-size:12px}
 @media print{svg.chart{border:none}details{display:block}}
 """
@@ -374,7 +384,7 @@ def _summary_table(rows: Sequence[Mapping[str, Any]], colours: Mapping[str, str]
                 cells.append(f'<td class="n">{_e(_fmt(value, 3))}</td>')
         body.append(f'<tr>{"".join(cells)}</tr>')
     return (
-        f'<div class="table-wrap"><table><thead><tr>{th}</tr></thead>'
+        f'<div class="table-wrap"><table id="summary-table"><thead><tr>{th}</tr></thead>'
         f'<tbody>{"".join(body)}</tbody></table></div>'
         '<p class="muted">Statistics cover measured frames only (processed, after warm-up). '
         'FPS: measured frames per second of processing window; jitter: mean absolute '
@@ -623,6 +633,199 @@ def _plots(
     return ''.join(parts)
 
 
+# --------------------------------------------------------------------------- agreement
+
+
+def _frame_name(key: Any, single_input: bool) -> str:
+    if isinstance(key, list | tuple) and len(key) == 2:
+        index, seq = key
+        return f'#{seq}' if single_input else f'{index}:#{seq}'
+    return str(key)
+
+
+def _fmt_frac(value: Any) -> str:
+    number = _num(value)
+    return '–' if number is None else f'{100 * number:.1f} %'
+
+
+def _swatch(colours: Mapping[str, str], backend: str) -> str:
+    return f'<span class="swatch" style="background:{_e(colours.get(backend, "#777"))}"></span>'
+
+
+def _agreement(run: Mapping[str, Any], colours: Mapping[str, str]) -> str:
+    """Agreement between backends per topic, from run.json ``agreement``."""
+    entries = [_dict(e) for e in _list(run.get('agreement')) if isinstance(e, dict)]
+    if not entries:
+        return ''
+    single_input = len(_list(run.get('inputs'))) <= 1
+    threshold = _num(_dict(run.get('settings')).get('agreement_iou')) or 0.5
+    by_topic: dict[str, list[dict[str, Any]]] = {}
+    for entry in entries:
+        by_topic.setdefault(str(entry.get('topic', '?')), []).append(entry)
+    head = (
+        '<tr><th>backends (a / b)</th><th class="n">frames</th><th class="n">detections a</th>'
+        '<th class="n">detections b</th><th class="n">matched</th><th class="n">of a</th>'
+        '<th class="n">of b</th><th class="n">mean IoU</th><th class="n">mean |Δscore|</th>'
+        '<th>most disagreeing frames</th></tr>'
+    )
+    intro = (
+        f'Per frame both backends processed, detections of the same class are paired greedily '
+        f'by IoU ≥ {threshold:g} (highest first). "of a" / "of b": share of each backend\'s '
+        'detections that found a partner. No ground truth is involved. Most disagreeing frames '
+        'first (most unmatched detections), as #seq of the topic.'
+    )
+    parts = [f'<h2 id="agreement">Agreement between backends</h2><p class="muted">{_e(intro)}</p>']
+    for topic, rows in by_topic.items():
+        body = []
+        for entry in rows:
+            a, b = str(entry.get('backend_a', '?')), str(entry.get('backend_b', '?'))
+            frames = [_frame_name(k, single_input) for k in _list(entry.get('disagreeing_frames'))]
+            shown = ', '.join(frames[:6]) + (f' … (+{len(frames) - 6})' if len(frames) > 6 else '')
+            body.append(
+                f'<tr><td>{_swatch(colours, a)}{_e(a)} / {_swatch(colours, b)}{_e(b)}</td>'
+                f'<td class="n">{_e(_fmt_value(entry.get("frames")))}</td>'
+                f'<td class="n">{_e(_fmt_value(entry.get("n_a")))}</td>'
+                f'<td class="n">{_e(_fmt_value(entry.get("n_b")))}</td>'
+                f'<td class="n">{_e(_fmt_value(entry.get("matched")))}</td>'
+                f'<td class="n">{_e(_fmt_frac(entry.get("matched_frac_a")))}</td>'
+                f'<td class="n">{_e(_fmt_frac(entry.get("matched_frac_b")))}</td>'
+                f'<td class="n">{_e(_fmt(entry.get("mean_iou"), 3))}</td>'
+                f'<td class="n">{_e(_fmt(entry.get("mean_abs_score_diff"), 3))}</td>'
+                f'<td title="{_e(", ".join(frames))}">{_e(shown) if frames else "none"}</td></tr>',
+            )
+        parts.append(
+            f'<h3><code>{_e(topic)}</code></h3><div class="table-wrap"><table>'
+            f'<thead>{head}</thead><tbody>{"".join(body)}</tbody></table></div>',
+        )
+    return ''.join(parts)
+
+
+# --------------------------------------------------------------------------- resources
+
+#: (series key, chart title, y label) of the resource charts, drawn when some backend has data.
+_RESOURCE_CHARTS: tuple[tuple[str, str, str], ...] = (
+    ('cpu_percent', 'CPU use over time', 'CPU (% of one core)'),
+    ('rss_mb', 'Resident memory over time', 'RSS (MiB)'),
+    ('gpu_util', 'GPU utilisation over time', 'GPU utilisation (%)'),
+    ('gpu_mem_mb', 'GPU memory used over time', 'GPU memory (MiB)'),
+)
+
+
+def _resource_entries(run: Mapping[str, Any]) -> list[tuple[str, dict[str, Any], list[Any]]]:
+    entries = []
+    for entry in _list(run.get('backends')):
+        entry = _dict(entry)
+        resources = _dict(entry.get('resources'))
+        summary = _dict(resources.get('summary'))
+        series = [p for p in _list(resources.get('series')) if isinstance(p, dict)]
+        if not summary and not series:
+            continue
+        label = str(entry.get('label') or entry.get('name') or '?')
+        entries.append((label, summary, series))
+    return entries
+
+
+def _resources(run: Mapping[str, Any], colours: Mapping[str, str]) -> str:
+    """Per backend CPU, memory and GPU use, from run.json ``backends[i].resources``."""
+    entries = _resource_entries(run)
+    if not entries:
+        return ''
+    gpu = any(
+        _num(s.get(k)) is not None
+        for _, s, _ in entries
+        for k in ('gpu_util_mean', 'gpu_mem_mb_peak', 'gpu_power_w_mean')
+    )
+    head = [
+        'backend',
+        'CPU % mean',
+        'CPU % max',
+        'RSS peak MiB',
+        'RSS mean MiB',
+    ]
+    if gpu:
+        head += ['GPU util % mean', 'GPU mem peak MiB', 'GPU power W mean']
+    head += ['samples', 'sampler cost']
+    th = ''.join(
+        f'<th>{_e(h)}</th>' if i == 0 else f'<th class="n">{_e(h)}</th>' for i, h in enumerate(head)
+    )
+    body = []
+    gpu_names: list[str] = []
+    for label, s, _ in entries:
+        interval = _num(s.get('interval_s'))
+        cost = _num(s.get('overhead_ms_per_sample'))
+        share = _num(s.get('overhead_cpu_percent'))
+        cost_text = '–' if cost is None else f'{cost:.3f} ms/sample'
+        if share is not None:
+            cost_text += f', {share:.2f} % of a core'
+        samples = _fmt_value(s.get('samples'))
+        if interval is not None:
+            samples += f' every {interval:g} s'
+        cells = [
+            f'<td>{_swatch(colours, label)}{_e(label)}</td>',
+            f'<td class="n">{_e(_fmt(s.get("cpu_percent_mean"), 1))}</td>',
+            f'<td class="n">{_e(_fmt(s.get("cpu_percent_max"), 1))}</td>',
+            f'<td class="n">{_e(_fmt(s.get("rss_mb_peak"), 1))}</td>',
+            f'<td class="n">{_e(_fmt(s.get("rss_mb_mean"), 1))}</td>',
+        ]
+        if gpu:
+            cells += [
+                f'<td class="n">{_e(_fmt(s.get("gpu_util_mean"), 1))}</td>',
+                f'<td class="n">{_e(_fmt(s.get("gpu_mem_mb_peak"), 0))}</td>',
+                f'<td class="n">{_e(_fmt(s.get("gpu_power_w_mean"), 1))}</td>',
+            ]
+            name = s.get('gpu_name')
+            if isinstance(name, str) and name and name not in gpu_names:
+                gpu_names.append(name)
+        cells += [f'<td class="n">{_e(samples)}</td>', f'<td class="n">{_e(cost_text)}</td>']
+        body.append(f'<tr>{"".join(cells)}</tr>')
+    note = (
+        'Sampled in a background thread while each backend ran. CPU is this process (every '
+        'thread) in % of one core, so more than 100 means several cores; RSS is its resident '
+        'memory.'
+    )
+    if gpu:
+        note += ' GPU numbers are for the whole device' + (
+            f' ({", ".join(gpu_names)})' if gpu_names else ''
+        )
+        note += ', all processes on it.'
+    charts = []
+    for key, title, y_label in _RESOURCE_CHARTS:
+        series = []
+        for label, _, points in entries:
+            xs = [_num(p.get('t_s')) for p in points]
+            ys = [_num(p.get(key)) for p in points]
+            pairs = [(x, y) for x, y in zip(xs, ys, strict=True) if x is not None and y is not None]
+            if pairs:
+                series.append(
+                    Series(
+                        label,
+                        colours.get(label, '#777'),
+                        [x for x, _ in pairs],
+                        [y for _, y in pairs],
+                    ),
+                )
+        if series:
+            longest = max(len(s.xs) for s in series)
+            charts.append(
+                line_chart(
+                    series,
+                    title=title,
+                    x_label='time since the backend started (s)',
+                    y_label=y_label,
+                    mean_per_pixel=True,
+                    note='Each point is the mean over the samples of one pixel column.'
+                    if longest > _CHART_PIXELS
+                    else '',
+                ),
+            )
+    return (
+        '<h2 id="resources">Resource use</h2>'
+        f'<div class="table-wrap"><table><thead><tr>{th}</tr></thead>'
+        f'<tbody>{"".join(body)}</tbody></table></div><p class="muted">{_e(note)}</p>'
+        + (f'<div class="charts">{"".join(charts)}</div>' if charts else '')
+    )
+
+
 # --------------------------------------------------------------------------- samples
 
 
@@ -778,6 +981,8 @@ def render_html(data: RunData) -> str:
         _summary_table(rows, colours),
         _accuracy_details(rows),
         _plots(frames, rows, backends, topics, colours),
+        _agreement(run, colours),
+        _resources(run, colours),
         _samples(run, data.dir),
         _details(run),
         _footer(run),
@@ -795,4 +1000,218 @@ def render_report(run_dir: str | Path) -> Path:
     data = load_run(run_dir)
     out = data.dir / 'report.html'
     write_text_atomic(out, render_html(data))
+    return out
+
+
+# --------------------------------------------------------------------------- peak.html
+
+#: Version of the peak.json layout (written by ``replaybench.replay.peak``).
+PEAK_SCHEMA_VERSION = 1
+
+_OK = '#2e7d32'
+_FAIL = '#c62828'
+
+
+def load_peak(out_dir: str | Path) -> dict[str, Any]:
+    """Read ``out_dir/peak.json``; SourceError with the reason when it is not a readable one."""
+    path = Path(out_dir) / 'peak.json'
+    try:
+        peak = json.loads(path.read_text(encoding='utf-8'))
+    except FileNotFoundError:
+        msg = f'{out_dir}: no peak.json (not a replaybench peak folder, or the sweep did not end)'
+        raise SourceError(msg) from None
+    except (OSError, UnicodeDecodeError) as err:
+        msg = f'{path}: cannot read: {err}'
+        raise SourceError(msg) from None
+    except json.JSONDecodeError as err:
+        msg = f'{path}: invalid JSON at line {err.lineno} column {err.colno}: {err.msg}'
+        raise SourceError(msg) from None
+    version = peak.get('schema_version') if isinstance(peak, dict) else None
+    if not isinstance(peak, dict) or peak.get('kind') != 'peak':
+        msg = f'{path}: not a peak.json (expected an object with "kind": "peak")'
+        raise SourceError(msg)
+    if not isinstance(version, int) or isinstance(version, bool) or version < 1:
+        msg = f'{path}: missing or invalid schema_version {version!r}'
+        raise SourceError(msg)
+    if version > PEAK_SCHEMA_VERSION:
+        msg = (
+            f'{path}: schema_version {version} is newer than this replaybench supports '
+            f'({PEAK_SCHEMA_VERSION}); upgrade replaybench to read it'
+        )
+        raise SourceError(msg)
+    return peak
+
+
+def _fmt_hz(value: Any) -> str:
+    number = _num(value)
+    return '–' if number is None else f'{number:g} Hz'
+
+
+def _peak_verdict(peak: Mapping[str, Any]) -> str:
+    settings = _dict(peak.get('settings'))
+    max_drop = _num(settings.get('max_drop'))
+    bound = _num(settings.get('p99_bound_ms'))
+    rule = f'at most {100 * (max_drop or 0):g} % of the frames dropped'
+    if bound is not None:
+        rule += f' and p99 latency at most {bound:g} ms'
+    best = _num(peak.get('peak_hz'))
+    failing = _num(peak.get('first_failing_hz'))
+    if best is None:
+        lowest = _num(settings.get('min_hz'))
+        return (
+            f'<p><strong>No tested rate passed</strong>, down to {_e(_fmt_hz(lowest))} '
+            f'({_e(rule)}).</p>'
+        )
+    text = (
+        f'<p><strong>Peak sustainable rate: {_e(_fmt_hz(best))}</strong> per topic — the highest '
+        f'tested rate with {_e(rule)}.'
+    )
+    if failing is not None:
+        text += f' The lowest failing rate tested was {_e(_fmt_hz(failing))}'
+        resolution = failing - best
+        text += f' (resolution {resolution:.3g} Hz).' if resolution > 0 else '.'
+    if peak.get('limit_reached'):
+        text += ' Every rate up to the search limit passed: the backend may keep up with more.'
+    return text + '</p>'
+
+
+def _peak_trials(peak: Mapping[str, Any]) -> str:
+    trials = [_dict(t) for t in _list(peak.get('trials'))]
+    best = _num(peak.get('peak_hz'))
+    body = []
+    for number, trial in enumerate(trials, 1):
+        ok = bool(trial.get('ok'))
+        rate = _num(trial.get('rate_hz'))
+        marker = ' class="peak"' if best is not None and rate == best else ''
+        verdict = f'<span style="color:{_OK if ok else _FAIL}">{"pass" if ok else "fail"}</span>'
+        body.append(
+            f'<tr{marker}><td class="n">{number}</td>'
+            f'<td class="n">{_e(_fmt_hz(rate))}</td>'
+            f'<td class="n">{_e(_fmt_value(trial.get("frames")))}</td>'
+            f'<td class="n">{_e(_fmt_value(trial.get("dropped")))}</td>'
+            f'<td class="n">{_e(_fmt_frac(trial.get("drop_fraction")))}</td>'
+            f'<td class="n">{_e(_fmt_ms(trial.get("p99_ms")))}</td>'
+            f'<td>{verdict}</td><td><code>{_e(trial.get("run_dir", ""))}</code></td></tr>',
+        )
+    return (
+        '<div class="table-wrap"><table><thead><tr><th class="n">#</th><th class="n">rate</th>'
+        '<th class="n">frames</th><th class="n">dropped</th><th class="n">dropped %</th>'
+        '<th class="n">p99 ms</th><th>verdict</th><th>run folder</th></tr></thead>'
+        f'<tbody>{"".join(body)}</tbody></table></div>'
+        '<p class="muted">Trials in the order they ran. Frames and drops count from the end of '
+        'the warm-up on; p99 is over the measured frames.</p>'
+    )
+
+
+def _peak_charts(peak: Mapping[str, Any]) -> str:
+    trials = sorted(
+        (t for t in (_dict(x) for x in _list(peak.get('trials'))) if _num(t.get('rate_hz'))),
+        key=lambda t: _num(t.get('rate_hz')) or 0.0,
+    )
+    if not trials:
+        return ''
+    settings = _dict(peak.get('settings'))
+    best = _num(peak.get('peak_hz'))
+    rules_x = [Rule('x', best, f'peak {best:g} Hz', _OK)] if best is not None else []
+    charts = []
+    for key, title, y_label, bound, scale in (
+        ('drop_fraction', 'Dropped frames vs rate', 'dropped (%)', 'max_drop', 100.0),
+        ('p99_ms', 'p99 latency vs rate', 'p99 latency (ms)', 'p99_bound_ms', 1.0),
+    ):
+        points: list[tuple[float, float, bool]] = []
+        for t in trials:
+            x, y = _num(t.get('rate_hz')), _num(t.get(key))
+            if x is not None and y is not None:
+                points.append((x, y * scale, bool(t.get('ok'))))
+        if not points:
+            continue
+        series = [Series('all trials', '#999', [p[0] for p in points], [p[1] for p in points])]
+        for name, fill, wanted in (('passed', _OK, True), ('failed', _FAIL, False)):
+            chosen = [p for p in points if p[2] is wanted]
+            if chosen:
+                series.append(
+                    Series(name, fill, [p[0] for p in chosen], [p[1] for p in chosen], 'dots'),
+                )
+        rules = list(rules_x)
+        limit = _num(settings.get(bound))
+        if limit is not None:
+            label = f'max {limit * scale:g} %' if key == 'drop_fraction' else f'bound {limit:g} ms'
+            rules.append(Rule('y', limit * scale, label, _FAIL))
+        charts.append(
+            line_chart(
+                series,
+                title=title,
+                x_label='input rate per topic (Hz)',
+                y_label=y_label,
+                x_range=(0.0, max(p[0] for p in points) * 1.05),
+                rules=rules,
+            ),
+        )
+    return f'<div class="charts">{"".join(charts)}</div>'
+
+
+def render_peak_html(peak: Mapping[str, Any]) -> str:
+    """The page of a peak.json (``replaybench peak``)."""
+    status = str(peak.get('status', 'unknown'))
+    tool = _dict(peak.get('tool'))
+    source = _dict(peak.get('input'))
+    start = _dict(peak.get('start'))
+    meta = [
+        f'<span class="badge {_e(status)}">{_e(status)}</span>',
+        f'backend {_e(peak.get("backend", "?"))}',
+        f'started {_e(peak.get("started_at", "?"))}',
+    ]
+    wall = _num(peak.get('wall_s'))
+    if wall is not None:
+        meta.append(f'wall time {wall:.1f} s')
+    meta.append(f'{_e(tool.get("name", "replaybench"))} {_e(tool.get("version", "?"))}')
+    settings = _dict(peak.get('settings'))
+    items: list[tuple[str, Any]] = [
+        ('input', source.get('path')),
+        ('sha256', source.get('sha256')),
+        ('start rate', f'{_fmt_hz(start.get("hz"))} (from the {start.get("from", "?")})'),
+        ('max-rate probe', f'{_fmt(start.get("probe_fps"))} frames/s per topic'),
+        ('recorded rate', _fmt_hz(start.get('recorded_hz'))),
+    ]
+    items += [(str(k), v) for k, v in settings.items()]
+    banner = ''
+    if status == 'interrupted':
+        banner = (
+            '<div class="banner" role="alert"><strong>Warnings</strong><ul><li>The sweep was '
+            'interrupted: the result covers only the trials that finished.</li></ul></div>'
+        )
+    command = [str(c) for c in _list(peak.get('command'))]
+    footer = (
+        f'<footer>Generated by {_e(tool.get("name", "replaybench"))} '
+        f'{_e(tool.get("version", ""))} from peak.json (schema '
+        f'{_e(peak.get("schema_version", "?"))}). Self-contained: no external resources.'
+        '</footer>'
+    )
+    body = [
+        f'<header><h1>replaybench peak rate</h1><p class="meta">{" · ".join(meta)}</p></header>',
+        banner,
+        _peak_verdict(peak),
+        '<div class="cards">',
+        f'<div class="card"><h3>Sweep</h3>{_dl(items)}</div>',
+        _environment_card(peak),
+        '</div>',
+        '<h2 id="trials">Trials</h2>',
+        _peak_trials(peak),
+        _peak_charts(peak),
+        f'<h3>Command</h3><pre>{_e(shlex.join(command))}</pre>' if command else '',
+        footer,
+    ]
+    return (
+        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        '<meta name="viewport" content="width=device-width, initial-scale=1">'
+        f'<title>replaybench peak rate · {_e(peak.get("backend", "?"))}</title>'
+        f'<style>{_CSS}</style></head><body><main>{"".join(body)}</main></body></html>\n'
+    )
+
+
+def render_peak_report(out_dir: str | Path) -> Path:
+    """Write ``out_dir/peak.html`` (atomically) from ``out_dir/peak.json`` and return its path."""
+    peak = load_peak(out_dir)
+    out = Path(out_dir) / 'peak.html'
+    write_text_atomic(out, render_peak_html(peak))
     return out

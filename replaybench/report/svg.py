@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 __all__ = [
     'PALETTE',
     'Marks',
+    'Rule',
     'Segment',
     'Series',
     'bar_chart',
@@ -63,12 +64,25 @@ def colour(index: int) -> str:
 
 
 class Series(NamedTuple):
-    """One polyline; points whose x or y is not finite are left out."""
+    """One polyline; points whose x or y is not finite are left out.
+
+    ``style``: ``'line'`` (a polyline), ``'dots'`` (a circle per point) or ``'line+dots'``.
+    """
 
     name: str
     colour: str
     xs: Values
     ys: Values
+    style: str = 'line'
+
+
+class Rule(NamedTuple):
+    """A dashed reference line across the plot: vertical at x (``axis='x'``) or horizontal."""
+
+    axis: str
+    value: float
+    label: str
+    colour: str = '#444'
 
 
 class Marks(NamedTuple):
@@ -296,11 +310,13 @@ def line_chart(
     marks: Sequence[Marks] = (),
     note: str = '',
     mean_per_pixel: bool = False,
+    rules: Sequence[Rule] = (),
 ) -> str:
     """A chart of one polyline per series, with axes, ticks, grid and legend.
 
     ``spans`` are shaded x-intervals (e.g. warm-up); ``marks`` are rows of short ticks below
-    the x axis (e.g. dropped frames). Values outside ``y_range`` are drawn at its edge.
+    the x axis (e.g. dropped frames); ``rules`` are labelled reference lines (a threshold, a
+    found value), kept inside the axes. Values outside ``y_range`` are drawn at its edge.
     Series longer than the plot is wide are reduced per pixel column (``downsample``): to their
     envelope, or to the column means with ``mean_per_pixel``.
     """
@@ -317,6 +333,8 @@ def line_chart(
     for a, b in spans:
         all_x += [a, b]
     all_y = [float(v) for _, _, y in data if y.size for v in (np.min(y), np.max(y))]
+    all_x += [r.value for r in rules if r.axis == 'x' and math.isfinite(r.value)]
+    all_y += [r.value for r in rules if r.axis != 'x' and math.isfinite(r.value)]
 
     entries = [(s.name, s.colour) for s in series]
     entries += [(m.name, m.colour) for m in marks if m.name]
@@ -396,17 +414,37 @@ def line_chart(
         pxs, pys = downsample(
             sx.array(x), sy.array(y), left, left + plot_w, plot_w, mean=mean_per_pixel
         )
-        coords = zip(pxs.tolist(), pys.tolist(), strict=True)
+        coords = list(zip(pxs.tolist(), pys.tolist(), strict=True))
         points = ' '.join(f'{_n(a)},{_n(b)}' for a, b in coords)
-        if pxs.size == 1:
-            parts.append(
-                f'<circle cx="{_n(float(pxs[0]))}" cy="{_n(float(pys[0]))}" r="2.5" '
-                f'fill="{_e(s.colour)}"/>',
-            )
-        else:
+        if pxs.size > 1 and s.style != 'dots':
             parts.append(
                 f'<polyline points="{points}" fill="none" stroke="{_e(s.colour)}" '
                 'stroke-width="1.3" stroke-linejoin="round"/>',
+            )
+        if pxs.size == 1 or s.style != 'line':
+            radius = '3.5' if s.style != 'line' else '2.5'
+            parts.extend(
+                f'<circle cx="{_n(a)}" cy="{_n(b)}" r="{radius}" fill="{_e(s.colour)}"/>'
+                for a, b in coords
+            )
+    for rule in rules:
+        if not math.isfinite(rule.value):
+            continue
+        if rule.axis == 'x':
+            px = sx(rule.value)
+            parts.append(
+                f'<line x1="{_n(px)}" y1="{top}" x2="{_n(px)}" y2="{_n(base)}" '
+                f'stroke="{_e(rule.colour)}" stroke-dasharray="5 3"/>'
+                f'<text x="{_n(px + 4)}" y="{top + 12}" fill="{_e(rule.colour)}">'
+                f'{_e(rule.label)}</text>',
+            )
+        else:
+            py = sy(rule.value)
+            parts.append(
+                f'<line x1="{left}" y1="{_n(py)}" x2="{left + plot_w}" y2="{_n(py)}" '
+                f'stroke="{_e(rule.colour)}" stroke-dasharray="5 3"/>'
+                f'<text x="{left + plot_w - 4}" y="{_n(py - 4)}" text-anchor="end" '
+                f'fill="{_e(rule.colour)}">{_e(rule.label)}</text>',
             )
     for row, mark in enumerate(marks):
         mx = np.asarray(mark.xs, dtype=np.float64)

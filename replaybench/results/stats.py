@@ -19,6 +19,7 @@ if TYPE_CHECKING:
 __all__ = [
     'ACCURACY_COLUMNS',
     'PERCENTILES',
+    'RESOURCE_COLUMNS',
     'SUMMARY_CSV_COLUMNS',
     'Summary',
     'summarize',
@@ -74,12 +75,24 @@ class Summary:
     h2d_ms_mean: float | None
     d2h_ms_mean: float | None
     accuracy: dict[str, Any] | None = None
+    resources: dict[str, Any] | None = None
 
 
-_FLAT_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Summary) if f.name != 'accuracy')
+_FLAT_FIELDS: tuple[str, ...] = tuple(
+    f.name for f in fields(Summary) if f.name not in {'accuracy', 'resources'}
+)
+
+#: Resource-use columns of summary.csv (from the backend's ResourceSampler summary).
+RESOURCE_COLUMNS: tuple[str, ...] = (
+    'cpu_percent_mean',
+    'rss_mb_peak',
+    'gpu_util_mean',
+    'gpu_mem_mb_peak',
+    'gpu_power_w_mean',
+)
 
 #: Columns of summary.csv, in order.
-SUMMARY_CSV_COLUMNS: tuple[str, ...] = _FLAT_FIELDS + ACCURACY_COLUMNS
+SUMMARY_CSV_COLUMNS: tuple[str, ...] = _FLAT_FIELDS + ACCURACY_COLUMNS + RESOURCE_COLUMNS
 
 
 def _mean(values: Sequence[float | int | None]) -> float | None:
@@ -194,6 +207,9 @@ def summary_row(summary: Summary) -> dict[str, Any]:
     accuracy = summary.accuracy or {}
     for name in ACCURACY_COLUMNS:
         row[name] = accuracy.get(name)
+    resources = summary.resources or {}
+    for name in RESOURCE_COLUMNS:
+        row[name] = resources.get(name)
     return row
 
 

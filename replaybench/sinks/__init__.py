@@ -2,6 +2,13 @@
 
 from __future__ import annotations
 
-from replaybench.sinks.mcap_writer import DetectionsWriter, detections_channel
+from replaybench.sinks.annotations import annotations_channel, serialize_image_annotations
+from replaybench.sinks.mcap_writer import DetectionsWriter, detections_channel, ros1_to_ros2_cdr
 
-__all__ = ['DetectionsWriter', 'detections_channel']
+__all__ = [
+    'DetectionsWriter',
+    'annotations_channel',
+    'detections_channel',
+    'ros1_to_ros2_cdr',
+    'serialize_image_annotations',
+]

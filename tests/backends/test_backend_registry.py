@@ -95,12 +95,13 @@ def entry_points(monkeypatch: pytest.MonkeyPatch, **targets: str) -> None:
     monkeypatch.setattr(registry, '_entry_points', lambda: sorted(eps, key=lambda e: e.name))
 
 
-def test_builtin_backends_are_null_and_hsv() -> None:
-    assert BUILTIN_BACKENDS == {
-        'null': 'replaybench.backends.null:NullBackend',
-        'hsv': 'replaybench.backends.hsv:HsvBackend',
-    }
-    assert backend_names()[:2] == ['null', 'hsv']
+BUILTINS = ['null', 'hsv', 'onnx-cpu', 'recorded', 'cuda', 'tensorrt', 'hsv-cuda']
+
+
+def test_builtin_backends_are_listed_in_registry_order() -> None:
+    assert list(BUILTIN_BACKENDS) == BUILTINS
+    assert BUILTIN_BACKENDS['hsv'] == 'replaybench.backends.hsv:HsvBackend'
+    assert backend_names() == BUILTINS
     assert get_backend('hsv') is HsvBackend
     assert get_backend('null') is NullBackend
 
@@ -109,7 +110,9 @@ def test_unknown_backend_is_a_usage_error_listing_the_names(
     monkeypatch: pytest.MonkeyPatch, plugin_module: str
 ) -> None:
     entry_points(monkeypatch, toy=f'{plugin_module}:ToyBackend')
-    with pytest.raises(UsageError, match=r"unknown backend 'yolo'; known backends: null, hsv, toy"):
+    with pytest.raises(
+        UsageError, match=r"unknown backend 'yolo'; known backends: null, hsv, .*hsv-cuda, toy"
+    ):
         get_backend('yolo')
 
 
@@ -117,7 +120,7 @@ def test_entry_point_backends_are_discovered(
     monkeypatch: pytest.MonkeyPatch, plugin_module: str
 ) -> None:
     entry_points(monkeypatch, toy=f'{plugin_module}:ToyBackend')
-    assert backend_names() == ['null', 'hsv', 'toy']
+    assert backend_names() == [*BUILTINS, 'toy']
     cls = get_backend('toy')
     assert cls.__name__ == 'ToyBackend'
     assert cls.__module__ == plugin_module
@@ -160,7 +163,7 @@ def test_an_entry_point_cannot_shadow_a_builtin(
 ) -> None:
     entry_points(monkeypatch, hsv=f'{plugin_module}:ToyBackend')
     assert get_backend('hsv') is HsvBackend
-    assert backend_names() == ['null', 'hsv']
+    assert backend_names() == BUILTINS
     shadow = [row for row in backend_table() if row.origin.startswith('entry point')]
     assert len(shadow) == 1
     assert shadow[0].name == 'hsv'
@@ -171,7 +174,7 @@ def test_invalid_entry_point_names_are_rejected(
     monkeypatch: pytest.MonkeyPatch, plugin_module: str
 ) -> None:
     entry_points(monkeypatch, **{'bad name': f'{plugin_module}:ToyBackend'})
-    assert backend_names() == ['null', 'hsv']
+    assert backend_names() == BUILTINS
     (row,) = [row for row in backend_table() if row.name == 'bad name']
     assert 'invalid backend name' in row.availability.reason
 

@@ -1,0 +1,662 @@
+"""The ONNX detector on an NVIDIA GPU: onnxruntime-gpu (IO binding) or PyTorch (onnx2torch).
+
+Per frame, all on one GPU (``options.device``):
+
+* ``h2d``: the frame's pixels copied once into pinned host memory, then to the device;
+* ``preprocess``: letterbox resize, padding, channel order, scale/mean/std and HWC->CHW with
+  torch ops on the device, written straight into the model's bound input tensor;
+* ``infer``: onnxruntime's CUDA provider with the input and outputs bound on the device
+  (``engine='ort'``), or the graph converted with onnx2torch and run by PyTorch
+  (``engine='torch'``: ``precision='fp16'`` casts it to half, and its forward pass is captured
+  as a CUDA graph when capture works);
+* ``postprocess``: decode, class-aware greedy NMS (torch ops, no torchvision) and the mapping
+  to source pixels on the device, then Detections on the host;
+* ``d2h``: only the kept boxes (x0, y0, x1, y1, score, class) come back.
+
+Each stage boundary synchronises the device before the clock is read (``StageClock``).
+The backend never runs on the CPU: a session whose first provider is not the GPU one is
+refused with ``BackendUnavailableError``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+from replaybench.backends.base import Availability, BackendOptions
+from replaybench.backends.gpu import _torch_ops as ops
+from replaybench.backends.gpu._cuda import StageClock, device_facts, driver_problem
+from replaybench.backends.gpu.availability import (
+    GPU_EXTRA,
+    check_session_providers,
+    cuda_availability,
+    module_missing,
+    ort_provider_problem,
+    torch_problem,
+)
+from replaybench.detector.spec import DEFAULT_CONF, DEFAULT_IOU, DEFAULT_MODEL, FAMILIES
+from replaybench.errors import BackendError, BackendUnavailableError
+from replaybench.types import BackendResult, Detection, StageTimes
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+    from pathlib import Path
+
+    import numpy.typing as npt
+
+    from replaybench.detector.preprocess import Transform
+    from replaybench.detector.spec import ModelSpec
+    from replaybench.types import Frame
+
+__all__ = [
+    'ENGINES',
+    'EXTRA_KEYS',
+    'CudaBackend',
+    'DnnPipeline',
+    'OrtEngine',
+    'TorchEngine',
+    'frame_input',
+    'ortvalue_to_torch',
+    'to_detections',
+]
+
+ENGINES = ('auto', 'ort', 'torch')
+PRECISIONS = ('fp32', 'fp16')
+#: Preprocessing overrides (as ``onnx-cpu``), ``size``, ``max_det``, and ``cuda_graph``
+#: (``on`` / ``off``; engine torch only) for ``options.extra``.
+EXTRA_KEYS = (
+    'channel_order',
+    'scale',
+    'pad_value',
+    'letterbox_align',
+    'letterbox',
+    'mean',
+    'std',
+    'size',
+    'max_det',
+    'cuda_graph',
+)
+_SPEC_KEYS = frozenset(EXTRA_KEYS[:8])
+#: Encodings uploaded as they are, with their channel layout; others go through to_bgr8.
+_LAYOUTS = {'bgr8': 'bgr', 'rgb8': 'rgb', 'bgra8': 'bgra', 'rgba8': 'rgba', 'mono8': 'y'}
+#: onnxruntime element types (TensorProto) -> numpy type strings, for the pointer fallback.
+_ORT_TYPES = {1: '<f4', 6: '<i4', 7: '<i8', 9: '|b1', 10: '<f2', 11: '<f8'}
+Tensor = Any  # torch.Tensor
+
+
+def frame_input(frame: Frame, backend: str) -> tuple[npt.NDArray[np.uint8], str]:
+    """The frame's uint8 pixels as uploaded and their channel layout; depth is refused."""
+    if frame.is_depth or frame.encoding == '32FC1':
+        msg = (
+            f'{backend}: frame {frame.topic}#{frame.seq} is a depth image '
+            f'({frame.source_encoding}); a detector for colour images cannot use it: '
+            'replay colour or mono topics only'
+        )
+        raise BackendError(msg)
+    image = frame.image
+    layout = _LAYOUTS.get(frame.encoding)
+    if layout is None:
+        from replaybench.decode import to_bgr8
+
+        image, layout = to_bgr8(image, frame.encoding), 'bgr'
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    channels = 1 if image.ndim == 2 else int(image.shape[2])
+    if image.dtype != np.uint8 or image.ndim not in (2, 3) or channels != len(layout):
+        msg = (
+            f'{backend}: frame {frame.topic}#{frame.seq}: expected a {len(layout)}-channel '
+            f'uint8 image for {frame.encoding}, got shape {image.shape} {image.dtype}'
+        )
+        raise BackendError(msg)
+    return np.asarray(image, dtype=np.uint8), layout
+
+
+def to_detections(rows: npt.NDArray[Any], class_names: Sequence[str]) -> tuple[Detection, ...]:
+    """Downloaded ``[K, 6]`` rows (source-pixel box, score, class) -> Detections.
+
+    As ``decoders.postprocess``: boxes left empty by clipping are dropped; labels from the
+    class names (the class index as text beyond them); sorted by (-score, class, x0, y0).
+    """
+    n_names = len(class_names)
+    found: list[Detection] = []
+    for x0, y0, x1, y1, score, cls in rows.tolist():
+        if x1 <= x0 or y1 <= y0:
+            continue
+        cid = int(cls)
+        label = class_names[cid] if 0 <= cid < n_names else str(cid)
+        found.append(Detection(cid, label, score, x0, y0, x1, y1))
+    found.sort(key=lambda d: (-d.score, d.class_index, d.x0, d.y0))
+    return tuple(found)
+
+
+class _DevicePointer:
+    """``__cuda_array_interface__`` over a raw device buffer (an onnxruntime output)."""
+
+    def __init__(self, ptr: int, shape: Sequence[int], typestr: str) -> None:
+        self.__cuda_array_interface__ = {
+            'shape': tuple(shape),
+            'typestr': typestr,
+            'data': (ptr, False),
+            'version': 2,
+        }
+
+
+def ortvalue_to_torch(torch: Any, value: Any, device: Any) -> Tensor:
+    """A torch view of an onnxruntime ``OrtValue`` output without a copy.
+
+    DLPack where the onnxruntime build offers it; else the raw pointer (CUDA) or numpy (CPU).
+    The ``OrtValue`` must outlive the tensor.
+    """
+    if hasattr(value, '__dlpack__'):
+        return torch.from_dlpack(value)
+    if device.type == 'cpu':
+        return torch.from_numpy(value.numpy())
+    typestr = _ORT_TYPES.get(int(value.element_type()))
+    if typestr is None:
+        msg = f'unsupported onnxruntime output type {value.data_type()}'
+        raise BackendError(msg)
+    wrapper = _DevicePointer(int(value.data_ptr()), list(value.shape()), typestr)
+    return torch.as_tensor(wrapper, device=device)
+
+
+class OrtEngine:
+    """onnxruntime session run with IO binding: input and outputs stay on the device."""
+
+    def __init__(self, session: Any, spec: ModelSpec, input_tensor: Tensor, torch: Any) -> None:
+        self.torch = torch
+        self.session = session
+        self.names = list(spec.output_names)
+        self.device = input_tensor.device
+        kind = 'cuda' if self.device.type == 'cuda' else 'cpu'
+        index = self.device.index or 0
+        dtype = np.float16 if input_tensor.dtype == torch.float16 else np.float32
+        binding = session.io_binding()
+        binding.bind_input(
+            spec.input_name, kind, index, dtype, list(input_tensor.shape), input_tensor.data_ptr()
+        )
+        for name in self.names:
+            binding.bind_output(name, kind, index)
+        self.binding = binding
+        self._values: list[Any] = []
+
+    def __call__(self) -> dict[str, Tensor]:
+        try:
+            self.session.run_with_iobinding(self.binding)
+        except Exception as exc:  # onnxruntime errors have several types
+            msg = f'inference failed: {type(exc).__name__}: {exc}'
+            raise BackendError(msg) from None
+        self.binding.synchronize_outputs()
+        self._values = self.binding.get_outputs()  # keeps the device buffers alive
+        return {
+            name: ortvalue_to_torch(self.torch, value, self.device)
+            for name, value in zip(self.names, self._values, strict=True)
+        }
+
+
+class TorchEngine:
+    """A torch module (the ONNX graph converted by onnx2torch) on the input tensor.
+
+    With ``cuda_graph`` the forward pass is captured once and replayed each frame; when
+    capture fails (ops that synchronise or allocate on the host) it runs eagerly and
+    ``graph_note`` says why.
+    """
+
+    def __init__(
+        self, torch: Any, module: Any, input_tensor: Tensor, names: Sequence[str], cuda_graph: bool
+    ) -> None:
+        self.torch = torch
+        self.module = module
+        self.input = input_tensor
+        self.names = list(names)
+        self.graph: Any = None
+        self.static: list[Tensor] = []
+        self.graph_note = 'off'
+        if cuda_graph and input_tensor.device.type == 'cuda':
+            self._capture()
+
+    def _forward(self) -> list[Tensor]:
+        with self.torch.inference_mode():
+            out = self.module(self.input)
+        return list(out) if isinstance(out, list | tuple) else [out]
+
+    def _capture(self) -> None:
+        torch = self.torch
+        try:
+            side = torch.cuda.Stream(device=self.input.device)
+            side.wait_stream(torch.cuda.current_stream(self.input.device))
+            with torch.cuda.stream(side):
+                for _ in range(3):
+                    self._forward()
+            torch.cuda.current_stream(self.input.device).wait_stream(side)
+            graph = torch.cuda.CUDAGraph()
+            with torch.cuda.graph(graph):
+                self.static = self._forward()
+        except Exception as exc:  # capture is an optimisation: fall back to eager mode
+            torch.cuda.synchronize(self.input.device)
+            self.graph = None
+            self.static = []
+            self.graph_note = f'eager (capture failed: {type(exc).__name__}: {exc})'[:300]
+            return
+        self.graph = graph
+        self.graph_note = 'captured'
+
+    def __call__(self) -> dict[str, Tensor]:
+        if self.graph is not None:
+            self.graph.replay()
+            outputs = self.static
+        else:
+            outputs = self._forward()
+        if len(outputs) < len(self.names):
+            msg = f'the converted model returned {len(outputs)} outputs, expected {len(self.names)}'
+            raise BackendError(msg)
+        return dict(zip(self.names, outputs, strict=False))
+
+
+class DnnPipeline:
+    """Upload, preprocessing and postprocessing of one model on one torch device.
+
+    ``input`` is the model's input tensor ``[1, 3, H, W]`` that engines bind; the device may be
+    the CPU for tests (no pinned memory there).
+    """
+
+    def __init__(
+        self,
+        torch: Any,
+        spec: ModelSpec,
+        device: Any,
+        half: bool,
+        conf: float,
+        iou: float,
+        max_det: int,
+    ) -> None:
+        self.torch = torch
+        self.spec = spec
+        self.device = device
+        self.conf = conf
+        self.iou = iou
+        self.max_det = max_det
+        width, height = spec.preprocess.size
+        dtype = torch.float16 if half else torch.float32
+        self.input = torch.empty((1, 3, height, width), dtype=dtype, device=device)
+        self._work = self.input if not half else torch.empty_like(self.input, dtype=torch.float32)
+        self._norm = ops.normaliser(torch, spec.preprocess, device)
+        self._grid = None
+        if spec.family == 'yolox':
+            self._grid = ops.yolox_grid(torch, spec.preprocess.size, device)
+        self._pinned: Tensor = None
+
+    def upload(self, pixels: npt.NDArray[np.uint8]) -> Tensor:
+        """The pixels on the device; through one reused pinned buffer on CUDA."""
+        torch = self.torch
+        if self.device.type != 'cuda':
+            return torch.from_numpy(np.array(pixels))
+        pinned = self._pinned
+        if pinned is None or tuple(pinned.shape) != pixels.shape:
+            pinned = self._pinned = torch.empty(pixels.shape, dtype=torch.uint8, pin_memory=True)
+        np.copyto(pinned.numpy(), pixels)
+        return pinned.to(self.device, non_blocking=True)
+
+    def preprocess(self, image: Tensor, layout: str) -> Transform:
+        """Write the model input for ``image`` (on the device) into ``input``."""
+        from replaybench.detector.preprocess import geometry
+
+        height, width = int(image.shape[0]), int(image.shape[1])
+        new_w, new_h, left, top, transform = geometry(width, height, self.spec.preprocess)
+        ops.letterbox_into(
+            self.torch,
+            self._work,
+            image,
+            layout,
+            self.spec.preprocess,
+            (new_w, new_h, left, top),
+            self._norm,
+        )
+        if self._work is not self.input:
+            self.input.copy_(self._work)
+        return transform
+
+    def postprocess(self, outputs: Mapping[str, Tensor], transform: Transform) -> list[Tensor]:
+        """What to download: ``[rows K x 6]`` for YOLO heads; the raw outputs for ``nms`` ones."""
+        torch = self.torch
+        spec = self.spec
+        if spec.family == 'nms':
+            return [outputs[name] for name in spec.output_names]
+        out = outputs[spec.output_names[0]]
+        if spec.family == 'yolox':
+            assert self._grid is not None
+            boxes, scores, classes = ops.decode_yolox(torch, out, *self._grid, self.conf)
+        elif spec.family == 'yolov5':
+            boxes, scores, classes = ops.decode_yolov5(torch, out, self.conf)
+        elif spec.family == 'yolov8':
+            boxes, scores, classes = ops.decode_yolov8(torch, out, self.conf)
+        else:
+            msg = f'unknown model family {spec.family!r}'
+            raise BackendError(msg)
+        keep = ops.batched_nms(torch, boxes, scores, classes, self.iou, self.max_det)
+        src = ops.boxes_to_source(torch, boxes[keep], transform)
+        rows = torch.cat((src, scores[keep, None], classes[keep, None].to(torch.float32)), dim=1)
+        return [rows]
+
+    def download(self, tensors: Sequence[Tensor]) -> list[npt.NDArray[Any]]:
+        return [t.detach().to('cpu').numpy() for t in tensors]
+
+    def detections(
+        self, arrays: Sequence[npt.NDArray[Any]], transform: Transform
+    ) -> tuple[Detection, ...]:
+        """Detections from the downloaded arrays (``nms`` models: the numpy decoder)."""
+        spec = self.spec
+        if spec.family == 'nms':
+            from replaybench.detector.decoders import postprocess
+
+            outputs = dict(zip(spec.output_names, arrays, strict=True))
+            return postprocess(outputs, spec, transform, self.conf, self.iou, self.max_det)
+        return to_detections(arrays[0], spec.class_names)
+
+
+def _unit(backend: str, name: str, value: float | None) -> None:
+    if value is not None and not 0.0 <= value <= 1.0:
+        msg = f'{backend}: --{name} must be within 0..1, got {value}'
+        raise BackendError(msg)
+
+
+class CudaBackend:
+    """ONNX detection models on an NVIDIA GPU; ``options.engine`` picks onnxruntime or torch.
+
+    Options as ``onnx-cpu`` (model, family, labels, conf, iou, preprocessing keys in ``extra``)
+    plus ``device`` (GPU index), ``engine`` (``auto`` | ``ort`` | ``torch``; auto takes the
+    first usable in that order), ``precision`` (``fp32`` | ``fp16``) and ``extra['cuda_graph']``.
+    """
+
+    name: ClassVar[str] = 'cuda'
+    description: ClassVar[str] = (
+        'ONNX detector on an NVIDIA GPU: onnxruntime-gpu (IO binding) or PyTorch (onnx2torch)'
+    )
+    #: Engines this backend may use, in ``auto`` order.
+    engines: ClassVar[tuple[str, ...]] = ('ort', 'torch')
+
+    def __init__(self, options: BackendOptions | None = None) -> None:
+        self.options = options if options is not None else BackendOptions()
+        opts = self.options
+        _unit(self.name, 'conf', opts.conf)
+        _unit(self.name, 'iou', opts.iou)
+        if opts.model_family is not None and opts.model_family not in FAMILIES:
+            known = ', '.join(FAMILIES)
+            msg = f'{self.name}: unknown --model-family {opts.model_family!r}; known: {known}'
+            raise BackendError(msg)
+        if opts.engine not in ENGINES:
+            msg = f'{self.name}: unknown --engine {opts.engine!r}; known: {", ".join(ENGINES)}'
+            raise BackendError(msg)
+        if opts.engine != 'auto' and opts.engine not in self.engines:
+            offered = ', '.join(self.engines)
+            msg = f'{self.name}: --engine {opts.engine} is not offered (only: {offered})'
+            raise BackendError(msg)
+        if opts.precision not in PRECISIONS:
+            msg = f'{self.name}: unknown --precision {opts.precision!r}; known: fp32, fp16'
+            raise BackendError(msg)
+        if opts.device < 0:
+            msg = f'{self.name}: --device must be >= 0, got {opts.device}'
+            raise BackendError(msg)
+        unknown = sorted(set(opts.extra) - set(EXTRA_KEYS) - set(self._extra_keys()))
+        if unknown:
+            known = ', '.join((*EXTRA_KEYS, *self._extra_keys()))
+            msg = f'{self.name}: unknown option {unknown[0]!r} (known: {known})'
+            raise BackendError(msg)
+        self.max_det = 300
+        if 'max_det' in opts.extra:
+            text = opts.extra['max_det']
+            self.max_det = int(text) if text.strip().isdigit() else 0
+            if self.max_det < 1:
+                msg = f'{self.name}: max_det must be an integer >= 1, got {text!r}'
+                raise BackendError(msg)
+        graph = opts.extra.get('cuda_graph', 'on').strip().lower()
+        if graph not in ('on', 'off', '1', '0', 'true', 'false'):
+            msg = f'{self.name}: cuda_graph must be on or off, got {opts.extra["cuda_graph"]!r}'
+            raise BackendError(msg)
+        self.cuda_graph = graph in ('on', '1', 'true')
+        self.model_path: Path = opts.model if opts.model is not None else DEFAULT_MODEL
+        self.iou = opts.iou if opts.iou is not None else DEFAULT_IOU
+        self.spec: ModelSpec | None = None
+        self.engine_name = ''
+        self.precision = ''
+        self._torch: Any = None
+        self._device: Any = None
+        self._stream: Any = None
+        self._pipeline: DnnPipeline | None = None
+        self._engine: OrtEngine | TorchEngine | None = None
+        self._facts: dict[str, Any] = {}
+
+    @classmethod
+    def _extra_keys(cls) -> tuple[str, ...]:
+        return ()
+
+    @classmethod
+    def available(cls) -> Availability:
+        return cuda_availability()
+
+    # -- engines -------------------------------------------------------------------------
+
+    def _providers(self) -> list[Any]:
+        return [
+            ('CUDAExecutionProvider', {'device_id': self.options.device}),
+            'CPUExecutionProvider',
+        ]
+
+    def _open_ort_session(self) -> tuple[Any, list[str], str]:
+        """A session on the GPU provider, its providers and onnxruntime's version."""
+        wanted = self._providers()[0][0]
+        problem = ort_provider_problem(wanted)
+        if problem is not None:
+            raise BackendUnavailableError(problem)
+        if not module_missing('torch'):
+            # torch's CUDA wheels bring the cuDNN / cuBLAS libraries onnxruntime-gpu loads.
+            importlib.import_module('torch')
+        import onnxruntime as ort
+
+        so = ort.SessionOptions()
+        so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        so.log_severity_level = 3
+        # CPU threads only run nodes the GPU providers leave over: keep them from spinning.
+        so.add_session_config_entry('session.intra_op.allow_spinning', '0')
+        if self.options.threads is not None:
+            so.intra_op_num_threads = self.options.threads
+        try:
+            session = ort.InferenceSession(str(self.model_path), so, providers=self._providers())
+        except Exception as exc:  # onnxruntime raises several types
+            problem = driver_problem(self.options.device)
+            if problem is not None:  # e.g. a GPU index beyond the machine
+                raise BackendUnavailableError(problem) from None
+            msg = f'cannot load {self.model_path}: {type(exc).__name__}: {exc}'
+            raise BackendError(msg) from None
+        providers = check_session_providers(session, wanted)
+        return session, providers, str(ort.__version__)
+
+    def _torch_device(self) -> tuple[Any, Any]:
+        problem = torch_problem(self.options.device)
+        if problem is not None:
+            raise BackendUnavailableError(problem)
+        torch = importlib.import_module('torch')
+        return torch, torch.device('cuda', self.options.device)
+
+    def _load_spec(self, session: Any) -> ModelSpec:
+        from replaybench.detector.spec import load_model_spec
+
+        overrides = {k: v for k, v in self.options.extra.items() if k in _SPEC_KEYS}
+        return load_model_spec(
+            self.model_path,
+            family=self.options.model_family,
+            labels=self.options.labels,
+            session=session,
+            overrides=overrides,
+        )
+
+    def _open_ort(self) -> tuple[ModelSpec, Any, Any, Any, dict[str, Any]]:
+        session, providers, version = self._open_ort_session()
+        spec = self._load_spec(session)
+        if self.options.precision == 'fp16' and spec.precision != 'fp16':
+            msg = (
+                f'{self.name}: --precision fp16 needs an fp16 model with engine ort '
+                '(this one takes fp32); use --engine torch, or the tensorrt backend'
+            )
+            raise BackendError(msg)
+        torch, device = self._torch_device()
+        facts = {'onnxruntime': version, 'providers': providers}
+        return spec, torch, device, session, facts
+
+    def _open_torch(self) -> tuple[ModelSpec, Any, Any, Any, dict[str, Any]]:
+        missing = [m for m in ('onnx2torch', 'onnx') if module_missing(m)]
+        if missing:
+            msg = f'{" and ".join(missing)} not installed: {GPU_EXTRA}'
+            raise BackendUnavailableError(msg)
+        torch, device = self._torch_device()
+        spec = self._load_spec(None)
+        onnx = importlib.import_module('onnx')
+        onnx2torch = importlib.import_module('onnx2torch')
+        try:
+            module = onnx2torch.convert(onnx.load(str(self.model_path)))
+        except Exception as exc:  # unsupported ops and the like
+            what = f'{type(exc).__name__}: {exc}'
+            msg = f'{self.name}: onnx2torch cannot convert {self.model_path}: {what}'
+            raise BackendError(msg) from None
+        facts = {'torch': str(torch.__version__), 'onnx2torch': _version('onnx2torch')}
+        return spec, torch, device, module, facts
+
+    # -- lifecycle -----------------------------------------------------------------------
+
+    def open(self) -> None:
+        if self._engine is not None:
+            return
+        if not self.model_path.is_file():
+            what = (
+                'the bundled model is not installed' if self.options.model is None else 'not found'
+            )
+            msg = f'{self.name}: model {self.model_path} {what}; pass --model PATH.onnx'
+            raise BackendError(msg)
+        wanted = self.engines if self.options.engine == 'auto' else (self.options.engine,)
+        problems: list[str] = []
+        for engine in wanted:
+            try:
+                self._open_engine(engine)
+            except BackendUnavailableError as exc:
+                problems.append(f'engine {engine}: {exc}')
+                continue
+            return
+        msg = f'{self.name}: no usable GPU engine: ' + '; '.join(problems)
+        raise BackendUnavailableError(msg)
+
+    def _open_engine(self, engine: str) -> None:
+        opened = self._open_ort() if engine == 'ort' else self._open_torch()
+        spec, torch, device, runner, facts = opened
+        half = spec.precision == 'fp16' or (engine == 'torch' and self.options.precision == 'fp16')
+        conf = self.options.conf if self.options.conf is not None else DEFAULT_CONF[spec.family]
+        with torch.cuda.device(device):
+            self._stream = torch.cuda.Stream(device=device)
+            with torch.cuda.stream(self._stream):
+                pipeline = DnnPipeline(torch, spec, device, half, conf, self.iou, self.max_det)
+                if engine == 'ort':
+                    self._engine = OrtEngine(runner, spec, pipeline.input, torch)
+                else:
+                    module = runner.to(device).eval()
+                    module = module.half() if half else module.float()
+                    self._engine = TorchEngine(
+                        torch, module, pipeline.input, _graph_output_names(spec), self.cuda_graph
+                    )
+                    facts['cuda_graph'] = self._engine.graph_note
+        self._torch, self._device, self._pipeline, self.spec = torch, device, pipeline, spec
+        self.engine_name = engine
+        self.precision = 'fp16' if half else 'fp32'
+        gpu = device_facts(self.options.device)
+        self._facts = {
+            'device': self.options.device,
+            'device_name': gpu.name,
+            'driver': gpu.driver,
+            'cuda_version': str(torch.version.cuda),
+            'device_memory_bytes': gpu.total_memory_bytes,
+            **facts,
+        }
+
+    def close(self) -> None:
+        self._engine = None
+        self._pipeline = None
+        self._stream = None
+
+    def info(self) -> dict[str, Any]:
+        facts: dict[str, Any] = {
+            'model': str(self.model_path),
+            'engine_requested': self.options.engine,
+            'engine': self.engine_name or None,
+            'precision': self.precision or self.options.precision,
+            'conf': self._pipeline.conf if self._pipeline is not None else self.options.conf,
+            'iou': self.iou,
+            'max_det': self.max_det,
+            'providers': [],
+            'timing': 'device synchronised at every stage boundary',
+        }
+        spec = self.spec
+        if spec is not None:
+            facts.update(
+                {
+                    'model_sha256': spec.sha256,
+                    'family': spec.family,
+                    'input_size': list(spec.preprocess.size),
+                    'class_names': list(spec.class_names),
+                    'nms': 'in graph'
+                    if spec.family == 'nms'
+                    else 'class-aware greedy (torch ops on the GPU), multi-label candidates',
+                }
+            )
+        facts.update(self._facts)
+        return facts
+
+    def detect(self, frame: Frame) -> BackendResult:
+        if self._engine is None:
+            self.open()
+        torch, pipeline, engine = self._torch, self._pipeline, self._engine
+        assert pipeline is not None and engine is not None
+        pixels, layout = frame_input(frame, self.name)
+        clock = StageClock(self._stream.synchronize)
+        with torch.cuda.device(self._device), torch.cuda.stream(self._stream):
+            clock.start()
+            image = pipeline.upload(pixels)
+            h2d = clock.lap()
+            try:
+                transform = pipeline.preprocess(image, layout)
+            except BackendError as exc:
+                msg = f'{self.name}: frame {frame.topic}#{frame.seq}: {exc}'
+                raise BackendError(msg) from None
+            pre = clock.lap()
+            outputs = engine()
+            infer = clock.lap()
+            tensors = pipeline.postprocess(outputs, transform)
+            post_device = clock.lap()
+            arrays = pipeline.download(tensors)
+            d2h = clock.lap()
+        t0 = time.perf_counter_ns()
+        detections = pipeline.detections(arrays, transform)
+        post_host = time.perf_counter_ns() - t0
+        stages = StageTimes(
+            preprocess_ns=pre,
+            infer_ns=infer,
+            postprocess_ns=post_device + post_host,
+            h2d_ns=h2d,
+            d2h_ns=d2h,
+        )
+        return BackendResult(detections, stages)
+
+
+def _graph_output_names(spec: ModelSpec) -> list[str]:
+    """Names of all graph outputs in graph order (onnx2torch returns them in this order)."""
+    onnx = importlib.import_module('onnx')
+    model = onnx.load(str(spec.path), load_external_data=False)
+    return [o.name for o in model.graph.output]
+
+
+def _version(module: str) -> str | None:
+    import importlib.metadata
+
+    try:
+        return importlib.metadata.version(module)
+    except importlib.metadata.PackageNotFoundError:
+        return None

@@ -1,0 +1,479 @@
+"""Merge run folders and compare every (run, backend, topic) with its baseline."""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple
+
+import numpy as np
+
+from replaybench.compare.bootstrap import (
+    CONFIDENCE,
+    DEFAULT_RESAMPLES,
+    MIN_FRAMES,
+    Replicates,
+    percentile_interval,
+    replicates,
+)
+from replaybench.compare.runs import CV_LIMIT, engine_text, inputs_match, load_runs, run_flags
+from replaybench.errors import UsageError
+from replaybench.results.stats import summarize
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+    from pathlib import Path
+
+    import numpy.typing as npt
+
+    from replaybench.compare.runs import RunInfo
+    from replaybench.results.records import FrameRecord
+    from replaybench.results.stats import Summary
+
+__all__ = [
+    'ACCURACY_METRICS',
+    'METRICS',
+    'TIMING_METRICS',
+    'Comparison',
+    'MetricComparison',
+    'Role',
+    'Row',
+    'compare_runs',
+]
+
+#: Timing metrics: compared as candidate / baseline ratios with block-bootstrap CIs.
+TIMING_METRICS: tuple[str, ...] = ('median_ms', 'p99_ms', 'mean_ms', 'fps')
+
+#: Accuracy metrics: compared as candidate - baseline differences of the run.json numbers.
+ACCURACY_METRICS: tuple[str, ...] = ('map50', 'recall50', 'precision50')
+
+#: Every metric, in table order.
+METRICS: tuple[str, ...] = TIMING_METRICS + ACCURACY_METRICS
+
+_REPLICATE: dict[str, str] = {'median_ms': 'p50', 'p99_ms': 'p99', 'mean_ms': 'mean', 'fps': 'fps'}
+_SUMMARY: dict[str, str] = {
+    'median_ms': 'latency_ms_p50',
+    'p99_ms': 'latency_ms_p99',
+    'mean_ms': 'latency_ms_mean',
+    'fps': 'throughput_fps',
+}
+
+Role = Literal['baseline', 'candidate', 'unpaired']
+
+Interval = tuple[float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class MetricComparison:
+    """One metric of one row against its baseline row.
+
+    ``ratio`` is candidate / baseline and ``diff`` candidate - baseline. CIs are 95 %
+    block-bootstrap percentile intervals (timing metrics only; accuracy metrics have none).
+    ``significant`` is None without a CI, else whether the ratio CI excludes 1.0.
+    """
+
+    metric: str
+    value: float | None
+    value_ci: Interval | None = None
+    baseline: float | None = None
+    ratio: float | None = None
+    ratio_ci: Interval | None = None
+    diff: float | None = None
+    diff_ci: Interval | None = None
+
+    @property
+    def significant(self) -> bool | None:
+        """Whether the ratio CI excludes 1.0; None when there is no CI."""
+        if self.ratio_ci is None:
+            return None
+        lo, hi = self.ratio_ci
+        return not lo <= 1.0 <= hi
+
+
+@dataclass(frozen=True, slots=True)
+class Row:
+    """One (run, backend, topic) and its metrics against the baseline row."""
+
+    run: int
+    run_label: str
+    backend: str
+    topic: str
+    role: Role
+    #: The backend of the baseline row compared with (None when unpaired).
+    baseline_backend: str | None
+    measured: int
+    latency_cv: float | None
+    block_length: int | None
+    inputs_match: bool | None
+    metrics: dict[str, MetricComparison]
+    flags: tuple[str, ...]
+
+    @property
+    def name(self) -> str:
+        """``run label · backend · topic``."""
+        return f'{self.run_label} · {self.backend} · {self.topic}'
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Comparison:
+    """Every row of every run, the baseline choice, the warnings and the statistics used."""
+
+    runs: tuple[RunInfo, ...]
+    baseline: int
+    baseline_backend: str | None
+    rows: tuple[Row, ...]
+    warnings: tuple[str, ...]
+    inputs_match: bool | None
+    seed: int
+    n_boot: int
+    confidence: float
+    #: (run index, backend, topic) -> measured latencies (ms) in replay order
+    latencies: dict[tuple[int, str, str], npt.NDArray[np.float64]] = field(repr=False)
+
+    @property
+    def baseline_run(self) -> RunInfo:
+        """The run the others are compared with."""
+        return self.runs[self.baseline]
+
+    def baseline_row(self, row: Row) -> Row | None:
+        """The row ``row`` is compared with (itself for a baseline row)."""
+        if row.baseline_backend is None:
+            return None
+        for other in self.rows:
+            if (
+                other.run == self.baseline
+                and other.backend == row.baseline_backend
+                and other.topic == row.topic
+            ):
+                return other
+        return None
+
+
+class _Series(NamedTuple):
+    latency: npt.NDArray[np.float64]
+    intervals: npt.NDArray[np.float64] | None
+    summary: Summary
+
+
+def _series(records: Sequence[FrameRecord]) -> dict[tuple[str, str], _Series]:
+    """Measured latencies and inter-completion intervals per (backend, topic), in replay order."""
+    groups: dict[tuple[str, str], list[FrameRecord]] = {}
+    for record in records:
+        groups.setdefault((record.backend, record.topic), []).append(record)
+    summaries = {(s.backend, s.topic): s for s in summarize(records)}
+    result: dict[tuple[str, str], _Series] = {}
+    for key, group in groups.items():
+        ordered = sorted(group, key=lambda r: r.release_s)
+        measured = [
+            r for r in ordered if r.status == 'ok' and not r.warmup and r.latency_ms is not None
+        ]
+        latency = np.asarray([r.latency_ms for r in measured], dtype=np.float64)
+        result[key] = _Series(latency, _intervals(ordered, measured), summaries[key])
+    return result
+
+
+def _intervals(
+    ordered: Sequence[FrameRecord], measured: Sequence[FrameRecord]
+) -> npt.NDArray[np.float64] | None:
+    """Completion-to-completion times; they add up to the throughput window of stats.py."""
+    if not measured or any(r.done_s is None for r in measured):
+        return None
+    start: float | None = measured[0].start_s
+    previous = None
+    for record in ordered:
+        if record is measured[0]:
+            break
+        if record.status == 'ok':
+            previous = record
+    if previous is not None and previous.done_s is not None:
+        start = previous.done_s
+    if start is None:
+        return None
+    done = np.asarray([start] + [r.done_s for r in measured], dtype=np.float64)
+    return np.diff(done)
+
+
+def _accuracy(run: Mapping[str, Any]) -> dict[tuple[str, str], dict[str, float]]:
+    table: dict[tuple[str, str], dict[str, float]] = {}
+    rows = run.get('summary')
+    for row in rows if isinstance(rows, list) else []:
+        if not isinstance(row, dict):
+            continue
+        found = row.get('accuracy')
+        acc: dict[str, Any] = found if isinstance(found, dict) else {}
+        values: dict[str, float] = {}
+        for name in ACCURACY_METRICS:
+            value = acc.get(name, row.get(name))
+            number = (
+                value if isinstance(value, int | float) and not isinstance(value, bool) else None
+            )
+            if number is not None and np.isfinite(number):
+                values[name] = float(number)
+        table[(str(row.get('backend')), str(row.get('topic')))] = values
+    return table
+
+
+def _rng(seed: int, run: int, backend: str, topic: str) -> np.random.Generator:
+    key = zlib.crc32(f'{backend}\0{topic}'.encode())
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(run, key)))
+
+
+def _ratio_interval(
+    cand: npt.NDArray[np.float64], base: npt.NDArray[np.float64], confidence: float
+) -> tuple[Interval | None, Interval | None]:
+    with np.errstate(divide='ignore', invalid='ignore'):
+        ratio = percentile_interval(cand / base, confidence)
+    return ratio, percentile_interval(cand - base, confidence)
+
+
+def _reps(reps: Replicates | None, metric: str) -> npt.NDArray[np.float64] | None:
+    if reps is None:
+        return None
+    found: npt.NDArray[np.float64] | None = getattr(reps, _REPLICATE[metric])
+    return found
+
+
+def _timing(
+    metric: str,
+    value: float | None,
+    own: Replicates | None,
+    base_value: float | None,
+    base: Replicates | None,
+    confidence: float,
+    paired: bool,
+) -> MetricComparison:
+    mine = _reps(own, metric)
+    value_ci = percentile_interval(mine, confidence) if mine is not None else None
+    if not paired:
+        return MetricComparison(metric, value, value_ci)
+    ratio = diff = None
+    if value is not None and base_value is not None:
+        diff = value - base_value
+        ratio = value / base_value if base_value > 0 else None
+    theirs = _reps(base, metric)
+    ratio_ci = diff_ci = None
+    if mine is not None and theirs is not None and ratio is not None:
+        ratio_ci, diff_ci = _ratio_interval(mine, theirs, confidence)
+    return MetricComparison(metric, value, value_ci, base_value, ratio, ratio_ci, diff, diff_ci)
+
+
+def _accuracy_metric(
+    metric: str, value: float | None, base_value: float | None, paired: bool
+) -> MetricComparison:
+    if not paired or value is None or base_value is None:
+        return MetricComparison(metric, value, baseline=base_value if paired else None)
+    ratio = value / base_value if base_value > 0 else None
+    return MetricComparison(metric, value, None, base_value, ratio, None, value - base_value)
+
+
+def _reference(
+    run: RunInfo,
+    backend: str,
+    topic: str,
+    baseline_keys: Sequence[tuple[str, str]],
+    baseline_backend: str | None,
+) -> str | None:
+    """The baseline run's backend this row is compared with, or None."""
+    wanted = baseline_backend or backend
+    if (wanted, topic) in baseline_keys:
+        return wanted
+    if baseline_backend is None:
+        on_topic = [b for b, t in baseline_keys if t == topic]
+        if len(on_topic) == 1:
+            return on_topic[0]
+    return None
+
+
+def compare_runs(
+    run_dirs: Sequence[str | Path],
+    *,
+    baseline: int = 0,
+    baseline_backend: str | None = None,
+    seed: int = 0,
+    n_boot: int = DEFAULT_RESAMPLES,
+    confidence: float = CONFIDENCE,
+) -> Comparison:
+    """Compare every (run, backend, topic) of ``run_dirs`` with the baseline run.
+
+    A row is compared with the baseline run's row of the same topic and of ``baseline_backend``
+    (default: the same backend; when the baseline run has no such backend but exactly one on
+    that topic, that one). With a single run folder the baseline backend defaults to its first
+    backend, so the backends of one run are compared with each other.
+
+    Raises UsageError for bad arguments and SourceError for unreadable run folders.
+    """
+    if not run_dirs:
+        msg = (
+            'no run folder given: compare needs two or more run folders '
+            '(or one with several backends)'
+        )
+        raise UsageError(msg)
+    if not 0 <= baseline < len(run_dirs):
+        msg = f'baseline index {baseline} out of range: {len(run_dirs)} run folder(s) given'
+        raise UsageError(msg)
+    if n_boot < 1:
+        msg = f'n_boot must be at least 1, not {n_boot}'
+        raise UsageError(msg)
+    runs = load_runs(run_dirs)
+    base_run = runs[baseline]
+    series = [_series(r.data.frames) for r in runs]
+    accuracy = [_accuracy(r.data.run) for r in runs]
+    baseline_keys = list(series[baseline])
+    if baseline_backend is None and len(runs) == 1:
+        backends = list(dict.fromkeys(b for b, _ in baseline_keys))
+        if len(backends) < 2:
+            msg = (
+                f'nothing to compare: {runs[0].dir} has one backend; give two or more run folders '
+                'or one with several backends'
+            )
+            raise UsageError(msg)
+        baseline_backend = backends[0]
+    if baseline_backend is not None and baseline_backend not in {b for b, _ in baseline_keys}:
+        known = ', '.join(dict.fromkeys(b for b, _ in baseline_keys)) or 'none'
+        msg = f'baseline backend {baseline_backend!r} is not in {base_run.dir} (it has: {known})'
+        raise UsageError(msg)
+
+    cache: dict[tuple[int, str, str], Replicates | None] = {}
+
+    def reps(run: int, backend: str, topic: str) -> Replicates | None:
+        key = (run, backend, topic)
+        if key not in cache:
+            s = series[run][backend, topic]
+            cache[key] = replicates(
+                s.latency, s.intervals, n_boot=n_boot, rng=_rng(seed, run, backend, topic)
+            )
+        return cache[key]
+
+    warnings: list[str] = []
+    flags_of_run = {r.index: run_flags(r, base_run) for r in runs}
+    engines = _engine_flags(runs, baseline)
+    rows: list[Row] = []
+    for run in runs:
+        for line in flags_of_run[run.index]:
+            warnings.append(f'{run.label}: {line}')
+        match = inputs_match(run, base_run) if run.index != baseline else True
+        for (backend, topic), s in series[run.index].items():
+            ref = _reference(run, backend, topic, baseline_keys, baseline_backend)
+            role: Role
+            if ref is None:
+                role = 'unpaired'
+            elif run.index == baseline and ref == backend:
+                role = 'baseline'
+            else:
+                role = 'candidate'
+            paired = role == 'candidate'
+            summary = s.summary
+            mean, std = summary.latency_ms_mean, summary.latency_ms_std
+            cv = std / mean if mean and std is not None and mean > 0 else None
+            flags = list(flags_of_run[run.index])
+            if cv is not None and cv > CV_LIMIT:
+                flags.append(f'unstable latency: CV {cv:.3f} > {CV_LIMIT:g}')
+            if s.latency.size < MIN_FRAMES:
+                flags.append(f'{s.latency.size} measured frames: too few for a CI (< {MIN_FRAMES})')
+            engine = engines.get((run.index, backend))
+            if engine:
+                flags.append(engine)
+            if role == 'unpaired':
+                flags.append('no baseline row for this backend and topic')
+            own = reps(run.index, backend, topic)
+            base_series = series[baseline][ref, topic] if ref is not None else None
+            base_reps = reps(baseline, ref, topic) if paired and ref is not None else None
+            metrics: dict[str, MetricComparison] = {}
+            for metric in TIMING_METRICS:
+                value = getattr(summary, _SUMMARY[metric])
+                base_value = (
+                    getattr(base_series.summary, _SUMMARY[metric])
+                    if base_series is not None
+                    else None
+                )
+                metrics[metric] = _timing(
+                    metric, value, own, base_value, base_reps, confidence, paired
+                )
+            acc = accuracy[run.index].get((backend, topic), {})
+            base_acc = accuracy[baseline].get((ref, topic), {}) if ref is not None else {}
+            for metric in ACCURACY_METRICS:
+                metrics[metric] = _accuracy_metric(
+                    metric, acc.get(metric), base_acc.get(metric), paired
+                )
+            row = Row(
+                run=run.index,
+                run_label=run.label,
+                backend=backend,
+                topic=topic,
+                role=role,
+                baseline_backend=ref,
+                measured=int(s.latency.size),
+                latency_cv=cv,
+                block_length=own.block if own is not None else None,
+                inputs_match=match,
+                metrics=metrics,
+                flags=tuple(flags),
+            )
+            rows.append(row)
+            extra = [f for f in flags if f not in flags_of_run[run.index]]
+            if extra:
+                warnings.append(f'{row.name}: ' + '; '.join(extra))
+    candidates = [r for r in runs if r.index != baseline]
+    matches = [inputs_match(r, base_run) for r in candidates]
+    if any(m is False for m in matches):
+        overall: bool | None = False
+    elif not candidates or any(m is None for m in matches):
+        overall = None
+    else:
+        overall = True
+    for run, m in zip(candidates, matches, strict=True):
+        if m is False:
+            warnings.insert(0, _mismatch_line(run, base_run))
+    return Comparison(
+        runs=tuple(runs),
+        baseline=baseline,
+        baseline_backend=baseline_backend,
+        rows=tuple(rows),
+        warnings=tuple(dict.fromkeys(warnings)),
+        inputs_match=overall,
+        seed=seed,
+        n_boot=n_boot,
+        confidence=confidence,
+        latencies={
+            (run.index, b, t): s.latency for run in runs for (b, t), s in series[run.index].items()
+        },
+    )
+
+
+def _short(sha: str | None) -> str:
+    return sha[:12] if sha else 'unknown'
+
+
+def _mismatch_line(run: RunInfo, base: RunInfo) -> str:
+    mine = ', '.join(
+        f'{p} ({_short(s)})' for p, s in zip(run.input_paths, run.input_sha256, strict=True)
+    )
+    theirs = ', '.join(
+        f'{p} ({_short(s)})' for p, s in zip(base.input_paths, base.input_sha256, strict=True)
+    )
+    return (
+        f'INPUTS DIFFER: {run.label} replayed {mine or "nothing"} but the baseline '
+        f'{base.label} replayed {theirs or "nothing"} (sha256 do not match); the comparison '
+        'is still made, but it is not over the same data'
+    )
+
+
+def _engine_flags(runs: Sequence[RunInfo], baseline: int) -> dict[tuple[int, str], str]:
+    """Per (run, backend): a flag when the backend ran on another engine than in the reference.
+
+    The reference is the baseline run when it has the backend, else the first run that has it.
+    """
+    flags: dict[tuple[int, str], str] = {}
+    backends = list(dict.fromkeys(b for r in runs for b in r.backend_info))
+    for backend in backends:
+        having = [r for r in runs if backend in r.backend_info]
+        ref = next((r for r in having if r.index == baseline), having[0])
+        ref_engine = engine_text(ref.backend_info[backend])
+        for run in having:
+            mine = engine_text(run.backend_info[backend])
+            if run.index != ref.index and mine != ref_engine:
+                flags[(run.index, backend)] = (
+                    f'engine mismatch for backend {backend}: {mine or "not recorded"} here, '
+                    f'{ref_engine or "not recorded"} in {ref.label}'
+                )
+    return flags

@@ -1,0 +1,471 @@
+"""comparison.html: one self-contained page (inline CSS and SVG, no scripts) for a comparison."""
+
+from __future__ import annotations
+
+import math
+from html import escape
+from typing import TYPE_CHECKING, NamedTuple
+
+from replaybench.compare.bootstrap import MIN_FRAMES
+from replaybench.compare.core import ACCURACY_METRICS, TIMING_METRICS
+from replaybench.compare.runs import CV_LIMIT, engine_text, inputs_match
+from replaybench.report.svg import colour, nice_ticks, step_cdf
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from replaybench.compare.core import Comparison, MetricComparison, Row
+    from replaybench.compare.gate import GateResult
+
+__all__ = ['render_comparison_html']
+
+_CSS = """
+:root{--fg:#1d1d1f;--muted:#666;--line:#ddd;--bg:#fff;--soft:#f6f7f9}
+*{box-sizing:border-box}
+body{margin:0;font:14px/1.45 system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;
+color:var(--fg);background:var(--bg)}
+main{max-width:1280px;margin:0 auto;padding:20px 24px 48px}
+h1{font-size:22px;margin:0 0 4px}
+h2{font-size:18px;margin:28px 0 10px;padding-bottom:4px;border-bottom:1px solid var(--line)}
+h3{font-size:15px;margin:18px 0 8px}
+.meta{color:var(--muted);margin:0 0 12px}
+.badge{display:inline-block;padding:1px 8px;border-radius:10px;font-weight:600;font-size:12px;
+color:#fff;background:#777;white-space:nowrap}
+.badge.pass,.badge.match{background:#2e7d32}.badge.fail,.badge.mismatch{background:#c62828}
+.badge.ns{background:#9e9e9e}.badge.sig{background:#1565c0}.badge.unknown{background:#e65100}
+.banner{border:1px solid #e0b000;background:#fff8e1;border-radius:6px;padding:10px 14px;
+margin:12px 0}
+.banner.bad{border-color:#c62828;background:#ffebee}
+.banner strong{display:block;margin-bottom:4px}
+.banner ul{margin:4px 0 0;padding-left:20px}
+table{border-collapse:collapse;width:100%;margin:6px 0 10px;font-variant-numeric:tabular-nums}
+th,td{border-bottom:1px solid var(--line);padding:4px 8px;text-align:left;vertical-align:top}
+th{background:var(--soft);font-weight:600;white-space:nowrap}
+td.n,th.n{text-align:right;white-space:nowrap}
+td.flags{color:#8a4b00;font-size:12px}
+tr.flagrow td{border-top:none;padding-top:0}
+table.summary tr:has(+ tr.flagrow) td{border-bottom:none}
+td.run{min-width:160px;max-width:260px}
+tr.base td{background:#fafafa}
+.ci{color:var(--muted);font-size:12px;display:block}
+.swatch{display:inline-block;width:10px;height:10px;border-radius:2px;margin-right:6px}
+.table-wrap{overflow-x:auto}
+.charts{display:flex;flex-wrap:wrap;gap:10px}
+svg.chart{max-width:100%;height:auto;background:#fff;border:1px solid var(--line);
+border-radius:6px}
+code{font:12px/1.4 ui-monospace,SFMono-Regular,Menlo,Consolas,monospace}
+.muted{color:var(--muted)}
+footer{margin-top:36px;color:var(--muted);font-size:12px}
+"""
+
+_NAMES: dict[str, str] = {
+    'median_ms': 'median ms',
+    'p99_ms': 'p99 ms',
+    'mean_ms': 'mean ms',
+    'fps': 'FPS',
+    'map50': 'mAP@0.5',
+    'recall50': 'R@0.5',
+    'precision50': 'P@0.5',
+}
+
+_FONT = 'system-ui, -apple-system, Segoe UI, Roboto, sans-serif'
+
+
+def _e(value: object) -> str:
+    return escape(str(value), quote=True)
+
+
+def _num(value: float | None, digits: int = 4) -> str:
+    if value is None or not math.isfinite(value):
+        return '–'
+    return f'{value:.{digits}g}'
+
+
+def _swatch(fill: str) -> str:
+    return f'<span class="swatch" style="background:{_e(fill)}"></span>'
+
+
+def _pct(ratio: float) -> str:
+    return f'{(ratio - 1.0) * 100.0:+.1f}%'
+
+
+# --------------------------------------------------------------------------- sections
+
+
+def _header(comparison: Comparison) -> str:
+    base = comparison.baseline_run
+    backend = (
+        f' · baseline backend <code>{_e(comparison.baseline_backend)}</code>'
+        if comparison.baseline_backend
+        else ''
+    )
+    level = round(comparison.confidence * 100)
+    return (
+        '<header><h1>replaybench comparison</h1>'
+        f'<p class="meta">{len(comparison.runs)} run(s) · baseline <strong>{_e(base.label)}'
+        f'</strong>{backend} · {level}% CIs from {comparison.n_boot} circular block-bootstrap '
+        f'resamples (seed {comparison.seed})</p></header>'
+    )
+
+
+def _inputs_status(comparison: Comparison) -> str:
+    match = comparison.inputs_match
+    if match is True:
+        return (
+            '<p><span class="badge match">inputs match</span> every run replayed the same '
+            'files (sha256).</p>'
+        )
+    if match is False:
+        return (
+            '<div class="banner bad" role="alert"><strong>Inputs differ</strong>'
+            '<span class="badge mismatch">sha256 mismatch</span> at least one run replayed other '
+            'files than the baseline; the numbers are compared anyway, but not over the same '
+            'data.</div>'
+        )
+    if len(comparison.runs) == 1:
+        return (
+            '<p><span class="badge match">one run</span> backends compared on the same frames.</p>'
+        )
+    return (
+        '<p><span class="badge unknown">inputs not checked</span> a run folder does not record '
+        'the sha256 of its inputs.</p>'
+    )
+
+
+def _banner(comparison: Comparison) -> str:
+    if not comparison.warnings:
+        return ''
+    body = ''.join(f'<li>{_e(w)}</li>' for w in comparison.warnings)
+    return f'<div class="banner" role="alert"><strong>Warnings</strong><ul>{body}</ul></div>'
+
+
+def _gate(gate: Sequence[GateResult], conditions: Sequence[str], strict: bool) -> str:
+    if not conditions:
+        return ''
+    failed = any(r.failed for r in gate)
+    badge = (
+        '<span class="badge fail">FAIL</span>' if failed else '<span class="badge pass">PASS</span>'
+    )
+    mode = (
+        'strict: the point estimate is judged'
+        if strict
+        else 'a condition fails only when its whole CI lies past the threshold'
+    )
+    listed = ', '.join(f'<code>{_e(c)}</code>' for c in conditions)
+    rows = []
+    for r in gate:
+        verdict = (
+            '<span class="badge fail">fail</span>'
+            if r.failed
+            else '<span class="badge pass">pass</span>'
+        )
+        unit = '%' if r.condition.rstrip().endswith('%') else ''
+        ci = (
+            f'{_num(r.ci_low)}{unit} … {_num(r.ci_high)}{unit}'
+            if r.ci_low is not None and r.ci_high is not None
+            else 'no CI'
+        )
+        change = f'{_num(r.estimate)}{unit}' if r.estimate is not None else '–'
+        rows.append(
+            f'<tr><td>{verdict}</td><td><code>{_e(r.condition)}</code></td><td>{_e(r.run)}</td>'
+            f'<td>{_e(r.backend)}</td><td><code>{_e(r.topic)}</code></td>'
+            f'<td class="n">{_e(change)}</td><td class="n">{_e(ci)}</td>'
+            f'<td>{_e(r.explanation)}</td></tr>',
+        )
+    table = (
+        '<div class="table-wrap"><table><thead><tr><th></th><th>condition</th><th>run</th>'
+        '<th>backend</th><th>topic</th><th class="n">change</th><th class="n">CI</th>'
+        f'<th>explanation</th></tr></thead><tbody>{"".join(rows)}</tbody></table></div>'
+    )
+    if not gate:
+        table = '<p class="muted">No candidate row to judge.</p>'
+    return (
+        f'<h2 id="gate">Gate {badge}</h2><p class="meta">Conditions {listed}; {_e(mode)}. '
+        'Change: percent for relative conditions, the metric unit for absolute ones.</p>' + table
+    )
+
+
+def _runs(comparison: Comparison) -> str:
+    base = comparison.baseline_run
+    rows = []
+    for run in comparison.runs:
+        shas = ', '.join(s[:12] if s else '?' for s in run.input_sha256) or '–'
+        if run.index == base.index:
+            status = '<span class="badge">baseline</span>'
+        else:
+            status = {
+                True: '<span class="badge match">match</span>',
+                False: '<span class="badge mismatch">differ</span>',
+                None: '<span class="badge unknown">unknown</span>',
+            }[inputs_match(run, base)]
+        engines = '; '.join(
+            f'{label}: {engine_text(info)}'
+            for label, info in run.backend_info.items()
+            if engine_text(info)
+        )
+        load = (
+            f'{run.load_average:g} / {run.cores} cores'
+            if run.load_average is not None and run.cores
+            else _num(run.load_average)
+        )
+        rows.append(
+            f'<tr><td>{_swatch(colour(run.index))}{_e(run.label)}'
+            f'<span class="ci">{_e(run.dir)}</span></td><td>{_e(run.status)}</td>'
+            f'<td>{_e(run.cpu_model or "–")}</td><td>{_e(", ".join(run.gpus) or "none")}</td>'
+            f'<td>{_e(run.governor or "unknown")}</td><td class="n">{_e(load)}</td>'
+            f'<td>{_e(engines or "–")}</td>'
+            f'<td><code title="{_e(", ".join(s or "?" for s in run.input_sha256))}">'
+            f'{_e(shas)}</code> {status}</td></tr>',
+        )
+    return (
+        '<h2 id="runs">Runs</h2><div class="table-wrap"><table><thead><tr><th>run</th>'
+        '<th>status</th><th>CPU</th><th>GPUs</th><th>governor</th><th class="n">load</th>'
+        '<th>engines</th><th>inputs (sha256)</th></tr></thead>'
+        f'<tbody>{"".join(rows)}</tbody></table></div>'
+    )
+
+
+def _timing_cell(m: MetricComparison, role: str) -> str:
+    value = f'{_e(_num(m.value))}'
+    if role != 'candidate':
+        ci = (
+            f'<span class="ci">[{_e(_num(m.value_ci[0]))}, {_e(_num(m.value_ci[1]))}]</span>'
+            if m.value_ci
+            else ''
+        )
+        return f'<td class="n">{value}{ci}</td>'
+    if m.ratio is None:
+        return f'<td class="n">{value}<span class="ci">no ratio</span></td>'
+    ratio = f'×{m.ratio:.3f} ({_pct(m.ratio)})'
+    if m.ratio_ci is None:
+        detail = '<span class="ci">no CI</span>'
+    else:
+        lo, hi = m.ratio_ci
+        badge = (
+            '<span class="badge sig">significant</span>'
+            if m.significant
+            else '<span class="badge ns">not significant</span>'
+        )
+        detail = f'<span class="ci">CI ×{lo:.3f} … ×{hi:.3f}</span>{badge}'
+    return f'<td class="n">{value}<span class="ci">{_e(ratio)}</span>{detail}</td>'
+
+
+def _accuracy_cell(m: MetricComparison, role: str) -> str:
+    value = _e(_num(m.value))
+    if role != 'candidate' or m.diff is None:
+        return f'<td class="n">{value}</td>'
+    return f'<td class="n">{value}<span class="ci">Δ {m.diff:+.4f} (no CI)</span></td>'
+
+
+def _summary(comparison: Comparison) -> str:
+    accuracy = [
+        m for m in ACCURACY_METRICS if any(r.metrics[m].value is not None for r in comparison.rows)
+    ]
+    head = ['run', 'backend', 'topic', 'role', 'n']
+    head += [_NAMES[m] for m in (*TIMING_METRICS, *accuracy)]
+    th = ''.join(
+        f'<th class="n">{_e(h)}</th>' if i >= 4 else f'<th>{_e(h)}</th>' for i, h in enumerate(head)
+    )
+    body = []
+    for row in comparison.rows:
+        role = row.role
+        versus = (
+            f'<span class="ci">vs {_e(row.baseline_backend)}</span>'
+            if role == 'candidate' and row.baseline_backend != row.backend
+            else ''
+        )
+        cells = [
+            f'<td class="run">{_swatch(colour(row.run))}{_e(row.run_label)}</td>',
+            f'<td>{_e(row.backend)}{versus}</td>',
+            f'<td><code>{_e(row.topic)}</code></td>',
+            f'<td>{_e(role)}</td>',
+            f'<td class="n">{row.measured}</td>',
+        ]
+        cells += [_timing_cell(row.metrics[m], role) for m in TIMING_METRICS]
+        cells += [_accuracy_cell(row.metrics[m], role) for m in accuracy]
+        css = 'base' if role == 'baseline' else ''
+        body.append(f'<tr class="{css}">{"".join(cells)}</tr>')
+        if row.flags:
+            flags = '; '.join(_e(f) for f in row.flags)
+            body.append(
+                f'<tr class="{css} flagrow"><td></td><td class="flags" colspan="{len(head) - 1}">'
+                f'⚑ {flags}</td></tr>'
+            )
+    return (
+        '<h2 id="summary">Summary</h2><div class="table-wrap"><table class="summary"><thead><tr>'
+        f'{th}</tr></thead><tbody>{"".join(body)}</tbody></table></div>'
+        '<p class="muted">Candidate rows: value, ratio to the baseline row (candidate / '
+        f'baseline) and its {round(comparison.confidence * 100)}% CI; "not significant" when the '
+        'CI contains 1. Baseline rows: value and the CI of the value itself. Accuracy: difference '
+        "of the run.json numbers, without CI. ⚑ flags: facts that make a row's timings doubtful "
+        'or not comparable.</p>'
+    )
+
+
+# --------------------------------------------------------------------------- charts
+
+
+class _Bar(NamedTuple):
+    label: str
+    fill: str
+    opacity: float
+    value: float | None
+    ci: tuple[float, float] | None
+
+
+def _n(value: float) -> str:
+    text = f'{value:.1f}'
+    return '0.0' if text == '-0.0' else text
+
+
+def _interval_chart(bars: Sequence[_Bar], *, title: str, x_label: str, width: int = 720) -> str:
+    """Horizontal bars with confidence-interval whiskers."""
+    label_w = min(300, max(60, int(max((len(b.label) for b in bars), default=4) * 6.6) + 12))
+    left, right, top = label_w + 8, 80, 32
+    bar_h, gap = 16, 6
+    plot_h = max(1, len(bars)) * (bar_h + gap) + gap
+    height = top + plot_h + 40
+    plot_w = width - left - right
+    highs = [b.ci[1] if b.ci else b.value for b in bars]
+    hi = max((h for h in highs if h is not None and math.isfinite(h)), default=1.0) or 1.0
+    ticks = nice_ticks(0.0, hi)
+    span = ticks[-1] - ticks[0] or 1.0
+
+    def sx(v: float) -> float:
+        return left + (min(max(v, ticks[0]), ticks[-1]) - ticks[0]) / span * plot_w
+
+    parts = [
+        (
+            f'<svg class="chart" viewBox="0 0 {width} {height}" width="{width}" '
+            f'height="{height}" role="img" aria-label="{_e(title)}" font-family="{_FONT}" '
+            f'font-size="12"><title>{_e(title)}</title>'
+            f'<text x="8" y="18" font-size="14" font-weight="600" fill="#222">{_e(title)}</text>'
+        ),
+    ]
+    base = top + plot_h
+    for tick in ticks:
+        px = sx(tick)
+        parts.append(
+            f'<line x1="{_n(px)}" y1="{top}" x2="{_n(px)}" y2="{_n(base)}" stroke="#e4e4e4"/>'
+            f'<text x="{_n(px)}" y="{_n(base + 16)}" text-anchor="middle" fill="#222">'
+            f'{_e(f"{tick:g}")}</text>',
+        )
+    for i, bar in enumerate(bars):
+        y = top + gap + i * (bar_h + gap)
+        mid = y + bar_h / 2
+        shown = (
+            bar.label
+            if len(bar.label) * 6.6 <= label_w
+            else bar.label[: int(label_w / 6.6) - 1] + '…'
+        )
+        parts.append(
+            f'<text x="{left - 6}" y="{_n(mid + 4)}" text-anchor="end" fill="#222">'
+            f'<title>{_e(bar.label)}</title>{_e(shown)}</text>',
+        )
+        if bar.value is None:
+            parts.append(f'<text x="{left + 4}" y="{_n(mid + 4)}" fill="#666">n/a</text>')
+            continue
+        x1 = sx(bar.value)
+        ci_text = f' [{bar.ci[0]:.4g}, {bar.ci[1]:.4g}]' if bar.ci else ''
+        parts.append(
+            f'<rect x="{left}" y="{_n(y)}" width="{_n(max(x1 - left, 0.5))}" height="{bar_h}" '
+            f'fill="{_e(bar.fill)}" fill-opacity="{bar.opacity:g}"><title>{_e(bar.label)}: '
+            f'{bar.value:.4g}{_e(ci_text)}</title></rect>',
+        )
+        end = x1
+        if bar.ci is not None:
+            a, b = sx(bar.ci[0]), sx(bar.ci[1])
+            end = max(end, b)
+            parts.append(
+                f'<path d="M{_n(a)} {_n(mid)}H{_n(b)}M{_n(a)} {_n(y + 3)}V{_n(y + bar_h - 3)}'
+                f'M{_n(b)} {_n(y + 3)}V{_n(y + bar_h - 3)}" stroke="#222" stroke-width="1.4" '
+                'fill="none"/>',
+            )
+        parts.append(
+            f'<text x="{_n(end + 5)}" y="{_n(mid + 4)}" fill="#222">'
+            f'{_e(f"{bar.value:.4g}")}</text>',
+        )
+    parts.append(
+        f'<path d="M{left} {top}V{_n(base)}H{left + plot_w}" fill="none" stroke="#444"/>'
+        f'<text x="{_n(left + plot_w / 2)}" y="{_n(base + 32)}" text-anchor="middle" '
+        f'fill="#222">{_e(x_label)}</text></svg>',
+    )
+    return ''.join(parts)
+
+
+def _groups(comparison: Comparison) -> dict[tuple[str, str], list[Row]]:
+    groups: dict[tuple[str, str], list[Row]] = {}
+    for row in comparison.rows:
+        key = (row.baseline_backend or row.backend, row.topic)
+        groups.setdefault(key, []).append(row)
+    return groups
+
+
+def _charts(comparison: Comparison) -> str:
+    level = round(comparison.confidence * 100)
+    parts = ['<h2 id="latency">Latency per backend and topic</h2>']
+    for (backend, topic), rows in _groups(comparison).items():
+
+        def name(row: Row, backend: str = backend) -> str:
+            return row.run_label if row.backend == backend else f'{row.run_label} · {row.backend}'
+
+        series = [
+            (name(r), colour(r.run), comparison.latencies[(r.run, r.backend, r.topic)].tolist())
+            for r in rows
+        ]
+        cdf = step_cdf(series, title=f'Latency CDF · {backend} · {topic}', x_label='latency (ms)')
+        bars: list[_Bar] = []
+        for r in rows:
+            for metric, tag, opacity in (('median_ms', 'p50', 0.55), ('p99_ms', 'p99', 1.0)):
+                m = r.metrics[metric]
+                bars.append(_Bar(f'{tag} · {name(r)}', colour(r.run), opacity, m.value, m.value_ci))
+        whiskers = _interval_chart(
+            bars,
+            title=f'p50 / p99 latency, {level}% CI · {backend} · {topic}',
+            x_label='latency (ms)',
+        )
+        parts.append(f'<h3>{_e(backend)} · <code>{_e(topic)}</code></h3>')
+        parts.append(f'<div class="charts">{cdf}{whiskers}</div>')
+    return ''.join(parts)
+
+
+def _footer(comparison: Comparison) -> str:
+    level = round(comparison.confidence * 100)
+    return (
+        '<footer>Statistics: measured frames only (processed, after warm-up), in replay order. '
+        f'{level}% percentile intervals from {comparison.n_boot} circular block-bootstrap '
+        'resamples per series (block length max(ceil(n^(1/3)), Politis–White estimate) frames, '
+        'runs resampled '
+        f'independently, seed {comparison.seed}); no CI below {MIN_FRAMES} frames. '
+        f'Unstable: latency coefficient of variation above {CV_LIMIT:g}. '
+        'Self-contained: no external resources.</footer>'
+    )
+
+
+def render_comparison_html(
+    comparison: Comparison,
+    *,
+    gate: Sequence[GateResult] = (),
+    conditions: Sequence[str] = (),
+    strict: bool = False,
+) -> str:
+    """The comparison page; every text taken from run folders is HTML-escaped."""
+    verdict = ''
+    if conditions:
+        verdict = ' · FAIL' if any(r.failed for r in gate) else ' · PASS'
+    body = [
+        _header(comparison),
+        _inputs_status(comparison),
+        _banner(comparison),
+        _gate(gate, conditions, strict),
+        _summary(comparison),
+        _charts(comparison),
+        _runs(comparison),
+        _footer(comparison),
+    ]
+    return (
+        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        '<meta name="viewport" content="width=device-width, initial-scale=1">'
+        f'<title>replaybench comparison{_e(verdict)}</title>'
+        f'<style>{_CSS}</style></head><body><main>{"".join(body)}</main></body></html>\n'
+    )

@@ -1,0 +1,122 @@
+"""``replaybench compare`` in one call: compare, gate, write the files, print the summary."""
+
+from __future__ import annotations
+
+import sys
+from typing import TYPE_CHECKING
+
+from replaybench.compare.bootstrap import DEFAULT_RESAMPLES
+from replaybench.compare.core import compare_runs
+from replaybench.compare.gate import evaluate_gate, parse_condition
+from replaybench.compare.output import write_comparison
+from replaybench.errors import ReplaybenchError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+    from pathlib import Path
+
+    from replaybench.compare.core import Comparison, MetricComparison
+    from replaybench.compare.gate import GateResult
+
+__all__ = ['EXIT_GATE_FAILED', 'format_summary', 'main_compare']
+
+#: Exit status when a gate condition fails (bad input is ReplaybenchError.exit_code, 2).
+EXIT_GATE_FAILED = 1
+
+_SHORT: dict[str, str] = {'median_ms': 'median', 'p99_ms': 'p99', 'mean_ms': 'mean', 'fps': 'fps'}
+
+
+def _stderr(line: str) -> None:
+    print(line, file=sys.stderr)
+
+
+def _ratio(m: MetricComparison) -> str:
+    if m.ratio is None:
+        return 'n/a'
+    text = f'×{m.ratio:.3f}'
+    if m.ratio_ci is None:
+        return text + ' (no CI)'
+    lo, hi = m.ratio_ci
+    mark = '' if m.significant else ' n.s.'
+    return f'{text} [{lo:.3f}, {hi:.3f}]{mark}'
+
+
+def format_summary(comparison: Comparison, gate: Sequence[GateResult] = ()) -> list[str]:
+    """The human summary: one line per candidate row, then the failed conditions."""
+    level = round(comparison.confidence * 100)
+    lines = [
+        f'baseline: {comparison.baseline_run.label}'
+        + (f' (backend {comparison.baseline_backend})' if comparison.baseline_backend else ''),
+        f'ratios candidate/baseline with {level}% block-bootstrap CIs (n.s. = not significant):',
+    ]
+    for row in comparison.rows:
+        if row.role != 'candidate':
+            continue
+        versus = f' vs {row.baseline_backend}' if row.baseline_backend != row.backend else ''
+        parts = [f'{_SHORT[k]} {_ratio(row.metrics[k])}' for k in _SHORT]
+        acc = row.metrics['map50']
+        if acc.diff is not None:
+            parts.append(f'map50 {acc.diff:+.4f} (no CI)')
+        lines.append(f'  {row.name}{versus}: ' + ', '.join(parts))
+    if not any(r.role == 'candidate' for r in comparison.rows):
+        lines.append('  (no row to compare with the baseline)')
+    failed = [r for r in gate if r.failed]
+    if gate:
+        lines.append(
+            f'gate: FAILED ({len(failed)} of {len(gate)} checks)'
+            if failed
+            else f'gate: passed ({len(gate)} checks)'
+        )
+    return lines
+
+
+def main_compare(
+    run_dirs: Sequence[str | Path],
+    out: str | Path,
+    fail_if: Sequence[str] = (),
+    strict: bool = False,
+    *,
+    baseline: int = 0,
+    baseline_backend: str | None = None,
+    seed: int = 0,
+    n_boot: int = DEFAULT_RESAMPLES,
+    echo: Callable[[str], None] = print,
+    echo_err: Callable[[str], None] = _stderr,
+) -> int:
+    """Compare ``run_dirs``, judge ``fail_if`` and write the files into ``out``.
+
+    Prints the summary through ``echo`` and warnings, failed conditions and errors through
+    ``echo_err``. Returns the exit status: 0, 1 when a condition failed, 2 on bad input
+    (unreadable run folder, bad condition, unwritable ``out``).
+    """
+    try:
+        for condition in fail_if:
+            parse_condition(condition)
+        comparison = compare_runs(
+            run_dirs,
+            baseline=baseline,
+            baseline_backend=baseline_backend,
+            seed=seed,
+            n_boot=n_boot,
+        )
+        gate = evaluate_gate(comparison, fail_if, strict=strict)
+    except ReplaybenchError as err:
+        echo_err(f'replaybench: error: {err}')
+        return err.exit_code
+    for warning in comparison.warnings:
+        echo_err(f'replaybench: warning: {warning}')
+    try:
+        csv_path, html_path = write_comparison(
+            comparison, out, gate=gate, conditions=fail_if, strict=strict
+        )
+    except OSError as err:
+        echo_err(f'replaybench: error: cannot write into {out}: {err.strerror or err}')
+        return 2
+    for line in format_summary(comparison, gate):
+        echo(line)
+    for result in gate:
+        if result.failed:
+            echo_err(f'replaybench: gate: {result.explanation}')
+    echo(f'Comparison: {html_path}')
+    echo(f'CSV: {csv_path}')
+    return EXIT_GATE_FAILED if any(r.failed for r in gate) else 0

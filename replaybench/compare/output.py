@@ -1,0 +1,247 @@
+"""comparison.csv, comparison.json and comparison.html in an output folder."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from replaybench import __version__
+from replaybench.compare.bootstrap import MIN_FRAMES
+from replaybench.compare.core import ACCURACY_METRICS, TIMING_METRICS
+from replaybench.compare.runs import CV_LIMIT, engine_text
+from replaybench.results.runfile import write_json_atomic, write_text_atomic
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from replaybench.compare.core import Comparison, MetricComparison, Row
+    from replaybench.compare.gate import GateResult
+
+__all__ = [
+    'COMPARISON_SCHEMA_VERSION',
+    'CSV_COLUMNS',
+    'comparison_json',
+    'csv_rows',
+    'write_comparison',
+]
+
+#: Version of the comparison.json layout.
+COMPARISON_SCHEMA_VERSION = 1
+
+_TIMING_SUFFIXES = ('', '_baseline', '_ratio', '_ci_low', '_ci_high', '_significant')
+_ACCURACY_SUFFIXES = ('', '_baseline', '_delta')
+
+#: Columns of comparison.csv, in order.
+CSV_COLUMNS: tuple[str, ...] = (
+    'run',
+    'run_index',
+    'run_dir',
+    'role',
+    'backend',
+    'topic',
+    'baseline_run',
+    'baseline_backend',
+    'measured',
+    'block_length',
+    'latency_cv',
+    'inputs_match',
+    *(m + s for m in TIMING_METRICS for s in _TIMING_SUFFIXES),
+    *(m + s for m in ACCURACY_METRICS for s in _ACCURACY_SUFFIXES),
+    'flags',
+)
+
+
+def _yes_no(value: bool | None) -> str | None:
+    return None if value is None else ('yes' if value else 'no')
+
+
+def csv_rows(comparison: Comparison) -> list[dict[str, Any]]:
+    """One dict per row with the ``CSV_COLUMNS`` keys (None = empty cell)."""
+    base = comparison.baseline_run
+    out = []
+    for row in comparison.rows:
+        record: dict[str, Any] = {
+            'run': row.run_label,
+            'run_index': row.run,
+            'run_dir': str(comparison.runs[row.run].dir),
+            'role': row.role,
+            'backend': row.backend,
+            'topic': row.topic,
+            'baseline_run': base.label if row.baseline_backend is not None else None,
+            'baseline_backend': row.baseline_backend,
+            'measured': row.measured,
+            'block_length': row.block_length,
+            'latency_cv': row.latency_cv,
+            'inputs_match': _yes_no(row.inputs_match),
+            'flags': '; '.join(row.flags),
+        }
+        for metric in TIMING_METRICS:
+            m = row.metrics[metric]
+            ci = m.ratio_ci
+            record[metric] = m.value
+            record[f'{metric}_baseline'] = m.baseline
+            record[f'{metric}_ratio'] = m.ratio
+            record[f'{metric}_ci_low'] = ci[0] if ci else None
+            record[f'{metric}_ci_high'] = ci[1] if ci else None
+            record[f'{metric}_significant'] = _yes_no(m.significant)
+        for metric in ACCURACY_METRICS:
+            m = row.metrics[metric]
+            record[metric] = m.value
+            record[f'{metric}_baseline'] = m.baseline
+            record[f'{metric}_delta'] = m.diff
+        out.append(record)
+    return out
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ''
+    if isinstance(value, bool):
+        return 'yes' if value else 'no'
+    if isinstance(value, float):
+        return format(value, '.6g') if math.isfinite(value) else ''
+    return str(value)
+
+
+def _csv_text(comparison: Comparison) -> str:
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator='\n')
+    writer.writerow(CSV_COLUMNS)
+    for record in csv_rows(comparison):
+        writer.writerow([_cell(record[name]) for name in CSV_COLUMNS])
+    return buffer.getvalue()
+
+
+def _interval(ci: tuple[float, float] | None) -> list[float] | None:
+    return [ci[0], ci[1]] if ci is not None else None
+
+
+def _metric_json(m: MetricComparison) -> dict[str, Any]:
+    return {
+        'value': m.value,
+        'value_ci': _interval(m.value_ci),
+        'baseline': m.baseline,
+        'ratio': m.ratio,
+        'ratio_ci': _interval(m.ratio_ci),
+        'diff': m.diff,
+        'diff_ci': _interval(m.diff_ci),
+        'significant': m.significant,
+    }
+
+
+def _row_json(row: Row) -> dict[str, Any]:
+    return {
+        'run': row.run_label,
+        'run_index': row.run,
+        'role': row.role,
+        'backend': row.backend,
+        'topic': row.topic,
+        'baseline_backend': row.baseline_backend,
+        'measured': row.measured,
+        'block_length': row.block_length,
+        'latency_cv': row.latency_cv,
+        'inputs_match': row.inputs_match,
+        'flags': list(row.flags),
+        'metrics': {name: _metric_json(m) for name, m in row.metrics.items()},
+    }
+
+
+def comparison_json(
+    comparison: Comparison,
+    *,
+    gate: Sequence[GateResult] = (),
+    conditions: Sequence[str] = (),
+    strict: bool = False,
+) -> dict[str, Any]:
+    """The comparison.json document."""
+    runs = []
+    for run in comparison.runs:
+        runs.append(
+            {
+                'index': run.index,
+                'label': run.label,
+                'dir': str(run.dir),
+                'status': run.status,
+                'hostname': run.hostname,
+                'cpu_model': run.cpu_model,
+                'cores': run.cores,
+                'governor': run.governor,
+                'load_average': run.load_average,
+                'gpus': list(run.gpus),
+                'inputs': [
+                    {'path': p, 'sha256': s}
+                    for p, s in zip(run.input_paths, run.input_sha256, strict=True)
+                ],
+                'settings': run.settings,
+                'backends': {
+                    label: {'engine': engine_text(info)} for label, info in run.backend_info.items()
+                },
+            },
+        )
+    return {
+        'schema_version': COMPARISON_SCHEMA_VERSION,
+        'tool': {'name': 'replaybench', 'version': __version__},
+        'baseline': {
+            'run': comparison.baseline_run.label,
+            'index': comparison.baseline,
+            'backend': comparison.baseline_backend,
+        },
+        'inputs_match': comparison.inputs_match,
+        'statistics': {
+            'bootstrap': 'circular block bootstrap over measured frames in replay order',
+            'block_length': 'max(ceil(n ** (1/3)), Politis-White estimate) frames, per series',
+            'resamples': comparison.n_boot,
+            'seed': comparison.seed,
+            'confidence': comparison.confidence,
+            'interval': 'percentile',
+            'ratio': 'candidate / baseline, runs resampled independently',
+            'significant': 'ratio CI excludes 1.0',
+            'min_frames': MIN_FRAMES,
+            'cv_limit': CV_LIMIT,
+            'accuracy': 'point estimates from run.json, no CI',
+        },
+        'warnings': list(comparison.warnings),
+        'runs': runs,
+        'rows': [_row_json(r) for r in comparison.rows],
+        'gate': {
+            'conditions': list(conditions),
+            'strict': strict,
+            'passed': not any(r.failed for r in gate),
+            'results': [r._asdict() for r in gate],
+        }
+        if conditions
+        else None,
+    }
+
+
+def write_comparison(
+    comparison: Comparison,
+    out_dir: str | Path,
+    *,
+    gate: Sequence[GateResult] = (),
+    conditions: Sequence[str] = (),
+    strict: bool = False,
+) -> tuple[Path, Path]:
+    """Write comparison.csv, comparison.html and comparison.json into ``out_dir``.
+
+    Returns the paths of the CSV and the HTML page; comparison.json lies beside them.
+    """
+    from replaybench.compare.html import render_comparison_html
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / 'comparison.csv'
+    html_path = out / 'comparison.html'
+    write_text_atomic(csv_path, _csv_text(comparison))
+    write_json_atomic(
+        out / 'comparison.json',
+        comparison_json(comparison, gate=gate, conditions=conditions, strict=strict),
+    )
+    write_text_atomic(
+        html_path,
+        render_comparison_html(comparison, gate=gate, conditions=conditions, strict=strict),
+    )
+    return csv_path, html_path

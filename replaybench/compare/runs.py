@@ -1,0 +1,232 @@
+"""Run folders as the comparison sees them: labels, machine facts, inputs and stability flags."""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from replaybench.results.runfile import load_run
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from replaybench.results.runfile import RunData
+
+__all__ = [
+    'CV_LIMIT',
+    'ENGINE_KEYS',
+    'SETTINGS_KEYS',
+    'RunInfo',
+    'engine_text',
+    'inputs_match',
+    'load_runs',
+    'run_flags',
+]
+
+#: A (backend, topic) whose latency coefficient of variation exceeds this is flagged unstable.
+CV_LIMIT = 0.1
+
+#: Keys of run.json ``backends[].info`` that identify the engine a backend ran on.
+ENGINE_KEYS: tuple[str, ...] = ('engine', 'providers', 'precision')
+
+#: Keys of run.json ``settings`` that must agree for timings to be comparable.
+SETTINGS_KEYS: tuple[str, ...] = (
+    'rate',
+    'queue_depth',
+    'warmup',
+    'threads',
+    'max_frames',
+    'start_s',
+    'duration_s',
+)
+
+_BRANDS = re.compile(r'\((?:R|TM|tm|r)\)')
+
+
+def _dict(value: Any) -> dict[str, Any]:
+    return value if isinstance(value, dict) else {}
+
+
+def _list(value: Any) -> list[Any]:
+    return value if isinstance(value, list) else []
+
+
+def _num(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    number = float(value)
+    return number if math.isfinite(number) else None
+
+
+def _text(value: Any) -> str | None:
+    return value.strip() or None if isinstance(value, str) else None
+
+
+@dataclass(frozen=True, slots=True)
+class RunInfo:
+    """One run folder: what was measured where, and the facts that make timings suspect."""
+
+    index: int
+    label: str
+    dir: Path
+    data: RunData
+    status: str
+    hostname: str | None
+    cpu_model: str | None
+    cores: int | None
+    governor: str | None
+    load_average: float | None
+    gpus: tuple[str, ...]
+    input_sha256: tuple[str | None, ...]
+    input_paths: tuple[str, ...]
+    truncated: bool
+    settings: dict[str, Any]
+    #: backend label -> run.json ``backends[].info`` (empty dict when absent)
+    backend_info: dict[str, dict[str, Any]]
+
+    @property
+    def machine(self) -> str:
+        """Host and GPU (or CPU) in a few words; '' when run.json says nothing about them."""
+        device = ', '.join(dict.fromkeys(self.gpus)) or (self.cpu_model or '')
+        return ' / '.join(part for part in (self.hostname, device) if part)
+
+
+def engine_text(info: dict[str, Any]) -> str | None:
+    """The engine facts of a backend's info (``ENGINE_KEYS``) as one line; None when it has none."""
+    parts = []
+    for key in ENGINE_KEYS:
+        value = info.get(key)
+        if value is None or value == '' or value == []:
+            continue
+        shown = ','.join(str(v) for v in value) if isinstance(value, list) else str(value)
+        parts.append(f'{key}={shown}')
+    return ' '.join(parts) or None
+
+
+def _hostname(env: dict[str, Any]) -> str | None:
+    for key in ('hostname', 'host', 'node'):
+        found = _text(env.get(key))
+        if found:
+            return found
+    return _text(_dict(env.get('os')).get('node'))
+
+
+def _gpu_names(run: dict[str, Any], env: dict[str, Any]) -> tuple[str, ...]:
+    names = [_text(_dict(g).get('name')) for g in _list(env.get('gpus'))]
+    for entry in _list(run.get('backends')):
+        info = _dict(_dict(entry).get('info'))
+        names.append(_text(info.get('device_name')) or _text(info.get('gpu_name')))
+    return tuple(dict.fromkeys(n for n in names if n))
+
+
+def _info(index: int, data: RunData) -> RunInfo:
+    run = data.run
+    env = _dict(run.get('environment'))
+    cpu = _dict(env.get('cpu'))
+    model = _text(cpu.get('model'))
+    if model:
+        model = ' '.join(_BRANDS.sub('', model).split())
+    cores = cpu.get('usable_cores') or cpu.get('logical_cores')
+    load = _list(env.get('load_average'))
+    inputs = [_dict(i) for i in _list(run.get('inputs'))]
+    backends: dict[str, dict[str, Any]] = {}
+    for entry in _list(run.get('backends')):
+        entry = _dict(entry)
+        label = entry.get('label') or entry.get('name')
+        if isinstance(label, str):
+            backends.setdefault(label, _dict(entry.get('info')))
+    return RunInfo(
+        index=index,
+        label='',
+        dir=data.dir,
+        data=data,
+        status=str(run.get('status', 'unknown')),
+        hostname=_hostname(env),
+        cpu_model=model,
+        cores=cores if isinstance(cores, int) and not isinstance(cores, bool) else None,
+        governor=_text(cpu.get('governor')),
+        load_average=_num(load[0]) if load else None,
+        gpus=_gpu_names(run, env),
+        input_sha256=tuple(_text(i.get('sha256')) for i in inputs),
+        input_paths=tuple(str(i.get('path', '?')) for i in inputs),
+        truncated=any(bool(i.get('truncated')) for i in inputs),
+        settings={k: _dict(run.get('settings')).get(k) for k in SETTINGS_KEYS},
+        backend_info=backends,
+    )
+
+
+def _folder(path: Path) -> str:
+    return path.name or path.resolve().name or str(path)
+
+
+def _labels(infos: Sequence[RunInfo]) -> list[str]:
+    def label(name: str, info: RunInfo) -> str:
+        machine = info.machine
+        return f'{name} ({machine})' if machine else name
+
+    labels = [label(_folder(i.dir), i) for i in infos]
+    if len(set(labels)) < len(labels):
+        labels = [
+            label(f'{_folder(i.dir.resolve().parent)}/{_folder(i.dir)}', i)
+            if labels.count(text) > 1
+            else text
+            for i, text in zip(infos, labels, strict=True)
+        ]
+    seen: dict[str, int] = {}
+    unique = []
+    for text in labels:
+        seen[text] = seen.get(text, 0) + 1
+        unique.append(text if labels.count(text) == 1 else f'{text} #{seen[text]}')
+    return unique
+
+
+def load_runs(run_dirs: Sequence[str | Path]) -> list[RunInfo]:
+    """Load run folders (SourceError naming the folder when one is not readable), labelled."""
+    infos = [_info(index, load_run(Path(d))) for index, d in enumerate(run_dirs)]
+    return [replace(i, label=label) for i, label in zip(infos, _labels(infos), strict=True)]
+
+
+def inputs_match(info: RunInfo, baseline: RunInfo) -> bool | None:
+    """True when both runs replayed the same files (same sha256, same order); None when unknown."""
+    if len(info.input_sha256) != len(baseline.input_sha256):
+        return False
+    pairs = list(zip(info.input_sha256, baseline.input_sha256, strict=True))
+    if any(a is not None and b is not None and a != b for a, b in pairs):
+        return False
+    if not pairs or any(a is None or b is None for a, b in pairs):
+        return None
+    return True
+
+
+def run_flags(info: RunInfo, baseline: RunInfo) -> list[str]:
+    """Facts about one run that make its timings doubtful or not comparable with the baseline."""
+    flags: list[str] = []
+    if info.status != 'complete':
+        flags.append(f'run status {info.status}')
+    if info.truncated:
+        flags.append('an input was truncated')
+    if info.governor is not None and info.governor != 'performance':
+        flags.append(f'CPU governor {info.governor} (not performance)')
+    if info.load_average is not None and info.cores and info.load_average > info.cores / 2:
+        flags.append(f'load average {info.load_average:g} above half of {info.cores} cores')
+    if info.index != baseline.index:
+        match = inputs_match(info, baseline)
+        if match is False:
+            flags.append('inputs differ from the baseline (sha256)')
+        elif match is None:
+            flags.append('inputs not checked: sha256 missing in run.json')
+        if info.gpus != baseline.gpus and (info.gpus or baseline.gpus):
+            mine = ', '.join(info.gpus) or 'none'
+            theirs = ', '.join(baseline.gpus) or 'none'
+            flags.append(f'GPU differs from the baseline: {mine} vs {theirs}')
+        changed = [
+            f'{key} {info.settings.get(key)} vs {baseline.settings.get(key)}'
+            for key in SETTINGS_KEYS
+            if info.settings.get(key) != baseline.settings.get(key)
+        ]
+        if changed:
+            flags.append('settings differ from the baseline: ' + ', '.join(changed))
+    return flags

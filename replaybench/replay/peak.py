@@ -1,0 +1,455 @@
+"""Peak sustainable rate: the highest fixed input rate a backend keeps up with.
+
+A sweep in the manner of ros2_benchmark: a max-rate probe run gives a start rate; a coarse
+search doubles (or halves) the rate until one trial passes and one fails; bisection between
+the highest passing and the lowest failing rate refines the answer. Every trial is an ordinary
+run (``run_benchmark``) at ``Rate('fixed', hz=r)`` with a subscriber queue of depth 1 over the
+first ``trial_frames`` frames of each selected topic, each frame once (no looping), and keeps
+its run folder under ``out_dir/trials/``. See docs/peak.md.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import shutil
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import numpy as np
+
+from replaybench import __version__
+from replaybench.errors import SourceError, UsageError
+from replaybench.replay.rate import Rate
+from replaybench.replay.runner import RunConfig, default_warmup, run_benchmark
+from replaybench.report.render import PEAK_SCHEMA_VERSION
+from replaybench.results.records import read_frames_csv
+from replaybench.results.runfile import environment, write_json_atomic
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+    from replaybench.backends.base import Backend, BackendOptions
+    from replaybench.replay.clock import Clock
+    from replaybench.replay.runner import RunOutcome
+    from replaybench.results.records import FrameRecord
+
+__all__ = [
+    'DEFAULT_TRIAL_FRAMES',
+    'MAX_DOUBLINGS',
+    'PEAK_SCHEMA_VERSION',
+    'PeakResult',
+    'Trial',
+    'find_peak_rate',
+    'trial_verdict',
+]
+
+#: Frames per topic and trial when ``trial_frames`` is not given (fewer when the bag is shorter).
+DEFAULT_TRIAL_FRAMES = 300
+#: Without ``max_hz``, the coarse search stops after this many doublings of the start rate.
+MAX_DOUBLINGS = 12
+_PROBE_DIR = 'trials/max'
+
+
+class Trial(NamedTuple):
+    """One fixed-rate run of the sweep.
+
+    ``frames`` and ``dropped`` count the frames released from the end of the warm-up on (see
+    ``trial_verdict``); ``p99_ms`` is over the measured frames of every topic together;
+    ``run_dir`` is the trial's run folder relative to the sweep's ``out_dir``.
+    """
+
+    rate_hz: float
+    frames: int
+    dropped: int
+    drop_fraction: float
+    p99_ms: float | None
+    ok: bool
+    run_dir: str
+
+
+class PeakResult(NamedTuple):
+    """The highest passing rate (None when even ``min_hz`` fails) and every trial, in run order."""
+
+    backend: str
+    peak_hz: float | None
+    max_drop: float
+    p99_bound_ms: float | None
+    trials: tuple[Trial, ...]
+    status: str = 'complete'  # 'interrupted' when Ctrl-C / SIGTERM stopped the sweep
+
+
+def trial_verdict(
+    records: Sequence[FrameRecord], *, max_drop: float, p99_bound_ms: float | None
+) -> tuple[int, int, float | None, bool]:
+    """``(frames, dropped, p99_ms, ok)`` of one trial's frames.csv rows.
+
+    Per topic, frames released before the first measured (non-warm-up) frame are left out: a
+    backend's first calls (model loading, allocation, JIT) would otherwise count as drops. A
+    trial is ok when it measured at least one frame, ``dropped / frames <= max_drop`` and, with
+    a bound, the p99 latency of the measured frames is at most ``p99_bound_ms``.
+    """
+    by_topic: dict[str, list[FrameRecord]] = {}
+    for record in records:
+        by_topic.setdefault(record.topic, []).append(record)
+    frames = dropped = 0
+    latencies: list[float] = []
+    for rows in by_topic.values():
+        measured = [r for r in rows if r.status == 'ok' and not r.warmup]
+        latencies += [r.latency_ms for r in measured if r.latency_ms is not None]
+        start = min((r.release_s for r in measured), default=None)
+        counted = rows if start is None else [r for r in rows if r.release_s >= start]
+        frames += len(counted)
+        dropped += sum(1 for r in counted if r.status == 'dropped')
+    p99 = float(np.percentile(latencies, 99, method='linear')) if latencies else None
+    ok = bool(latencies) and frames > 0 and dropped / frames <= max_drop
+    if ok and p99_bound_ms is not None:
+        ok = p99 is not None and p99 <= p99_bound_ms
+    return frames, dropped, p99, ok
+
+
+class _BagFacts(NamedTuple):
+    frames: int  # most frames of one selected topic
+    recorded_hz: float | None  # lowest recorded rate of the selected topics
+
+
+def _bag_facts(bag: Path, topics: Sequence[str] | None) -> _BagFacts:
+    from replaybench.decode.probe import probe_topics
+    from replaybench.sources import open_source
+
+    with open_source(bag) as source:
+        found = probe_topics(source)
+    if topics:
+        chosen = [t for t in found if t.name in set(topics)]
+    else:
+        chosen = [t for t in found if not t.is_depth]
+    if not chosen:
+        # run_benchmark gives the precise message (unknown topic, depth only, no images)
+        return _BagFacts(0, None)
+    rates = [
+        (t.count - 1) / ((t.last_ns - t.first_ns) / 1e9)
+        for t in chosen
+        if t.count > 1 and t.last_ns > t.first_ns
+    ]
+    return _BagFacts(max(t.count for t in chosen), min(rates) if rates else None)
+
+
+def _round_rate(hz: float) -> float:
+    """Rates are tested at millihertz resolution, so a rate and its folder name agree."""
+    return round(hz, 3)
+
+
+def _start_rate(hz: float) -> float:
+    """Three significant digits: a readable first trial (47.6 Hz rather than 47.6190 Hz)."""
+    return float(f'{hz:.3g}')
+
+
+def _prepare(out_dir: Path, force: bool) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        msg = f'{out_dir} exists and is not a directory'
+        raise UsageError(msg)
+    if out_dir.is_dir() and any(out_dir.iterdir()):
+        if not force:
+            msg = f'output folder {out_dir} is not empty: choose another --out or pass --force'
+            raise UsageError(msg)
+        shutil.rmtree(out_dir / 'trials', ignore_errors=True)
+        for name in ('peak.json', 'peak.html'):
+            (out_dir / name).unlink(missing_ok=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+
+def _check(
+    max_drop: float,
+    p99_bound_ms: float | None,
+    trial_frames: int | None,
+    min_hz: float,
+    max_hz: float | None,
+    refine_steps: int,
+) -> None:
+    problems = []
+    if not 0 <= max_drop < 1:
+        problems.append(f'--max-drop must be in [0, 1), not {max_drop}')
+    if p99_bound_ms is not None and not p99_bound_ms > 0:
+        problems.append(f'--p99-ms must be positive, not {p99_bound_ms}')
+    if trial_frames is not None and trial_frames < 1:
+        problems.append(f'--trial-frames must be at least 1, not {trial_frames}')
+    if not min_hz >= 0.001:
+        problems.append(f'the lowest rate must be at least 0.001 Hz, not {min_hz}')
+    if max_hz is not None and not max_hz >= min_hz:
+        problems.append(f'the highest rate ({max_hz}) is below the lowest ({min_hz})')
+    if refine_steps < 0:
+        problems.append(f'refinement steps must be 0 or more, not {refine_steps}')
+    if problems:
+        msg = '; '.join(problems)
+        raise UsageError(msg)
+
+
+class _Sweep:
+    """The trials of one search, run once per rate."""
+
+    def __init__(
+        self,
+        base: RunConfig,
+        out_dir: Path,
+        *,
+        max_drop: float,
+        p99_bound_ms: float | None,
+        clock: Clock | None,
+        backend_factory: Callable[[str, BackendOptions], Backend] | None,
+        progress: Callable[[Trial], None] | None,
+    ) -> None:
+        self.base = base
+        self.out_dir = out_dir
+        self.max_drop = max_drop
+        self.p99_bound_ms = p99_bound_ms
+        self.clock = clock
+        self.backend_factory = backend_factory
+        self.progress = progress
+        self.trials: list[Trial] = []
+        self.by_rate: dict[float, Trial] = {}
+        self.interrupted = False
+        self.input_meta: dict[str, Any] | None = None
+
+    def run(self, rate: Rate, rel: str) -> RunOutcome:
+        outcome = run_benchmark(
+            replace(self.base, rate=rate, out_dir=self.out_dir / rel),
+            clock=self.clock,
+            backend_factory=self.backend_factory,
+        )
+        if outcome.status == 'interrupted':
+            self.interrupted = True
+        if self.input_meta is None and outcome.run.get('inputs'):
+            self.input_meta = outcome.run['inputs'][0]
+        return outcome
+
+    def probe(self) -> float | None:
+        """Throughput at max rate: the lowest over the topics (frames per second per topic)."""
+        outcome = self.run(Rate('max'), _PROBE_DIR)
+        if self.interrupted:
+            raise _InterruptedError
+        rates = [s.throughput_fps for s in outcome.summaries if s.throughput_fps]
+        return min(rates) if rates else None
+
+    def trial(self, hz: float) -> Trial:
+        hz = _round_rate(hz)
+        if hz in self.by_rate:
+            return self.by_rate[hz]
+        rel = f'trials/{hz:.3f}hz'
+        outcome = self.run(Rate('fixed', hz=hz), rel)
+        records = read_frames_csv(outcome.run_dir / 'frames.csv')
+        frames, dropped, p99, ok = trial_verdict(
+            records, max_drop=self.max_drop, p99_bound_ms=self.p99_bound_ms
+        )
+        trial = Trial(
+            rate_hz=hz,
+            frames=frames,
+            dropped=dropped,
+            drop_fraction=dropped / frames if frames else 0.0,
+            p99_ms=p99,
+            ok=ok and not self.interrupted,
+            run_dir=rel,
+        )
+        self.trials.append(trial)
+        self.by_rate[hz] = trial
+        if self.progress is not None:
+            self.progress(trial)
+        if self.interrupted:
+            raise _InterruptedError
+        return trial
+
+
+class _InterruptedError(Exception):
+    """A trial's run was interrupted: the sweep stops and writes what it has."""
+
+
+class _State:
+    """Where the search stands: the highest passing and the lowest failing rate so far."""
+
+    def __init__(self) -> None:
+        self.best: float | None = None
+        self.failing: float | None = None
+        self.limit_reached = False
+
+
+def _search(
+    sweep: _Sweep,
+    state: _State,
+    start: float,
+    *,
+    min_hz: float,
+    max_hz: float | None,
+    refine_steps: int,
+) -> None:
+    """Coarse search from ``start``, then bisection; results land in ``state``."""
+    rate = start
+    if sweep.trial(rate).ok:
+        state.best = _round_rate(rate)
+        for doublings in range(MAX_DOUBLINGS + 1):
+            if (max_hz is not None and rate >= max_hz) or doublings == MAX_DOUBLINGS:
+                state.limit_reached = True
+                break
+            rate = rate * 2 if max_hz is None else min(rate * 2, max_hz)
+            trial = sweep.trial(rate)
+            if not trial.ok:
+                state.failing = trial.rate_hz
+                break
+            state.best = trial.rate_hz
+    else:
+        state.failing = _round_rate(rate)
+        while rate > min_hz:
+            rate = max(rate / 2, min_hz)
+            trial = sweep.trial(rate)
+            if trial.ok:
+                state.best = trial.rate_hz
+                break
+            state.failing = trial.rate_hz
+    for _ in range(refine_steps):
+        if state.best is None or state.failing is None:
+            break
+        mid = _round_rate((state.best + state.failing) / 2)
+        if mid in (state.best, state.failing):
+            break
+        if sweep.trial(mid).ok:
+            state.best = mid
+        else:
+            state.failing = mid
+
+
+def find_peak_rate(
+    bag: Path,
+    backend: str,
+    out_dir: Path,
+    *,
+    options: BackendOptions,
+    topics: Sequence[str] | None = None,
+    max_drop: float = 0.05,
+    p99_bound_ms: float | None = None,
+    trial_frames: int | None = None,
+    min_hz: float = 1.0,
+    max_hz: float | None = None,
+    refine_steps: int = 4,
+    clock: Clock | None = None,
+    backend_factory: Callable[[str, BackendOptions], Backend] | None = None,
+    force: bool = False,
+    report: bool = True,
+    threads: int | None = None,
+    command: Sequence[str] = (),
+    progress: Callable[[Trial], None] | None = None,
+) -> PeakResult:
+    """Find the highest fixed rate at which ``backend`` keeps up with ``bag``; write peak.json.
+
+    The start rate is the max-rate probe's throughput (else the bag's recorded rate, else
+    ``min_hz``), clamped to ``[min_hz, max_hz]``. The coarse search doubles a passing rate until
+    a trial fails (at most ``MAX_DOUBLINGS`` times, or up to ``max_hz``) or halves a failing
+    one until a trial passes (down to ``min_hz``); ``refine_steps`` bisections follow. The
+    rate applies to each selected topic. ``out_dir`` gets peak.json, peak.html (``report``) and
+    ``trials/``: the probe's run folder (``trials/max``) and one per tested rate.
+    """
+    bag = Path(bag)
+    out_dir = Path(out_dir)
+    _check(max_drop, p99_bound_ms, trial_frames, min_hz, max_hz, refine_steps)
+    if not bag.exists():
+        msg = f'{bag}: no such file or directory'
+        raise SourceError(msg)
+    facts = _bag_facts(bag, topics)
+    n = facts.frames if facts.frames else (trial_frames or DEFAULT_TRIAL_FRAMES)
+    n = min(n, trial_frames if trial_frames is not None else DEFAULT_TRIAL_FRAMES)
+    warmup = default_warmup(n)
+    _prepare(out_dir, force)
+    started = dt.datetime.now(dt.UTC)
+    t_start = time.perf_counter()
+    base = RunConfig(
+        inputs=[bag],
+        backends=[backend],
+        out_dir=out_dir,
+        queue_depth=1,
+        warmup=warmup,
+        threads=threads,
+        max_frames=n,
+        topics=list(topics) if topics else None,
+        ground_truth_topic=None,
+        options=options,
+        command=list(command),
+        report=False,
+    )
+    sweep = _Sweep(
+        base,
+        out_dir,
+        max_drop=max_drop,
+        p99_bound_ms=p99_bound_ms,
+        clock=clock,
+        backend_factory=backend_factory,
+        progress=progress,
+    )
+    state = _State()
+    probe_fps: float | None = None
+    start: float | None = None
+    source = ''
+    try:
+        probe_fps = sweep.probe()
+        if probe_fps is not None:
+            start, source = probe_fps, 'max-rate probe'
+        elif facts.recorded_hz is not None:
+            start, source = facts.recorded_hz, 'recorded rate'
+        else:
+            start, source = min_hz, 'lowest rate'
+        start = _start_rate(start)
+        start = max(min_hz, start if max_hz is None else min(start, max_hz))
+        _search(sweep, state, start, min_hz=min_hz, max_hz=max_hz, refine_steps=refine_steps)
+    except (_InterruptedError, KeyboardInterrupt):
+        sweep.interrupted = True
+    best, failing = state.best, state.failing
+
+    status = 'interrupted' if sweep.interrupted else 'complete'
+    result = PeakResult(
+        backend=backend,
+        peak_hz=best,
+        max_drop=max_drop,
+        p99_bound_ms=p99_bound_ms,
+        trials=tuple(sweep.trials),
+        status=status,
+    )
+    record = {
+        'schema_version': PEAK_SCHEMA_VERSION,
+        'kind': 'peak',
+        'tool': {'name': 'replaybench', 'version': __version__},
+        'status': status,
+        'command': list(command),
+        'started_at': started.isoformat(),
+        'finished_at': dt.datetime.now(dt.UTC).isoformat(),
+        'wall_s': time.perf_counter() - t_start,
+        'backend': backend,
+        'input': sweep.input_meta or {'path': str(bag)},
+        'settings': {
+            'max_drop': max_drop,
+            'p99_bound_ms': p99_bound_ms,
+            'trial_frames': n,
+            'warmup': warmup,
+            'queue_depth': 1,
+            'min_hz': min_hz,
+            'max_hz': max_hz,
+            'refine_steps': refine_steps,
+            'topics': list(topics) if topics else None,
+            'threads': threads,
+        },
+        'start': {
+            'hz': start,
+            'from': source,
+            'probe_fps': probe_fps,
+            'recorded_hz': facts.recorded_hz,
+            'probe_run_dir': _PROBE_DIR,
+        },
+        'peak_hz': best,
+        'first_failing_hz': failing,
+        'resolution_hz': failing - best if best is not None and failing is not None else None,
+        'limit_reached': state.limit_reached,
+        'trials': [t._asdict() for t in sweep.trials],
+        'environment': environment(),
+    }
+    write_json_atomic(out_dir / 'peak.json', record)
+    if report:
+        from replaybench.report import render_peak_report
+
+        render_peak_report(out_dir)
+    return result

@@ -1,0 +1,390 @@
+"""Sample this process's CPU and memory use, and a GPU's, in a background thread.
+
+CPU time comes from ``time.process_time_ns`` (``CLOCK_PROCESS_CPUTIME_ID``: every thread of
+the process, nanosecond resolution; ``/proc/self/stat`` counts in 10 ms ticks, too coarse for
+0.1 s intervals). ``cpu_percent`` is CPU time over wall time in percent of one core, so a
+process keeping two cores busy shows 200. RSS is read from ``/proc/self/statm``; where there is
+no ``/proc``, ``resource.getrusage`` gives the peak RSS so far instead. GPU numbers come from
+NVML when ``pynvml`` (the ``nvidia-ml-py`` or ``pynvml`` distribution) imports and reports a
+device; they describe the whole device (every process on it), not only this one. Without NVML
+the GPU fields are None.
+
+Memory sizes are in MiB (2**20 bytes). The sampler measures its own cost: the wall time of one
+sample, and the CPU time of its thread as a percentage of one core.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+if TYPE_CHECKING:
+    from types import TracebackType
+    from typing import Self
+
+__all__ = ['DEFAULT_INTERVAL_S', 'DEFAULT_MAX_SAMPLES', 'ResourceSampler']
+
+DEFAULT_INTERVAL_S = 0.1
+DEFAULT_MAX_SAMPLES = 2000
+#: Where the RSS is read; a missing folder makes the sampler use ``resource.getrusage``.
+PROC_SELF = Path('/proc/self')
+_MIB = float(1 << 20)
+
+
+class _Point(NamedTuple):
+    """One sample, or several merged: values at time ``t_s`` since the start."""
+
+    t_s: float
+    cpu_s: float  # process CPU time since the start, cumulative
+    rss_mb: float | None  # highest of the merged samples
+    gpu_util: float | None  # mean of the merged samples
+    gpu_mem_mb: float | None  # highest of the merged samples
+    gpu_power_w: float | None  # mean of the merged samples
+    weight: int
+
+
+def _mean(values: list[float | None], weights: list[int]) -> float | None:
+    pairs = [(v, w) for v, w in zip(values, weights, strict=True) if v is not None]
+    if not pairs:
+        return None
+    return sum(v * w for v, w in pairs) / sum(w for _, w in pairs)
+
+
+def _max(values: list[float | None]) -> float | None:
+    present = [v for v in values if v is not None]
+    return max(present) if present else None
+
+
+def _merge(points: list[_Point]) -> _Point:
+    weights = [p.weight for p in points]
+    last = points[-1]
+    return _Point(
+        t_s=last.t_s,
+        cpu_s=last.cpu_s,
+        rss_mb=_max([p.rss_mb for p in points]),
+        gpu_util=_mean([p.gpu_util for p in points], weights),
+        gpu_mem_mb=_max([p.gpu_mem_mb for p in points]),
+        gpu_power_w=_mean([p.gpu_power_w for p in points], weights),
+        weight=sum(weights),
+    )
+
+
+def _reduce(points: list[_Point], limit: int) -> list[_Point]:
+    """Merge runs of consecutive points so that at most ``limit`` remain."""
+    if len(points) <= limit:
+        return list(points)
+    size = math.ceil(len(points) / limit)
+    return [_merge(points[i : i + size]) for i in range(0, len(points), size)]
+
+
+class _Nvml:
+    """One NVML device; every query returns None when it fails."""
+
+    def __init__(self, module: Any, handle: Any, index: int, name: str) -> None:
+        self.module = module
+        self.handle = handle
+        self.index = index
+        self.name = name
+        self.power_ok = True
+
+    @classmethod
+    def open(cls, index: int | None) -> _Nvml | None:
+        try:
+            module = importlib.import_module('pynvml')
+        except ImportError:
+            return None
+        try:
+            module.nvmlInit()
+        except Exception:
+            return None
+        try:
+            wanted = 0 if index is None else index
+            if not 0 <= wanted < int(module.nvmlDeviceGetCount()):
+                module.nvmlShutdown()
+                return None
+            handle = module.nvmlDeviceGetHandleByIndex(wanted)
+            name = module.nvmlDeviceGetName(handle)
+        except Exception:
+            _quiet(module.nvmlShutdown)
+            return None
+        if isinstance(name, bytes):
+            name = name.decode('utf-8', 'replace')
+        return cls(module, handle, wanted, str(name))
+
+    def read(self) -> tuple[float | None, float | None, float | None]:
+        nvml, handle = self.module, self.handle
+        util = _quiet(lambda: float(nvml.nvmlDeviceGetUtilizationRates(handle).gpu))
+        mem = _quiet(lambda: float(nvml.nvmlDeviceGetMemoryInfo(handle).used) / _MIB)
+        power = None
+        if self.power_ok:
+            power = _quiet(lambda: float(nvml.nvmlDeviceGetPowerUsage(handle)) / 1000.0)
+            self.power_ok = power is not None
+        return util, mem, power
+
+    def close(self) -> None:
+        _quiet(self.module.nvmlShutdown)
+
+
+def _quiet(call: Any) -> Any:
+    try:
+        return call()
+    except Exception:
+        return None
+
+
+class _Rss:
+    """Resident set size in MiB: ``/proc/self/statm``, else the peak from getrusage."""
+
+    def __init__(self) -> None:
+        self.fd: int | None = None
+        self.source: str | None = None
+        self.page = os.sysconf('SC_PAGE_SIZE') if hasattr(os, 'sysconf') else 4096
+        try:
+            self.fd = os.open(PROC_SELF / 'statm', os.O_RDONLY)
+            self.source = 'statm'
+        except OSError:
+            try:
+                import resource  # noqa: F401 - Unix only
+            except ImportError:
+                return
+            self.source = 'getrusage_maxrss'
+
+    def read(self) -> float | None:
+        if self.fd is not None:
+            try:
+                fields = os.pread(self.fd, 256, 0).split()
+                return int(fields[1]) * self.page / _MIB
+            except (OSError, IndexError, ValueError):
+                return None
+        if self.source == 'getrusage_maxrss':
+            import resource
+
+            peak = float(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+            # kilobytes on Linux and the BSDs, bytes on macOS
+            return peak / _MIB if sys.platform == 'darwin' else peak / 1024.0
+        return None
+
+    def close(self) -> None:
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None
+
+
+class ResourceSampler:
+    """Sample this process every ``interval_s`` seconds in a daemon thread.
+
+    Use as a context manager (or ``start()`` / ``stop()``) around the work to measure. A sample
+    is also taken at the start and at the stop, so even short work has at least one interval.
+    ``series()`` keeps at most ``max_samples`` points (consecutive samples are merged: CPU %
+    over the merged span, the highest RSS and GPU memory, the mean GPU utilisation and power);
+    the stored history stays below twice that however long the sampler runs. ``summary()`` is
+    computed from every sample, not from the merged series.
+    """
+
+    def __init__(
+        self,
+        interval_s: float = DEFAULT_INTERVAL_S,
+        gpu_index: int | None = None,
+        max_samples: int = DEFAULT_MAX_SAMPLES,
+    ) -> None:
+        if not interval_s > 0:
+            msg = f'interval_s must be positive, not {interval_s}'
+            raise ValueError(msg)
+        if max_samples < 2:
+            msg = f'max_samples must be at least 2, not {max_samples}'
+            raise ValueError(msg)
+        self.interval_s = float(interval_s)
+        self.gpu_index = gpu_index
+        self.max_samples = max_samples
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._rss: _Rss | None = None
+        self._gpu: _Nvml | None = None
+        self._points: list[_Point] = []  # each merges ``_stride`` samples
+        self._pending: list[_Point] = []  # samples not yet merged into a point
+        self._stride = 1
+        self._t0 = 0.0
+        self._cpu0 = 0
+        self._last_t = 0.0
+        self._last_cpu = 0.0
+        self._stopped_at: float | None = None
+        # running statistics over every sample
+        self._samples = 0
+        self._cpu_max: float | None = None
+        self._rss_sum = 0.0
+        self._rss_n = 0
+        self._rss_peak: float | None = None
+        self._gpu_util_sum = 0.0
+        self._gpu_util_n = 0
+        self._gpu_mem_peak: float | None = None
+        self._gpu_power_sum = 0.0
+        self._gpu_power_n = 0
+        self._cost_s = 0.0
+        self._cost_n = 0
+        self._thread_cpu_s = 0.0
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self) -> Self:
+        """Take the first sample and start the thread."""
+        if self._thread is not None:
+            msg = 'a ResourceSampler can be started once'
+            raise RuntimeError(msg)
+        self._rss = _Rss()
+        self._gpu = _Nvml.open(self.gpu_index)
+        self._t0 = time.perf_counter()
+        self._cpu0 = time.process_time_ns()
+        self._take(timed=False)
+        self._thread = threading.Thread(
+            target=self._loop, name='replaybench-resources', daemon=True
+        )
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop the thread and take the last sample; a second call does nothing."""
+        if self._thread is None or self._stopped_at is not None:
+            return
+        self._stop.set()
+        self._thread.join()
+        self._take(timed=False)
+        self._stopped_at = time.perf_counter()
+        if self._rss is not None:
+            self._rss.close()
+        if self._gpu is not None:
+            self._gpu.close()
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+    def _loop(self) -> None:
+        cpu_start = time.thread_time()
+        next_t = self._t0 + self.interval_s
+        while not self._stop.wait(max(0.0, next_t - time.perf_counter())):
+            self._take(timed=True)
+            next_t += self.interval_s
+            now = time.perf_counter()
+            if next_t < now:  # fell behind (a stalled machine): skip, do not burst
+                next_t = now + self.interval_s
+        self._thread_cpu_s = time.thread_time() - cpu_start
+
+    # ------------------------------------------------------------------ sampling
+
+    def _take(self, *, timed: bool) -> None:
+        begin = time.perf_counter()
+        cpu_s = (time.process_time_ns() - self._cpu0) / 1e9
+        rss = self._rss.read() if self._rss is not None else None
+        util = mem = power = None
+        if self._gpu is not None:
+            util, mem, power = self._gpu.read()
+        t_s = time.perf_counter() - self._t0
+        point = _Point(t_s, cpu_s, rss, util, mem, power, 1)
+        with self._lock:
+            span = t_s - self._last_t
+            if self._samples and span >= 0.25 * self.interval_s:
+                percent = 100.0 * (cpu_s - self._last_cpu) / span
+                self._cpu_max = percent if self._cpu_max is None else max(self._cpu_max, percent)
+            self._last_t, self._last_cpu = t_s, cpu_s
+            self._samples += 1
+            if rss is not None:
+                self._rss_sum += rss
+                self._rss_n += 1
+                self._rss_peak = rss if self._rss_peak is None else max(self._rss_peak, rss)
+            if util is not None:
+                self._gpu_util_sum += util
+                self._gpu_util_n += 1
+            if mem is not None:
+                self._gpu_mem_peak = (
+                    mem if self._gpu_mem_peak is None else max(self._gpu_mem_peak, mem)
+                )
+            if power is not None:
+                self._gpu_power_sum += power
+                self._gpu_power_n += 1
+            self._pending.append(point)
+            if len(self._pending) >= self._stride:
+                self._points.append(_merge(self._pending))
+                self._pending = []
+            if len(self._points) >= 2 * self.max_samples:
+                # merge pairs and from now on whole pairs: every point spans as many samples
+                self._points = _reduce(self._points, self.max_samples)
+                self._stride *= 2
+            if timed:
+                self._cost_s += time.perf_counter() - begin
+                self._cost_n += 1
+
+    # ------------------------------------------------------------------ results
+
+    def summary(self) -> dict[str, Any]:
+        """Statistics over every sample so far (see docs/outputs.md, ``resources``)."""
+        with self._lock:
+            end = self._stopped_at if self._stopped_at is not None else time.perf_counter()
+            duration = end - self._t0 if self._samples else 0.0
+            cpu_mean = 100.0 * self._last_cpu / self._last_t if self._last_t > 0 else None
+            running = self._thread is not None and self._stopped_at is None
+            return {
+                'cpu_percent_mean': cpu_mean,
+                'cpu_percent_max': self._cpu_max if self._cpu_max is not None else cpu_mean,
+                'rss_mb_peak': self._rss_peak,
+                'rss_mb_mean': self._rss_sum / self._rss_n if self._rss_n else None,
+                'gpu_util_mean': self._gpu_util_sum / self._gpu_util_n
+                if self._gpu_util_n
+                else None,
+                'gpu_mem_mb_peak': self._gpu_mem_peak,
+                'gpu_power_w_mean': self._gpu_power_sum / self._gpu_power_n
+                if self._gpu_power_n
+                else None,
+                'samples': self._samples,
+                'interval_s': self.interval_s,
+                'overhead_ms_per_sample': 1e3 * self._cost_s / self._cost_n
+                if self._cost_n
+                else None,
+                'overhead_cpu_percent': 100.0 * self._thread_cpu_s / duration
+                if duration > 0 and not running
+                else None,
+                'duration_s': duration,
+                'cpu_source': 'process_time',
+                'rss_source': self._rss.source if self._rss is not None else None,
+                'gpu_index': self._gpu.index if self._gpu is not None else None,
+                'gpu_name': self._gpu.name if self._gpu is not None else None,
+            }
+
+    def series(self) -> list[dict[str, float | None]]:
+        """The samples over time, at most ``max_samples``; ``cpu_percent`` over each span."""
+        with self._lock:
+            points = self._points + ([_merge(self._pending)] if self._pending else [])
+        points = _reduce(points, self.max_samples)
+        out: list[dict[str, float | None]] = []
+        prev_t, prev_cpu = 0.0, 0.0
+        shortest = 0.25 * self.interval_s
+        for p in points:
+            span = p.t_s - prev_t
+            out.append(
+                {
+                    't_s': p.t_s,
+                    # None for spans too short to mean anything (the sample taken at the start)
+                    'cpu_percent': 100.0 * (p.cpu_s - prev_cpu) / span
+                    if span >= shortest
+                    else None,
+                    'rss_mb': p.rss_mb,
+                    'gpu_util': p.gpu_util,
+                    'gpu_mem_mb': p.gpu_mem_mb,
+                    'gpu_power_w': p.gpu_power_w,
+                }
+            )
+            prev_t, prev_cpu = p.t_s, p.cpu_s
+        return out

@@ -1,0 +1,172 @@
+"""The GPU backends on a real NVIDIA GPU against their CPU counterparts.
+
+Every test here skips, with the reason, where the backend is not available (no GPU, no
+onnxruntime-gpu / torch / CuPy). Tolerances: ``cuda`` / ``tensorrt`` fp32 against ``onnx-cpu``:
+each detection has a same-label partner with IoU >= 0.9 and a score within 0.03, detections
+within 0.01 of the threshold may be on one side only (the preprocessing differs from OpenCV's
+fixed-point resize by at most one level). fp16: IoU >= 0.85, scores within 0.05, 0.05 of the
+threshold. ``hsv-cuda`` against ``hsv``: IoU >= 0.9 for >= 95 % of the boxes of either.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import cv2
+import numpy as np
+import pytest
+from backends.gpu.gpuhelpers import ASTRONAUT, FIXTURE_BAGS, has
+
+from replaybench.backends import get_backend
+from replaybench.backends.base import BackendOptions
+from replaybench.errors import BackendUnavailableError
+from replaybench.types import Detection, Frame
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+INFO_KEYS = ('engine', 'providers', 'precision', 'device_name', 'driver', 'cuda_version')
+
+
+def _needs(name: str) -> pytest.MarkDecorator:
+    status = get_backend(name).available()
+    return pytest.mark.skipif(not status.ok, reason=f'{name} unavailable: {status.reason}')
+
+
+def _frames(limit: int = 8) -> list[Frame]:
+    from replaybench.decode import decode_image, message_kind
+    from replaybench.sources import open_source
+
+    frames = []
+    if ASTRONAUT.is_file():
+        image = cv2.imread(str(ASTRONAUT))
+        frames.append(Frame('/astronaut', 0, 0, 0, '', image, 'bgr8', 'bgr8'))
+    for bag in ('rgb8_raw.mcap', 'jpeg.mcap', 'two_camera.mcap'):
+        with open_source(FIXTURE_BAGS / bag) as source:
+            for raw in source.messages():
+                if message_kind(raw.msgtype) not in ('image', 'compressed_image'):
+                    continue
+                img = decode_image(raw)
+                frames.append(Frame(raw.topic, raw.seq, 0, 0, '', img.image, img.encoding, ''))
+                if len(frames) % limit == 0:
+                    break
+    return frames
+
+
+def _detect_all(name: str, options: BackendOptions, frames: list[Frame]) -> list[Any]:
+    backend = get_backend(name)(options)  # type: ignore[call-arg]
+    backend.open()
+    try:
+        results = [backend.detect(frame) for frame in frames]
+        info = backend.info()
+    finally:
+        backend.close()
+    return [results, info]
+
+
+def _iou(a: Detection, b: Detection) -> float:
+    w = max(0.0, min(a.x1, b.x1) - max(a.x0, b.x0))
+    h = max(0.0, min(a.y1, b.y1) - max(a.y0, b.y0))
+    union = (a.x1 - a.x0) * (a.y1 - a.y0) + (b.x1 - b.x0) * (b.y1 - b.y0) - w * h
+    return w * h / union if union > 0 else 0.0
+
+
+def _assert_close(
+    got: tuple[Detection, ...],
+    expected: tuple[Detection, ...],
+    conf: float,
+    iou: float = 0.9,
+    score: float = 0.03,
+    margin: float = 0.01,
+) -> None:
+    for ours, theirs in ((got, expected), (expected, got)):
+        for d in ours:
+            partners = [e for e in theirs if e.label == d.label and _iou(d, e) >= iou]
+            if not partners:
+                assert d.score <= conf + margin, f'{d} has no partner'
+                continue
+            assert min(abs(d.score - e.score) for e in partners) <= score, d
+
+
+def _compare_with_onnx_cpu(name: str, model: Path, **options: Any) -> dict[str, Any]:
+    conf = 0.1
+    frames = _frames()
+    cpu, _ = _detect_all('onnx-cpu', BackendOptions(model=model, conf=conf), frames)
+    gpu, info = _detect_all(name, BackendOptions(model=model, conf=conf, **options), frames)
+    half = options.get('precision') == 'fp16'
+    tolerance = {'iou': 0.85, 'score': 0.05, 'margin': 0.05} if half else {}
+    for ours, theirs in zip(gpu, cpu, strict=True):
+        _assert_close(ours.detections, theirs.detections, conf, **tolerance)
+        stages = ours.stages
+        for value in (
+            stages.h2d_ns,
+            stages.preprocess_ns,
+            stages.infer_ns,
+            stages.postprocess_ns,
+            stages.d2h_ns,
+        ):
+            assert value is not None
+            assert value > 0
+    assert sum(len(r.detections) for r in cpu) >= 5
+    for key in INFO_KEYS:
+        assert info[key], key
+    assert info['device_memory_bytes'] > 0
+    return info
+
+
+@_needs('cuda')
+def test_cuda_with_onnxruntime_finds_what_onnx_cpu_finds(yolox_nano):
+    info = _compare_with_onnx_cpu('cuda', yolox_nano, engine='ort')
+    assert info['engine'] == 'ort'
+    assert info['providers'][0] == 'CUDAExecutionProvider'
+
+
+@_needs('cuda')
+@pytest.mark.skipif(not has('onnx2torch'), reason='onnx2torch is not installed')
+@pytest.mark.parametrize('precision', ['fp32', 'fp16'])
+def test_cuda_with_torch_finds_what_onnx_cpu_finds(yolox_nano, precision):
+    info = _compare_with_onnx_cpu('cuda', yolox_nano, engine='torch', precision=precision)
+    assert info['engine'] == 'torch'
+    assert info['precision'] == precision
+
+
+@_needs('tensorrt')
+@pytest.mark.parametrize('precision', ['fp32', 'fp16'])
+def test_tensorrt_finds_what_onnx_cpu_finds(yolox_nano, precision, tmp_path):
+    extra = {'trt_cache': str(tmp_path / 'trt')}
+    info = _compare_with_onnx_cpu('tensorrt', yolox_nano, precision=precision, extra=extra)
+    assert info['providers'][0] == 'TensorrtExecutionProvider'
+    assert any((tmp_path / 'trt').iterdir())  # the built engine was cached
+
+
+@_needs('cuda')
+def test_cuda_gives_the_same_detections_for_the_same_frame(yolox_nano):
+    frame = _frames()[0]
+    results, _ = _detect_all('cuda', BackendOptions(model=yolox_nano), [frame] * 3)
+    assert results[0].detections == results[1].detections == results[2].detections
+
+
+@_needs('cuda')
+def test_a_gpu_index_beyond_the_machine_is_refused(yolox_nano):
+    backend = get_backend('cuda')(BackendOptions(model=yolox_nano, device=99))  # type: ignore[call-arg]
+    with pytest.raises(BackendUnavailableError):
+        backend.open()
+
+
+@_needs('hsv-cuda')
+def test_hsv_cuda_gives_the_hsv_detections_within_the_stated_tolerance():
+    frames = _frames(limit=20)
+    cpu, _ = _detect_all('hsv', BackendOptions(), frames)
+    gpu, info = _detect_all('hsv-cuda', BackendOptions(), frames)
+    hits = total = 0
+    for ours, theirs in zip(gpu, cpu, strict=True):
+        for a, b in ((ours.detections, theirs.detections), (theirs.detections, ours.detections)):
+            total += len(a)
+            hits += sum(any(x.label == y.label and _iou(x, y) >= 0.9 for y in b) for x in a)
+        assert ours.stages.h2d_ns and ours.stages.d2h_ns
+    assert total >= 100
+    assert hits / total >= 0.95
+    identical = sum(o.detections == t.detections for o, t in zip(gpu, cpu, strict=True))
+    assert identical == len(frames)  # what the CPU run of the same algorithm shows
+    assert info['device_name']
+    assert np.isfinite(info['device_memory_bytes'])

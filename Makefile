@@ -19,8 +19,8 @@ run: install
 	$(BIN)/replaybench run fixtures/bags/rgb8_raw.mcap --backend hsv --backend null --out replaybench-runs/demo --force
 
 lint: install
-	$(BIN)/ruff check replaybench tests benchmarks
-	$(BIN)/ruff format --check replaybench tests benchmarks
+	$(BIN)/ruff check replaybench tests benchmarks training
+	$(BIN)/ruff format --check replaybench tests benchmarks training
 
 typecheck: install
 	$(BIN)/mypy
@@ -34,7 +34,7 @@ bench: install
 	$(BIN)/python -m benchmarks
 
 fuzz: install
-	REPLAYBENCH_FUZZ=long $(BIN)/pytest tests/fuzz -q
+	REPLAYBENCH_FUZZ=long $(BIN)/pytest tests/fuzz -q -n auto
 
 fixtures: install
 	$(BIN)/replaybench fixtures --out fixtures/bags

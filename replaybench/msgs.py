@@ -214,9 +214,30 @@ def _serialize(message: object, msgtype: str, ros1: bool) -> bytes:
     return bytes(store.serialize_cdr(message, msgtype))
 
 
+#: Header seconds that can be written: ROS 2 ``builtin_interfaces/Time.sec`` is int32; ROS 1
+#: ``time`` is unsigned, and the rosbags serialiser packs its seconds as int32 as well.
+_SEC_RANGE = {True: (0, 2**31 - 1), False: (-(2**31), 2**31 - 1)}
+
+
+def _stamp(stamp_ns: int, ros1: bool) -> tuple[int, int]:
+    """Split ``stamp_ns`` into (sec, nanosec), saturated to what the header type can hold.
+
+    A stamp beyond 2038 (or before 1970 in ROS 1) cannot be written in a header; it is
+    clamped to the nearest representable time rather than failing the whole message. The MCAP
+    record around the message keeps the exact time as its log time.
+    """
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    low, high = _SEC_RANGE[ros1]
+    if sec < low:
+        return low, 0
+    if sec > high:
+        return high, 999_999_999
+    return sec, nanosec
+
+
 def _header(stamp_ns: int, frame_id: str, ros1: bool, seq: int = 0) -> Any:
     types = typestore(ros1).types
-    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    sec, nanosec = _stamp(stamp_ns, ros1)
     stamp = types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec)
     if ros1:
         return types['std_msgs/msg/Header'](seq=seq, stamp=stamp, frame_id=frame_id)

@@ -167,6 +167,28 @@ def test_ros1_detections_carry_the_class_name_score_and_box() -> None:
     assert first.source_img.data.size == 0
 
 
+@pytest.mark.parametrize(
+    ('ros1', 'stamp_ns', 'expected'),
+    [
+        (False, (2**31 + 5) * 10**9, (2**31 - 1, 999_999_999)),
+        (False, -(2**31 + 5) * 10**9, (-(2**31), 0)),
+        (True, 2**32 * 10**9, (2**31 - 1, 999_999_999)),
+        (True, -1, (0, 0)),
+        (False, (2**31 - 1) * 10**9 + 7, (2**31 - 1, 7)),
+    ],
+)
+def test_stamps_the_header_cannot_hold_are_clamped_to_the_nearest_time(
+    ros1: bool, stamp_ns: int, expected: tuple[int, int]
+) -> None:
+    data = msgs.serialize_detections(stamp_ns, 'cam', DETS, ros1=ros1)
+    store = msgs.typestore(ros1=ros1)
+    if ros1:
+        message = store.deserialize_ros1(data, msgs.DETECTION2DARRAY)
+    else:
+        message = store.deserialize_cdr(data, msgs.DETECTION2DARRAY)
+    assert (message.header.stamp.sec, message.header.stamp.nanosec) == expected
+
+
 def test_camera_info_round_trips_through_cdr_and_ros1() -> None:
     info = _info()
     cdr = msgs.typestore().deserialize_cdr(msgs.serialize_camera_info(info), msgs.CAMERA_INFO)

@@ -3,7 +3,10 @@
 The codec is recognised from the payload's magic bytes; the format string (as
 image_transport writes it, e.g. ``'rgb8; jpeg compressed bgr8'``, ``'16UC1; compressedDepth png'``)
 says what the source encoding was. Image dimensions are read from the file header and checked
-before the decoder allocates anything.
+before the decoder allocates anything: besides the size limits of every image, a header claiming
+more than ``FREE_PIXELS`` pixels must come with at least one payload byte per
+``MAX_PIXELS_PER_BYTE`` pixels, so a few corrupted header bytes cannot make the decoder allocate
+gigabytes.
 """
 
 from __future__ import annotations
@@ -19,7 +22,22 @@ from replaybench.errors import DecodeError
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-__all__ = ['CompressedFormat', 'decode_compressed', 'image_size', 'parse_format', 'sniff_codec']
+__all__ = [
+    'FREE_PIXELS',
+    'MAX_PIXELS_PER_BYTE',
+    'CompressedFormat',
+    'check_payload_size',
+    'decode_compressed',
+    'image_size',
+    'parse_format',
+    'sniff_codec',
+]
+
+#: Compressed images up to this many pixels (2048 x 2048) are decoded whatever their payload size.
+FREE_PIXELS = 1 << 22
+#: Above ``FREE_PIXELS``, the most pixels one payload byte may stand for. Camera JPEGs hold
+#: 2-20 pixels per byte, a black frame about 85; only PNGs of blank images compress further.
+MAX_PIXELS_PER_BYTE = 256
 
 _PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
 _JPEG_MAGIC = b'\xff\xd8\xff'
@@ -138,11 +156,23 @@ def image_size(data: memoryview, codec: str) -> tuple[int, int]:
     raise DecodeError(msg)
 
 
+def check_payload_size(width: int, height: int, nbytes: int, codec: str) -> None:
+    """DecodeError when a header claims far more pixels than ``nbytes`` of data can hold."""
+    pixels = width * height
+    if pixels > FREE_PIXELS and pixels > nbytes * MAX_PIXELS_PER_BYTE:
+        msg = (
+            f'{codec} header claims {width}x{height} pixels for {nbytes} bytes of data '
+            f'(more than {MAX_PIXELS_PER_BYTE} pixels per byte); not decoded'
+        )
+        raise DecodeError(msg)
+
+
 def _imdecode(data: memoryview, codec: str) -> npt.NDArray[Any]:
     import cv2
 
     width, height = image_size(data, codec)
     check_dimensions(width, height, f'{codec} image')
+    check_payload_size(width, height, len(data), codec)
     try:
         image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as err:

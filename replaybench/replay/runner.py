@@ -928,14 +928,13 @@ def _summaries(run: _Run) -> list[Summary]:
 
 
 def _write_samples(out: Path, run: _Run) -> list[str]:
-    from replaybench.report import write_sample
+    from replaybench.report import sample_relpath, write_sample
 
     paths: list[str] = []
     folder = out / 'samples'
     folder.mkdir(exist_ok=True)
     for (index, topic), sample in sorted(run.samples.items()):
-        safe = ''.join(c if c.isalnum() else '_' for c in topic).strip('_') or 'topic'
-        rel = f'samples/input{index}_{safe}.jpg'
+        rel = sample_relpath(index, topic)
         write_sample(out / rel, sample.image_bgr, sample.detections, sample.title)
         paths.append(rel)
     return paths

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import os
 import tempfile
 from pathlib import Path
@@ -20,11 +21,16 @@ __all__ = ['JPEG_QUALITY', 'MAX_WIDTH', 'sample_relpath', 'write_sample']
 MAX_WIDTH = 480
 #: JPEG quality of the thumbnails.
 JPEG_QUALITY = 85
+#: Longest topic part of a sample's file name; longer topics are cut and given a hash.
+_MAX_NAME = 96
 
 
 def sample_relpath(input_index: int, topic: str) -> str:
     """The run-folder relative path of the sample of ``topic`` of input ``input_index``."""
-    safe = ''.join(c if c.isalnum() else '_' for c in topic).strip('_') or 'topic'
+    safe = ''.join(c if c.isascii() and c.isalnum() else '_' for c in topic).strip('_') or 'topic'
+    if len(safe) > _MAX_NAME:
+        digest = hashlib.sha256(topic.encode('utf-8', 'surrogatepass')).hexdigest()[:12]
+        safe = f'{safe[: _MAX_NAME - 13]}_{digest}'
     return f'samples/input{input_index}_{safe}.jpg'
 
 

@@ -13,6 +13,7 @@ if TYPE_CHECKING:
     from pathlib import Path
 
 __all__ = [
+    'MAX_CHUNK_BYTES',
     'MappedFile',
     'decompress',
     'decompress_partial',
@@ -41,38 +42,71 @@ def normalize_topic(name: str) -> str:
     return lead + '/'.join(part for part in name.split('/') if part)
 
 
+#: Largest uncompressed chunk accepted: a corrupted size field must not make us allocate more.
+MAX_CHUNK_BYTES = 1 << 30
+
+
+def _check_size(size: int) -> None:
+    if not 0 <= size <= MAX_CHUNK_BYTES:
+        msg = f'declared uncompressed size {size} is beyond the {MAX_CHUNK_BYTES}-byte limit'
+        raise ValueError(msg)
+
+
 def decompress(data: memoryview, compression: str, size: int) -> bytes:
-    """Decompress one whole chunk; ``size`` is its uncompressed size."""
+    """Decompress one whole chunk; ``size`` is its declared uncompressed size.
+
+    Never produces (or allocates for) more than ``size`` bytes; a stream that holds more or
+    less than declared is an error.
+    """
+    _check_size(size)
     if compression == 'zstd':
         import zstandard
 
-        return bytes(zstandard.ZstdDecompressor().decompress(data, max_output_size=size))
-    if compression == 'lz4':
+        claimed = zstandard.frame_content_size(data)
+        if claimed > size:  # -1 when the frame does not say
+            msg = f'zstd frame claims {claimed} bytes, the chunk {size}'
+            raise ValueError(msg)
+        out = bytes(zstandard.ZstdDecompressor().decompress(data, max_output_size=size))
+    elif compression == 'lz4':
         import lz4.frame
 
-        return bytes(lz4.frame.decompress(data))
-    if compression == 'bz2':
+        out = bytes(lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=size + 1))
+    elif compression == 'bz2':
         import bz2
 
-        return bz2.decompress(data)
-    msg = f'compression {compression!r} is not supported'
-    raise ValueError(msg)
+        out = bz2.BZ2Decompressor().decompress(data, max_length=size + 1)
+    else:
+        msg = f'compression {compression!r} is not supported'
+        raise ValueError(msg)
+    if len(out) != size:
+        held = 'more' if len(out) > size else str(len(out))
+        msg = f'{compression} chunk holds {held} bytes, not {size}'
+        raise ValueError(msg)
+    return out
 
 
-def decompress_partial(data: memoryview, compression: str) -> bytes:
-    """Decompress as much as possible of a chunk whose end is missing."""
+def decompress_partial(data: memoryview, compression: str, size: int) -> bytes:
+    """Decompress as much as possible (at most ``size`` bytes) of a chunk whose end is missing."""
+    _check_size(size)
     if compression == 'zstd':
         import zstandard
 
-        return bytes(zstandard.ZstdDecompressor().decompressobj().decompress(data))
+        try:
+            claimed = zstandard.frame_content_size(data)
+        except zstandard.ZstdError:
+            claimed = -1  # a header cut short: the decompressor finds what it can
+        if claimed > size:
+            msg = f'zstd frame claims {claimed} bytes, the chunk {size}'
+            raise ValueError(msg)
+        return bytes(zstandard.ZstdDecompressor().decompressobj().decompress(data))[:size]
     if compression == 'lz4':
         import lz4.frame
 
-        return bytes(lz4.frame.LZ4FrameDecompressor().decompress(data))
+        return bytes(lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=size))
     if compression == 'bz2':
         import bz2
 
-        return bz2.BZ2Decompressor().decompress(data)
+        return bz2.BZ2Decompressor().decompress(data, max_length=size)
     msg = f'compression {compression!r} is not supported'
     raise ValueError(msg)
 

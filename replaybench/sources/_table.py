@@ -364,7 +364,7 @@ class TableSource:
         raw = self._maps[ck.file_no].view[ck.data_start : ck.data_start + ck.data_len]
         try:
             if ck.partial:
-                data = decompress_partial(raw, ck.compression)
+                data = decompress_partial(raw, ck.compression, ck.uncompressed_size)
             else:
                 data = decompress(raw, ck.compression, ck.uncompressed_size)
         except Exception as err:

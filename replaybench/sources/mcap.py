@@ -89,7 +89,7 @@ class _ChunkHead(NamedTuple):
 
 def mcap_payload(buf: memoryview, pos: int) -> memoryview | None:
     """The data of the Message record at ``pos`` of ``buf``, or None if it is not one."""
-    if pos + 31 > len(buf) or buf[pos] != _OP_MESSAGE:
+    if pos < 0 or pos + 31 > len(buf) or buf[pos] != _OP_MESSAGE:
         return None
     (length,) = _U64(buf, pos + 1)
     end = pos + 9 + length
@@ -375,7 +375,7 @@ class McapSource(TableSource):
         raw = mapped.view[ck.data_start : ck.data_start + ck.data_len]
         try:
             if ck.partial:
-                data = decompress_partial(raw, ck.compression)
+                data = decompress_partial(raw, ck.compression, ck.uncompressed_size)
             else:
                 data = decompress(raw, ck.compression, ck.uncompressed_size)
         except Exception as err:

@@ -82,7 +82,7 @@ def _op_of(buf: memoryview, start: int, end: int) -> int:
 def ros1_payload(buf: memoryview, pos: int) -> memoryview | None:
     """The data of the message-data record at ``pos`` (connection records before it skipped)."""
     size = len(buf)
-    while pos + 4 <= size:
+    while pos >= 0 and pos + 4 <= size:
         (hlen,) = _U32(buf, pos)
         hend = pos + 4 + hlen
         if hend + 4 > size:
@@ -268,7 +268,7 @@ class Rosbag1Source(TableSource):
         raw = view[ck.data_start : ck.data_start + ck.data_len]
         try:
             if ck.partial:
-                data = decompress_partial(raw, ck.compression)
+                data = decompress_partial(raw, ck.compression, ck.uncompressed_size)
             else:
                 data = decompress(raw, ck.compression, ck.uncompressed_size)
         except Exception as err:

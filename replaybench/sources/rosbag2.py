@@ -258,6 +258,12 @@ class RosbagsSource:
             for conn, log_time, data in sub.messages(conns, start_ns, end_ns):
                 channel = chmap[conn.id]
                 payload = decompress(data) if decompress else data
+                if log_time < 0:  # sqlite stores signed times; log times are unsigned
+                    self._warn(
+                        f'{self._file_name(i)}: messages with negative timestamps; '
+                        'replayed at log time 0'
+                    )
+                    log_time = 0
                 yield log_time, channel.topic, i, n, channel, payload
                 n += 1
         except Exception as err:
@@ -278,9 +284,10 @@ class RosbagsSource:
                     'SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp) '
                     'FROM messages GROUP BY topic_id'
                 ).fetchall()
-                return {int(r[0]): (int(r[1]), int(r[2]), int(r[3])) for r in rows}
+                return {int(r[0]): (int(r[1]), max(0, int(r[2])), max(0, int(r[3]))) for r in rows}
             stats: dict[int, tuple[int, int, int]] = {}
-            for conn, log_time, _ in sub.messages(list(sub.connections)):
+            for conn, time, _ in sub.messages(list(sub.connections)):
+                log_time = max(0, time)
                 count, first, last = stats.get(conn.id, (0, log_time, log_time))
                 stats[conn.id] = (count + 1, min(first, log_time), max(last, log_time))
         except Exception as err:

@@ -74,3 +74,12 @@ def test_sample_paths_are_safe_file_names() -> None:
     assert sample_relpath(2, '/cam/front/image_raw') == 'samples/input2_cam_front_image_raw.jpg'
     assert sample_relpath(0, '<script>') == 'samples/input0_script.jpg'
     assert sample_relpath(0, '///') == 'samples/input0_topic.jpg'
+
+
+def test_a_topic_longer_than_a_file_name_is_cut_and_told_apart_by_a_hash() -> None:
+    first = sample_relpath(0, '/' + 'x' * 300)
+    second = sample_relpath(0, '/' + 'x' * 299 + 'y')
+    assert first != second
+    assert len(first.removeprefix('samples/').encode()) < 255
+    assert first.startswith('samples/input0_xxxx')
+    assert sample_relpath(0, '/caméra/image') == 'samples/input0_cam_ra_image.jpg'

@@ -12,7 +12,10 @@ install: $(STAMP)
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[dev]'
+	$(BIN)/python -m pip install -q -e '.[dev,train]'
+	# the cuda backend's torch engine, tested on the CPU: onnx2torch without its torchvision
+	# requirement (PyPI's torchvision does not import beside the CPU build of torch)
+	$(BIN)/python -m pip install -q --no-deps 'onnx2torch==1.5.15'
 	touch $(STAMP)
 
 run: install

@@ -14,6 +14,7 @@ exactly 4 reads, as a label of four NUL characters.
 
 from __future__ import annotations
 
+import struct
 from functools import cache
 from typing import TYPE_CHECKING, Any
 
@@ -258,9 +259,12 @@ def serialize_detections(
     hypothesis: the label as ``class_id`` (ROS 2) or ``id`` (ROS 1), and the score.
     Every Detection2D carries the array's header. ``seq`` is the ROS 1 header sequence number.
     """
-    store = typestore(ros1)
-    types = store.types
-    header = _header(stamp_ns, frame_id, ros1, seq)
+    if not ros1:
+        return _detections_cdr(stamp_ns, frame_id, detections)
+    import numpy as np
+
+    types = typestore(ros1=True).types
+    header = _header(stamp_ns, frame_id, True, seq)
     point = types['geometry_msgs/msg/Point'](x=0.0, y=0.0, z=0.0)
     orientation = types['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0)
     pose = types['geometry_msgs/msg/PoseWithCovariance'](
@@ -270,45 +274,76 @@ def serialize_detections(
     detection2d = types['vision_msgs/msg/Detection2D']
     bbox = types['vision_msgs/msg/BoundingBox2D']
     with_pose = types['vision_msgs/msg/ObjectHypothesisWithPose']
+    pose2d = types['geometry_msgs/msg/Pose2D']
+    empty = types['sensor_msgs/msg/Image'](
+        header=_header(0, '', True),
+        height=0,
+        width=0,
+        encoding='',
+        is_bigendian=0,
+        step=0,
+        data=np.zeros(0, dtype=np.uint8),
+    )
     items: list[Any] = []
-    if ros1:
-        import numpy as np
-
-        pose2d = types['geometry_msgs/msg/Pose2D']
-        empty = types['sensor_msgs/msg/Image'](
-            header=_header(0, '', ros1),
-            height=0,
-            width=0,
-            encoding='',
-            is_bigendian=0,
-            step=0,
-            data=np.zeros(0, dtype=np.uint8),
+    for det in detections:
+        box = bbox(
+            center=pose2d(x=(det.x0 + det.x1) / 2, y=(det.y0 + det.y1) / 2, theta=0.0),
+            size_x=float(det.x1 - det.x0),
+            size_y=float(det.y1 - det.y0),
         )
-        for det in detections:
-            box = bbox(
-                center=pose2d(x=(det.x0 + det.x1) / 2, y=(det.y0 + det.y1) / 2, theta=0.0),
-                size_x=float(det.x1 - det.x0),
-                size_y=float(det.y1 - det.y0),
-            )
-            hyp = with_pose(id=det.label, score=float(det.score), pose=pose)
-            items.append(detection2d(header=header, results=[hyp], bbox=box, source_img=empty))
-    else:
-        pose2d = types['vision_msgs/msg/Pose2D']
-        point2d = types['vision_msgs/msg/Point2D']
-        hypothesis = types['vision_msgs/msg/ObjectHypothesis']
-        for det in detections:
-            centre = point2d(x=(det.x0 + det.x1) / 2, y=(det.y0 + det.y1) / 2)
-            box = bbox(
-                center=pose2d(position=centre, theta=0.0),
-                size_x=float(det.x1 - det.x0),
-                size_y=float(det.y1 - det.y0),
-            )
-            hyp = with_pose(
-                hypothesis=hypothesis(class_id=det.label, score=float(det.score)), pose=pose
-            )
-            items.append(detection2d(header=header, results=[hyp], bbox=box, id=''))
+        hyp = with_pose(id=det.label, score=float(det.score), pose=pose)
+        items.append(detection2d(header=header, results=[hyp], bbox=box, source_img=empty))
     message = types[DETECTION2DARRAY](header=header, detections=items)
-    return _serialize(message, DETECTION2DARRAY, ros1)
+    return _serialize(message, DETECTION2DARRAY, True)
+
+
+#: PoseWithCovariance of every hypothesis: position 0, identity orientation, zero covariance.
+_IDENTITY_POSE = struct.pack('<7d', 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0) + bytes(36 * 8)
+
+
+def _cdr_string(out: bytearray, text: str) -> None:
+    """Append a CDR string (aligned u32 length with the NUL, the bytes, the NUL)."""
+    data = text.encode()
+    out += bytes(-(len(out) - 4) % 4)
+    out += struct.pack('<I', len(data) + 1)
+    out += data
+    out += b'\0'
+
+
+def _detections_cdr(stamp_ns: int, frame_id: str, detections: Sequence[Detection]) -> bytes:
+    """``serialize_detections`` for ROS 2, written directly as little-endian CDR.
+
+    The same bytes as the rosbags and mcap_ros2 serialisers (tests compare them), without
+    building a message object per detection: this runs once per replayed frame.
+    Alignment counts from the end of the 4-byte encapsulation header.
+    """
+    sec, nanosec = _stamp(stamp_ns, ros1=False)
+    stamp = struct.pack('<iI', sec, nanosec)
+    out = bytearray(b'\x00\x01\x00\x00')
+    out += stamp
+    _cdr_string(out, frame_id)
+    out += bytes(-(len(out) - 4) % 4)
+    out += struct.pack('<I', len(detections))
+    for det in detections:
+        out += bytes(-(len(out) - 4) % 4)
+        out += stamp
+        _cdr_string(out, frame_id)
+        out += bytes(-(len(out) - 4) % 4)
+        out += b'\x01\x00\x00\x00'  # one hypothesis
+        _cdr_string(out, det.label)
+        out += bytes(-(len(out) - 4) % 8)
+        out += struct.pack('<d', float(det.score))
+        out += _IDENTITY_POSE
+        out += struct.pack(
+            '<5d',
+            (det.x0 + det.x1) / 2,
+            (det.y0 + det.y1) / 2,
+            0.0,
+            float(det.x1 - det.x0),
+            float(det.y1 - det.y0),
+        )
+        _cdr_string(out, '')  # Detection2D.id
+    return bytes(out)
 
 
 def serialize_camera_info(ci: CameraInfo, *, ros1: bool = False, seq: int = 0) -> bytes:

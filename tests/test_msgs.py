@@ -5,6 +5,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
 
 from replaybench import msgs
@@ -152,6 +154,75 @@ def test_serialized_detections_are_byte_identical_to_the_mcap_ros2_encoder(count
     encode = serialize_dynamic(msgs.DETECTION2DARRAY, msgs.ros2msg_schema(msgs.DETECTION2DARRAY))
     expected = encode[msgs.DETECTION2DARRAY](_dict_message(DETS[:count]))
     assert msgs.serialize_detections(STAMP, 'cam', DETS[:count]) == expected
+
+
+def _rosbags_detections(stamp_ns: int, frame_id: str, detections: list[Detection]) -> bytes:
+    """The same message built from rosbags' message classes and its CDR serialiser."""
+    types = msgs.typestore().types
+    sec, nanosec = divmod(stamp_ns, 10**9)
+    header = types['std_msgs/msg/Header'](
+        stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec), frame_id=frame_id
+    )
+    pose = types['geometry_msgs/msg/PoseWithCovariance'](
+        pose=types['geometry_msgs/msg/Pose'](
+            position=types['geometry_msgs/msg/Point'](x=0.0, y=0.0, z=0.0),
+            orientation=types['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0),
+        ),
+        covariance=np.zeros(36),
+    )
+    items = [
+        types['vision_msgs/msg/Detection2D'](
+            header=header,
+            results=[
+                types['vision_msgs/msg/ObjectHypothesisWithPose'](
+                    hypothesis=types['vision_msgs/msg/ObjectHypothesis'](
+                        class_id=d.label, score=d.score
+                    ),
+                    pose=pose,
+                )
+            ],
+            bbox=types['vision_msgs/msg/BoundingBox2D'](
+                center=types['vision_msgs/msg/Pose2D'](
+                    position=types['vision_msgs/msg/Point2D'](
+                        x=(d.x0 + d.x1) / 2, y=(d.y0 + d.y1) / 2
+                    ),
+                    theta=0.0,
+                ),
+                size_x=d.x1 - d.x0,
+                size_y=d.y1 - d.y0,
+            ),
+            id='',
+        )
+        for d in detections
+    ]
+    message = types[msgs.DETECTION2DARRAY](header=header, detections=items)
+    return bytes(msgs.typestore().serialize_cdr(message, msgs.DETECTION2DARRAY))
+
+
+_floats = st.floats(-1e6, 1e6, allow_nan=False)
+_detection = st.builds(
+    Detection,
+    st.integers(0, 100),
+    st.text(max_size=9),
+    st.floats(0, 1),
+    _floats,
+    _floats,
+    _floats,
+    _floats,
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    stamp=st.integers(0, (2**31 - 1) * 10**9),
+    frame_id=st.text(max_size=11),
+    detections=st.lists(_detection, max_size=4),
+)
+def test_detections_cdr_matches_the_rosbags_serialiser_for_any_labels_and_alignment(
+    stamp: int, frame_id: str, detections: list[Detection]
+) -> None:
+    expected = _rosbags_detections(stamp, frame_id, detections)
+    assert msgs.serialize_detections(stamp, frame_id, detections) == expected
 
 
 def test_ros1_detections_carry_the_class_name_score_and_box() -> None:

@@ -196,6 +196,46 @@ class OrtEngine:
         }
 
 
+#: ONNX ops that onnx2torch implements with torchvision.
+_TORCHVISION_OPS = frozenset({'NonMaxSuppression', 'RoiAlign'})
+
+
+def _import_onnx2torch() -> tuple[Any, Any]:
+    """``(onnx2torch, torchvision or None)``.
+
+    onnx2torch imports torchvision at import time, but uses it only for the
+    ``NonMaxSuppression`` and ``RoiAlign`` converters. Without torchvision (a CPU build of torch
+    has no matching one on PyPI) it is imported against a placeholder that is removed right
+    after, and ``_open_torch`` refuses models with those two ops.
+    """
+    import sys
+    import types
+
+    try:
+        return importlib.import_module('onnx2torch'), importlib.import_module('torchvision')
+    except ModuleNotFoundError as exc:
+        if exc.name != 'torchvision':
+            raise
+    for name in [m for m in sys.modules if m == 'onnx2torch' or m.startswith('onnx2torch.')]:
+        del sys.modules[name]
+
+    def missing(*args: object, **kwargs: object) -> Any:
+        msg = 'torchvision is not installed'
+        raise BackendError(msg)
+
+    placeholder = types.ModuleType('torchvision')
+    placeholder_ops = types.ModuleType('torchvision.ops')
+    for attr in ('nms', 'box_convert', 'roi_align'):
+        setattr(placeholder_ops, attr, missing)
+    placeholder.ops = placeholder_ops  # type: ignore[attr-defined]
+    sys.modules['torchvision'] = placeholder
+    sys.modules['torchvision.ops'] = placeholder_ops
+    try:
+        return importlib.import_module('onnx2torch'), None
+    finally:
+        del sys.modules['torchvision'], sys.modules['torchvision.ops']
+
+
 class TorchEngine:
     """A torch module (the ONNX graph converted by onnx2torch) on the input tensor.
 
@@ -513,14 +553,26 @@ class CudaBackend:
         torch, device = self._torch_device()
         spec = self._load_spec(None)
         onnx = importlib.import_module('onnx')
-        onnx2torch = importlib.import_module('onnx2torch')
+        proto = onnx.load(str(self.model_path))
+        onnx2torch, torchvision = _import_onnx2torch()
+        needs = sorted({n.op_type for n in proto.graph.node} & _TORCHVISION_OPS)
+        if needs and torchvision is None:
+            msg = (
+                f'{self.name}: {self.model_path.name} has {", ".join(needs)} nodes, which '
+                'onnx2torch runs with torchvision; torchvision is not installed'
+            )
+            raise BackendUnavailableError(msg)
         try:
-            module = onnx2torch.convert(onnx.load(str(self.model_path)))
+            module = onnx2torch.convert(proto)
         except Exception as exc:  # unsupported ops and the like
             what = f'{type(exc).__name__}: {exc}'
             msg = f'{self.name}: onnx2torch cannot convert {self.model_path}: {what}'
             raise BackendError(msg) from None
-        facts = {'torch': str(torch.__version__), 'onnx2torch': _version('onnx2torch')}
+        facts = {
+            'torch': str(torch.__version__),
+            'onnx2torch': _version('onnx2torch'),
+            'torchvision': _version('torchvision') if torchvision is not None else None,
+        }
         return spec, torch, device, module, facts
 
     # -- lifecycle -----------------------------------------------------------------------

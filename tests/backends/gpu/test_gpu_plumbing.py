@@ -9,6 +9,8 @@ the stage timings, the recorded facts and the detections, which must equal the C
 from __future__ import annotations
 
 import contextlib
+import importlib.util
+import sys
 import types
 from typing import Any
 
@@ -25,6 +27,7 @@ from replaybench.backends.gpu.cuda import CudaBackend
 from replaybench.backends.gpu.hsv_cuda import HsvCudaBackend
 from replaybench.backends.hsv import HsvBackend
 from replaybench.backends.onnx_cpu import OnnxCpuBackend
+from replaybench.errors import BackendUnavailableError
 from replaybench.types import Frame
 
 FACTS = DeviceFacts(0, 'stand-in', 1 << 30, 'test driver', '12.4')
@@ -169,3 +172,74 @@ def test_cuda_opens_runs_and_records_its_engine(monkeypatch, yolox_nano):
     assert info['precision'] == 'fp32'
     assert info['device_name'] == 'stand-in'
     assert info['family'] == 'yolox'
+
+
+def _bundled_model() -> Any:
+    from replaybench.detector.spec import DEFAULT_MODEL
+
+    if not DEFAULT_MODEL.is_file():
+        pytest.skip(f'{DEFAULT_MODEL} is not installed')
+    return DEFAULT_MODEL
+
+
+@pytest.mark.parametrize('which', ['bundled', 'yolox_nano'])
+def test_cuda_torch_engine_converts_the_model_and_finds_what_onnx_cpu_finds(
+    monkeypatch, request, which
+):
+    torch = pytest.importorskip('torch')
+    if importlib.util.find_spec('onnx2torch') is None:
+        pytest.skip('onnx2torch is not installed (make install)')
+    model = _bundled_model() if which == 'bundled' else request.getfixturevalue('yolox_nano')
+    stand_in = types.SimpleNamespace(**{k: getattr(torch, k) for k in dir(torch) if k[0] != '_'})
+    stand_in.cuda = _CudaNamespace
+    stand_in.version = types.SimpleNamespace(cuda='12.4')
+    stand_in.__version__ = torch.__version__
+    monkeypatch.setattr(CudaBackend, '_torch_device', lambda self: (stand_in, torch.device('cpu')))
+    monkeypatch.setattr(cuda_module, 'device_facts', lambda index: FACTS)
+    frame = _fixture_frame()
+
+    backend = CudaBackend(BackendOptions(model=model, conf=0.05, engine='torch'))
+    backend.open()
+    result = backend.detect(frame)
+    info = backend.info()
+    backend.close()
+
+    reference = OnnxCpuBackend(BackendOptions(model=model, conf=0.05, threads=1))
+    reference.open()
+    expected = reference.detect(frame).detections
+    assert len(expected) >= 1
+    assert [d.label for d in result.detections] == [d.label for d in expected]
+    for ours, theirs in zip(result.detections, expected, strict=True):
+        # the device letterbox resizes with torch, onnx-cpu with OpenCV: near, not equal
+        assert abs(ours.score - theirs.score) <= 0.01
+        for a, b in zip(ours[3:], theirs[3:], strict=True):
+            assert abs(a - b) <= 0.5
+    assert info['engine'] == 'torch'
+    assert info['precision'] == 'fp32'
+    assert info['onnx2torch']
+
+
+def test_cuda_torch_engine_without_torchvision_refuses_a_model_with_nms_nodes(
+    monkeypatch, tiny_model
+):
+    torch = pytest.importorskip('torch')
+    onnx = pytest.importorskip('onnx')
+    if importlib.util.find_spec('onnx2torch') is None:
+        pytest.skip('onnx2torch is not installed (make install)')
+    if importlib.util.find_spec('torchvision') is not None:
+        pytest.skip('torchvision is installed here')
+    proto = onnx.load(str(tiny_model))
+    for name, value in (('boxes', np.zeros((1, 1, 4), np.float32)), ('scores', np.ones((1, 1, 1)))):
+        tensor = onnx.numpy_helper.from_array(value.astype(np.float32), name)
+        proto.graph.node.append(onnx.helper.make_node('Constant', [], [name], value=tensor))
+    proto.graph.node.append(
+        onnx.helper.make_node('NonMaxSuppression', ['boxes', 'scores'], ['selected'])
+    )
+    onnx.save(proto, str(tiny_model))
+    stand_in = types.SimpleNamespace(__version__=torch.__version__, cuda=_CudaNamespace)
+    monkeypatch.setattr(CudaBackend, '_torch_device', lambda self: (stand_in, torch.device('cpu')))
+
+    backend = CudaBackend(BackendOptions(model=tiny_model, engine='torch'))
+    with pytest.raises(BackendUnavailableError, match=r'NonMaxSuppression.*torchvision'):
+        backend.open()
+    assert 'torchvision' not in sys.modules

@@ -95,24 +95,47 @@ _FORMATS: tuple[tuple[str, str], ...] = tuple(
 _FLOAT_FORMAT = dict(_FORMATS)
 
 
-def _cell(name: str, value: object) -> str:
-    if value is None:
-        return ''
-    if name in _BOOL_FIELDS:
-        return '1' if value else '0'
-    if name in _FLOAT_FORMAT:
+def _float_cell(spec: str) -> Callable[[object], str]:
+    def cell(value: object) -> str:
+        if value is None:
+            return ''
         number = float(value)  # type: ignore[arg-type]
         if not math.isfinite(number):
             return ''
-        text = format(number, _FLOAT_FORMAT[name])
+        text = format(number, spec)
         return '0' + text[2:] if text.startswith('-0') and float(text) == 0 else text
+
+    return cell
+
+
+def _int_cell(value: object) -> str:
+    return '' if value is None else str(int(value))  # type: ignore[call-overload]
+
+
+def _bool_cell(value: object) -> str:
+    return '' if value is None else ('1' if value else '0')
+
+
+def _str_cell(value: object) -> str:
+    return '' if value is None else str(value)
+
+
+def _cell_formatter(name: str) -> Callable[[object], str]:
+    if name in _BOOL_FIELDS:
+        return _bool_cell
+    if name in _FLOAT_FORMAT:
+        return _float_cell(_FLOAT_FORMAT[name])
     if name in _INT_FIELDS:
-        return str(int(value))  # type: ignore[call-overload]
-    return str(value)
+        return _int_cell
+    return _str_cell
+
+
+#: One formatter per frames.csv column, in column order (a row is written per frame).
+_CELLS: tuple[Callable[[object], str], ...] = tuple(map(_cell_formatter, FRAMES_CSV_COLUMNS))
 
 
 def _row(record: FrameRecord) -> list[str]:
-    return [_cell(name, value) for name, value in zip(FRAMES_CSV_COLUMNS, record, strict=True)]
+    return [cell(value) for cell, value in zip(_CELLS, record, strict=True)]
 
 
 def _parse_bool(text: str) -> bool:

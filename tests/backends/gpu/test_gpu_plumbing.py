@@ -130,6 +130,31 @@ def _fixture_frame() -> Frame:
     return Frame(raw.topic, raw.seq, 0, 0, '', np.array(img.image), img.encoding, img.encoding)
 
 
+def _torch_on_the_cpu(monkeypatch: pytest.MonkeyPatch, torch: Any) -> None:
+    """CudaBackend gets CPU torch with a ``torch.cuda`` stand-in and the test's device facts."""
+    stand_in = types.SimpleNamespace(**{k: getattr(torch, k) for k in dir(torch) if k[0] != '_'})
+    stand_in.cuda = _CudaNamespace
+    stand_in.version = types.SimpleNamespace(cuda='12.4')
+    stand_in.__version__ = torch.__version__
+    monkeypatch.setattr(CudaBackend, '_torch_device', lambda self: (stand_in, torch.device('cpu')))
+    monkeypatch.setattr(cuda_module, 'device_facts', lambda index: FACTS)
+
+
+def _detect_with_both(options: BackendOptions, frame: Frame) -> tuple[Any, dict[str, Any], Any]:
+    """(cuda's result, cuda's info, onnx-cpu's detections) for one frame."""
+    backend = CudaBackend(options)
+    backend.open()
+    result = backend.detect(frame)
+    info = backend.info()
+    backend.close()
+    reference = OnnxCpuBackend(BackendOptions(model=options.model, conf=options.conf, threads=1))
+    reference.open()
+    expected = reference.detect(frame).detections
+    assert len(expected) >= 1
+    assert [d.label for d in result.detections] == [d.label for d in expected]
+    return result, info, expected
+
+
 def test_cuda_opens_runs_and_records_its_engine(monkeypatch, yolox_nano):
     torch = pytest.importorskip('torch')
     real_session = onnxruntime.InferenceSession
@@ -145,24 +170,10 @@ def test_cuda_opens_runs_and_records_its_engine(monkeypatch, yolox_nano):
     gpu = ['CUDAExecutionProvider', 'CPUExecutionProvider']
     monkeypatch.setattr(onnxruntime, 'get_available_providers', lambda: gpu)
     monkeypatch.setattr(onnxruntime, 'InferenceSession', Session)
-    stand_in = types.SimpleNamespace(**{k: getattr(torch, k) for k in dir(torch) if k[0] != '_'})
-    stand_in.cuda = _CudaNamespace
-    stand_in.version = types.SimpleNamespace(cuda='12.4')
-    monkeypatch.setattr(CudaBackend, '_torch_device', lambda self: (stand_in, torch.device('cpu')))
-    monkeypatch.setattr(cuda_module, 'device_facts', lambda index: FACTS)
-    frame = _fixture_frame()
+    _torch_on_the_cpu(monkeypatch, torch)
 
-    backend = CudaBackend(BackendOptions(model=yolox_nano, conf=0.05))
-    backend.open()
-    result = backend.detect(frame)
-    info = backend.info()
-    backend.close()
-
-    reference = OnnxCpuBackend(BackendOptions(model=yolox_nano, conf=0.05, threads=1))
-    reference.open()
-    expected = reference.detect(frame).detections
-    assert len(expected) >= 1
-    assert [d.label for d in result.detections] == [d.label for d in expected]
+    options = BackendOptions(model=yolox_nano, conf=0.05)
+    result, info, expected = _detect_with_both(options, _fixture_frame())
     for ours, theirs in zip(result.detections, expected, strict=True):
         assert abs(ours.score - theirs.score) <= 0.03
     assert result.stages.h2d_ns is not None
@@ -190,25 +201,10 @@ def test_cuda_torch_engine_converts_the_model_and_finds_what_onnx_cpu_finds(
     if importlib.util.find_spec('onnx2torch') is None:
         pytest.skip('onnx2torch is not installed (make install)')
     model = _bundled_model() if which == 'bundled' else request.getfixturevalue('yolox_nano')
-    stand_in = types.SimpleNamespace(**{k: getattr(torch, k) for k in dir(torch) if k[0] != '_'})
-    stand_in.cuda = _CudaNamespace
-    stand_in.version = types.SimpleNamespace(cuda='12.4')
-    stand_in.__version__ = torch.__version__
-    monkeypatch.setattr(CudaBackend, '_torch_device', lambda self: (stand_in, torch.device('cpu')))
-    monkeypatch.setattr(cuda_module, 'device_facts', lambda index: FACTS)
-    frame = _fixture_frame()
+    _torch_on_the_cpu(monkeypatch, torch)
 
-    backend = CudaBackend(BackendOptions(model=model, conf=0.05, engine='torch'))
-    backend.open()
-    result = backend.detect(frame)
-    info = backend.info()
-    backend.close()
-
-    reference = OnnxCpuBackend(BackendOptions(model=model, conf=0.05, threads=1))
-    reference.open()
-    expected = reference.detect(frame).detections
-    assert len(expected) >= 1
-    assert [d.label for d in result.detections] == [d.label for d in expected]
+    options = BackendOptions(model=model, conf=0.05, engine='torch')
+    result, info, expected = _detect_with_both(options, _fixture_frame())
     for ours, theirs in zip(result.detections, expected, strict=True):
         # the device letterbox resizes with torch, onnx-cpu with OpenCV: near, not equal
         assert abs(ours.score - theirs.score) <= 0.01

@@ -20,7 +20,7 @@ import time
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from replaybench.backends.base import Availability, BackendOptions
-from replaybench.detector.spec import DEFAULT_CONF, DEFAULT_IOU, DEFAULT_MODEL, FAMILIES
+from replaybench.detector.spec import DEFAULT_CONF, DEFAULT_IOU, DEFAULT_MODEL, FAMILIES, SPEC_KEYS
 from replaybench.errors import BackendError, BackendUnavailableError
 from replaybench.types import BackendResult, StageTimes
 
@@ -35,18 +35,7 @@ if TYPE_CHECKING:
 __all__ = ['EXTRA_KEYS', 'OnnxCpuBackend', 'session_options']
 
 #: Keys ``BackendOptions.extra`` may hold for this backend.
-EXTRA_KEYS = (
-    'channel_order',
-    'scale',
-    'pad_value',
-    'letterbox_align',
-    'letterbox',
-    'mean',
-    'std',
-    'size',
-    'max_det',
-    'allow_spinning',
-)
+EXTRA_KEYS = (*SPEC_KEYS, 'max_det', 'allow_spinning')
 _META_VALUE_CHARS = 200
 
 

@@ -31,6 +31,7 @@ __all__ = [
     'DEFAULT_IOU',
     'DEFAULT_MODEL',
     'FAMILIES',
+    'SPEC_KEYS',
     'STRIDES',
     'ModelSpec',
     'Preprocess',
@@ -255,6 +256,9 @@ _OVERRIDE_KEYS = (
     'mean',
     'std',
 )
+#: ``BackendOptions.extra`` keys that every ONNX detector backend passes to the model spec:
+#: the preprocessing overrides and ``size`` (the input size of a dynamic-shape model).
+SPEC_KEYS = (*_OVERRIDE_KEYS, 'size')
 
 
 def preprocess_overrides(pre: Preprocess, values: Mapping[str, str], where: str) -> Preprocess:

@@ -37,7 +37,13 @@ from replaybench.backends.gpu.availability import (
     ort_provider_problem,
     torch_problem,
 )
-from replaybench.detector.spec import DEFAULT_CONF, DEFAULT_IOU, DEFAULT_MODEL, FAMILIES
+from replaybench.detector.spec import (
+    DEFAULT_CONF,
+    DEFAULT_IOU,
+    DEFAULT_MODEL,
+    FAMILIES,
+    SPEC_KEYS,
+)
 from replaybench.errors import BackendError, BackendUnavailableError
 from replaybench.types import BackendResult, Detection, StageTimes
 
@@ -67,19 +73,8 @@ ENGINES = ('auto', 'ort', 'torch')
 PRECISIONS = ('fp32', 'fp16')
 #: Preprocessing overrides (as ``onnx-cpu``), ``size``, ``max_det``, and ``cuda_graph``
 #: (``on`` / ``off``; engine torch only) for ``options.extra``.
-EXTRA_KEYS = (
-    'channel_order',
-    'scale',
-    'pad_value',
-    'letterbox_align',
-    'letterbox',
-    'mean',
-    'std',
-    'size',
-    'max_det',
-    'cuda_graph',
-)
-_SPEC_KEYS = frozenset(EXTRA_KEYS[:8])
+EXTRA_KEYS = (*SPEC_KEYS, 'max_det', 'cuda_graph')
+_SPEC_KEYS = frozenset(SPEC_KEYS)
 #: Encodings uploaded as they are, with their channel layout; others go through to_bgr8.
 _LAYOUTS = {'bgr8': 'bgr', 'rgb8': 'rgb', 'bgra8': 'bgra', 'rgba8': 'rgba', 'mono8': 'y'}
 #: onnxruntime element types (TensorProto) -> numpy type strings, for the pointer fallback.

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import io
 import math
 from pathlib import Path
@@ -12,6 +11,7 @@ from replaybench import __version__
 from replaybench.compare.bootstrap import MIN_FRAMES
 from replaybench.compare.core import ACCURACY_METRICS, TIMING_METRICS
 from replaybench.compare.runs import CV_LIMIT, engine_text
+from replaybench.results.records import csv_writer
 from replaybench.results.runfile import write_json_atomic, write_text_atomic
 
 if TYPE_CHECKING:
@@ -108,7 +108,7 @@ def _cell(value: Any) -> str:
 
 def _csv_text(comparison: Comparison) -> str:
     buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator='\n')
+    writer = csv_writer(buffer)
     writer.writerow(CSV_COLUMNS)
     for record in csv_rows(comparison):
         writer.writerow([_cell(record[name]) for name in CSV_COLUMNS])

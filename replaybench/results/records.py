@@ -6,7 +6,7 @@ import csv
 import math
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, NamedTuple, get_args
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple, get_args
 
 from replaybench.errors import SourceError
 
@@ -20,6 +20,7 @@ __all__ = [
     'FrameRecord',
     'FrameStatus',
     'FramesCsvWriter',
+    'csv_writer',
     'read_frames_csv',
 ]
 
@@ -176,6 +177,15 @@ def _parse_row(cells: list[str]) -> FrameRecord:
     return record
 
 
+def csv_writer(file: IO[str]) -> Any:
+    """The CSV writer of every CSV replaybench writes: RFC 4180 ``\r\n`` line ends.
+
+    With ``\r\n`` as the line terminator the writer quotes every field that holds a ``\r``
+    or a ``\n`` (a topic name may), so that readers split rows only at row ends.
+    """
+    return csv.writer(file, lineterminator='\r\n')
+
+
 class FramesCsvWriter:
     """Stream ``FrameRecord`` rows to frames.csv.
 
@@ -190,7 +200,7 @@ class FramesCsvWriter:
         self.part_path = self.path.with_name(self.path.name + '.part')
         self._flush_every = max(1, flush_every)
         self._file: IO[str] | None = self.part_path.open('w', newline='', encoding='utf-8')
-        self._csv = csv.writer(self._file, lineterminator='\n')
+        self._csv = csv_writer(self._file)
         self._csv.writerow(FRAMES_CSV_COLUMNS)
         self._pending = 0
         self.rows = 0

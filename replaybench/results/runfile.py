@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import io
 import json
 import math
@@ -18,7 +17,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 from replaybench import __version__
 from replaybench.errors import SourceError
-from replaybench.results.records import FrameRecord, read_frames_csv
+from replaybench.results.records import FrameRecord, csv_writer, read_frames_csv
 from replaybench.results.stats import SUMMARY_CSV_COLUMNS, summary_row
 
 if TYPE_CHECKING:
@@ -240,7 +239,7 @@ def _summary_cell(value: Any) -> str:
 def write_summary_csv(path: str | Path, summaries: Iterable[Summary]) -> None:
     """Write summary.csv (columns ``SUMMARY_CSV_COLUMNS``) atomically."""
     buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator='\n')
+    writer = csv_writer(buffer)
     writer.writerow(SUMMARY_CSV_COLUMNS)
     for summary in summaries:
         row = summary_row(summary)

@@ -193,3 +193,18 @@ def test_image_topic_longer_than_a_file_name_replays(tmp_path):
     assert outcome.code == 0, outcome.stderr
     assert {r['topic'] for r in outcome.rows} == {topic}
     cleanup(case, outcome.out)
+
+
+def test_image_topic_with_a_carriage_return_replays_and_reads_back(tmp_path):
+    """Found by ``make fuzz``: a topic named ``'\\r'`` was written unquoted into frames.csv, so
+    the report could not read the file back and the run failed after run.json said complete."""
+
+    def channel(cid, name, encoding, schema_id):
+        return ('\r' if cid == 2 else name), encoding, schema_id
+
+    data = rewrite_mcap(fixture_bytes('two_camera.mcap'), channel=channel, compression='zstd')
+    case = write_case(tmp_path, {'cr.mcap': data})
+    outcome = replay(case / 'cr.mcap', tmp_path, backends=('null', 'hsv'), report=True)
+    assert outcome.code == 0, outcome.stderr
+    assert '\r' in {r['topic'] for r in outcome.rows}
+    cleanup(case, outcome.out)

@@ -149,3 +149,14 @@ def test_a_bad_row_names_its_line(tmp_path: Path) -> None:
 def test_a_missing_file_is_a_source_error(tmp_path: Path) -> None:
     with pytest.raises(SourceError, match='cannot read'):
         read_frames_csv(tmp_path / 'nope.csv')
+
+
+def test_a_topic_with_line_breaks_round_trips_through_frames_csv(tmp_path: Path) -> None:
+    path = tmp_path / 'frames.csv'
+    records = [
+        FrameRecord(0, 'hsv', topic, 1, 10, None, 'ok', '', False, False, 0.5)
+        for topic in ('\r', '/a\nb', '/cam\r\n/x', '/plain')
+    ]
+    with FramesCsvWriter(path) as writer:
+        writer.write_many(records)
+    assert read_frames_csv(path) == records

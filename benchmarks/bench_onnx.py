@@ -6,7 +6,9 @@ session options of onnx-cpu (two intra-op threads, no spinning). In alternating 
 
 * bare: ``session.run`` on an input tensor prepared beforehand, ms per call (a second bare
   series uses onnxruntime's default spinning threads, for reference);
-* replay: ``run_benchmark(backends=['onnx-cpu'])`` over the bag, ms per frame from the
+* replay: ``run_benchmark(backends=['onnx-cpu'], threads=2)`` over the bag (as
+  ``replaybench run --threads 2``: OpenCV's letterbox resize gets the same two threads; the
+  suite's single cv2 thread is restored afterwards), ms per frame from the
   frames.csv record times (first frame left out): reading, decoding, preprocess, inference,
   postprocess and recording, i.e. everything the harness does per frame.
 
@@ -22,6 +24,7 @@ import statistics
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -38,7 +41,7 @@ from benchmarks.core import (
 )
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Iterator, Sequence
 
     import numpy as np
     import numpy.typing as npt
@@ -52,6 +55,7 @@ MODEL = REAL / 'models' / 'yolox_nano.onnx'
 IMAGE = REAL / 'images' / 'astronaut.png'
 DEFAULT_OUT = Path(__file__).resolve().parent / 'results' / 'onnx.json'
 _SIZE = (640, 480)
+_THREAD_VARS = ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')
 
 
 def _frames() -> list[npt.NDArray[np.uint8]]:
@@ -68,6 +72,24 @@ def _frames() -> list[npt.NDArray[np.uint8]]:
     left = (_SIZE[0] - side) // 2
     canvas[:, left : left + side] = cv2.resize(image, (side, side), interpolation=cv2.INTER_AREA)
     return [canvas, np.ascontiguousarray(canvas[:, ::-1])]
+
+
+@contextmanager
+def _threads_restored() -> Iterator[None]:
+    """Undo what ``RunConfig(threads=...)`` sets (cv2 threads, BLAS variables) afterwards."""
+    import cv2
+
+    before = cv2.getNumThreads()
+    env = {var: os.environ.get(var) for var in _THREAD_VARS}
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
+        for var, value in env.items():
+            if value is None:
+                os.environ.pop(var, None)
+            else:
+                os.environ[var] = value
 
 
 def _session(*, spinning: bool = False) -> Any:
@@ -108,19 +130,22 @@ class _Replays:
 
         self.n += 1
         out = self.ctx.tmp / f'onnx-run-{self.n}'
-        cpu = time.process_time()
-        run_benchmark(
-            RunConfig(
-                inputs=[self.bag],
-                backends=['onnx-cpu'],
-                out_dir=out,
-                warmup=0,
-                max_frames=max_frames,
-                report=False,
-                options=BackendOptions(model=MODEL, labels='coco', threads=THREADS),
+        with _threads_restored():
+            cpu = time.process_time()
+            run_benchmark(
+                RunConfig(
+                    inputs=[self.bag],
+                    backends=['onnx-cpu'],
+                    out_dir=out,
+                    warmup=0,
+                    max_frames=max_frames,
+                    report=False,
+                    threads=THREADS,
+                    options=BackendOptions(model=MODEL, labels='coco', threads=THREADS),
+                )
             )
-        )
-        return out, time.process_time() - cpu
+            cpu = time.process_time() - cpu
+        return out, cpu
 
     def sample(self) -> float:
         _, cpu_one = self._run(1)
@@ -250,6 +275,7 @@ def run(ctx: Context) -> ItemResult:
             f'{frames} frames of 640x480 rgb8 per pass; onnxruntime {ort.__version__}, '
             f'intra-op threads {THREADS}, inter-op 1, sequential, graph optimisation all, '
             'no spinning (replaybench.backends.onnx_cpu.session_options) on both sides; '
+            f'the replay runs with threads={THREADS} (cv2 too, as --threads {THREADS}); '
             'a third series times a bare session with spinning threads (onnxruntime default).'
         ),
         (

@@ -16,6 +16,7 @@ __all__ = [
     'MAX_CHUNK_BYTES',
     'MappedFile',
     'decompress',
+    'decompress_message',
     'decompress_partial',
     'normalize_msgtype',
     'normalize_topic',
@@ -83,6 +84,45 @@ def decompress(data: memoryview, compression: str, size: int) -> bytes:
         msg = f'{compression} chunk holds {held} bytes, not {size}'
         raise ValueError(msg)
     return out
+
+
+def decompress_message(data: bytes | memoryview, limit: int | None = None) -> bytes:
+    """Decompress one zstd-compressed message (rosbag2 ``compression_mode: message``).
+
+    Unlike a chunk, a message declares no size outside its frame, so the frame is held to
+    ``limit`` (default ``MAX_CHUNK_BYTES``): a frame header claiming more is refused before
+    anything is allocated, and a frame without a size is decompressed into at most ``limit``
+    bytes and refused when it holds more.
+    """
+    import zstandard
+
+    cap = MAX_CHUNK_BYTES if limit is None else limit
+    try:
+        claimed = zstandard.frame_content_size(data)
+    except zstandard.ZstdError as err:
+        msg = f'not a zstd frame ({err})'
+        raise ValueError(msg) from None
+    if claimed > cap:
+        msg = f'zstd frame claims {claimed} bytes, beyond the {cap}-byte limit'
+        raise ValueError(msg)
+    dctx = zstandard.ZstdDecompressor()
+    try:
+        if claimed >= 0:  # checked against the header: a frame cut short is an error
+            return bytes(dctx.decompress(data))
+        with dctx.stream_reader(data) as reader:  # bounded: never more than cap + 1 bytes
+            held = len(reader.read(cap + 1))
+        if held > cap:
+            msg = f'zstd frame holds more than the {cap}-byte limit'
+            raise ValueError(msg)
+        stream = dctx.decompressobj()
+        out = stream.decompress(data)  # at most the ``held`` bytes just counted
+    except zstandard.ZstdError as err:
+        msg = f'zstd: {err}'
+        raise ValueError(msg) from None
+    if not stream.eof:
+        msg = 'zstd: frame cut short'
+        raise ValueError(msg)
+    return bytes(out)
 
 
 def decompress_partial(data: memoryview, compression: str, size: int) -> bytes:

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 from replaybench.errors import SourceError
 from replaybench.types import RawMessage, TopicInfo
 
-from ._common import normalize_msgtype
+from ._common import decompress_message, normalize_msgtype
 from ._table import Channel
 from .mcap import McapSource
 
@@ -120,6 +120,8 @@ class RosbagsSource:
         self._closed = False
         self._truncated = False
         self._warnings: list[str] = []
+        #: (file name, topic) -> (messages that could not be decompressed, the first reason)
+        self._skipped: dict[tuple[str, str], tuple[int, str]] = {}
         storage = reader.storage
         storages = getattr(storage, 'storages', None)
         self._storages: list[Any] = list(storages) if storages is not None else [storage]
@@ -147,8 +149,13 @@ class RosbagsSource:
 
     @property
     def warnings(self) -> list[str]:
-        """Human-readable lines about truncation and skipped topics."""
-        return list(self._warnings)
+        """Human-readable lines about truncation, skipped topics and skipped messages."""
+        skipped = [
+            f'{name}: {count} message(s) on {topic} could not be decompressed '
+            f'(first: {first}); skipped'
+            for (name, topic), (count, first) in self._skipped.items()
+        ]
+        return [*self._warnings, *skipped]
 
     def topics(self) -> list[TopicInfo]:
         """Topics sorted by name, with message counts and first / last log times."""
@@ -226,6 +233,11 @@ class RosbagsSource:
         if line not in self._warnings:
             self._warnings.append(line)
 
+    def _undecompressed(self, i: int, topic: str, reason: str) -> None:
+        key = (self._file_name(i), topic)
+        count, first = self._skipped.get(key, (0, reason))
+        self._skipped[key] = (count + 1, first)
+
     def _check_open(self) -> None:
         if self._closed:
             msg = f'{self.path}: source is closed'
@@ -252,12 +264,19 @@ class RosbagsSource:
         end_ns: int | None,
     ) -> Iterator[_Item]:
         chmap = self._chmaps[i]
-        decompress = _zstd_decompressor() if self._message_compressed else None
+        compressed = self._message_compressed
         n = 0
         try:
             for conn, log_time, data in sub.messages(conns, start_ns, end_ns):
                 channel = chmap[conn.id]
-                payload = decompress(data) if decompress else data
+                if compressed:
+                    try:
+                        payload = decompress_message(data)
+                    except ValueError as err:
+                        self._undecompressed(i, channel.topic, str(err))
+                        continue
+                else:
+                    payload = data
                 if log_time < 0:  # sqlite stores signed times; log times are unsigned
                     self._warn(
                         f'{self._file_name(i)}: messages with negative timestamps; '
@@ -326,14 +345,3 @@ class RosbagsSource:
                     topic = chmap[cid].topic
                     counts[topic] = counts.get(topic, 0) + count
         return counts
-
-
-def _zstd_decompressor() -> Any:
-    import zstandard
-
-    dctx = zstandard.ZstdDecompressor()
-
-    def decompress(data: bytes) -> bytes:
-        return bytes(dctx.decompressobj().decompress(data))
-
-    return decompress

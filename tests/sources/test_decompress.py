@@ -7,7 +7,12 @@ import numpy as np
 import pytest
 import zstandard
 
-from replaybench.sources._common import MAX_CHUNK_BYTES, decompress, decompress_partial
+from replaybench.sources._common import (
+    MAX_CHUNK_BYTES,
+    decompress,
+    decompress_message,
+    decompress_partial,
+)
 
 RAW = np.random.default_rng(0).integers(0, 255, 1000, dtype=np.uint8).tobytes() + bytes(100_000)
 COMPRESS = {
@@ -55,3 +60,34 @@ def test_a_cut_zstd_chunk_gives_a_prefix_and_a_lying_frame_is_refused() -> None:
     assert decompress_partial(memoryview(data[:3]), 'zstd', len(RAW)) == b''
     with pytest.raises(ValueError, match='claims'):
         decompress_partial(memoryview(data), 'zstd', 500)
+
+
+def test_a_compressed_message_decompresses_with_or_without_a_declared_size() -> None:
+    with_size = zstandard.ZstdCompressor().compress(RAW)
+    without = zstandard.ZstdCompressor(write_content_size=False).compress(RAW)
+    assert zstandard.frame_content_size(without) == -1
+    assert decompress_message(with_size) == RAW
+    assert decompress_message(memoryview(without)) == RAW
+
+
+@pytest.mark.parametrize('write_content_size', [True, False])
+def test_a_compressed_message_larger_than_the_limit_is_refused(write_content_size: bool) -> None:
+    frame = zstandard.ZstdCompressor(write_content_size=write_content_size).compress(RAW)
+    with pytest.raises(ValueError, match='limit'):
+        decompress_message(frame, limit=len(RAW) - 1)
+    assert decompress_message(frame, limit=len(RAW)) == RAW
+
+
+@pytest.mark.parametrize('data', [b'', b'not zstd at all', bytes(64)])
+def test_a_message_that_is_not_a_zstd_frame_is_a_value_error(data: bytes) -> None:
+    with pytest.raises(ValueError, match='zstd'):
+        decompress_message(data)
+
+
+@pytest.mark.parametrize('write_content_size', [True, False])
+def test_a_cut_zstd_message_is_refused_with_or_without_a_declared_size(
+    write_content_size: bool,
+) -> None:
+    frame = zstandard.ZstdCompressor(write_content_size=write_content_size).compress(RAW)
+    with pytest.raises(ValueError, match='zstd'):
+        decompress_message(frame[: len(frame) // 2])

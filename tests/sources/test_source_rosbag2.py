@@ -1,9 +1,11 @@
 from __future__ import annotations
 
 import mmap
+import sqlite3
 from typing import TYPE_CHECKING
 
 import pytest
+import zstandard
 from rosbags.rosbag2 import Reader
 from sourcebags import (
     MS,
@@ -121,6 +123,41 @@ def test_compressed_rosbag2_bags_yield_the_uncompressed_payloads(
     with open_source(path) as source:
         assert as_expected(source.messages()) == expected_order(plan)
         assert {t.name: t.count for t in source.topics()}['/a'] == 13
+
+
+@pytest.mark.parametrize(
+    'bad',
+    [
+        pytest.param(b'garbage, not a zstd frame', id='not-zstd'),
+        pytest.param(zstandard.ZstdCompressor().compress(bytes(2000))[:-3], id='cut-short'),
+        pytest.param(zstandard.ZstdCompressor().compress(bytes(3000)), id='over-the-limit'),
+    ],
+)
+def test_a_compressed_message_that_cannot_be_decompressed_is_skipped_and_counted(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, bad: bytes
+) -> None:
+    monkeypatch.setattr('replaybench.sources._common.MAX_CHUNK_BYTES', 2500)
+    plan = tie_plan(12)
+    path = write_rosbag2(tmp_path / 'bag', plan, 'sqlite3', 'message')
+    (db3,) = path.glob('*.db3')
+    with sqlite3.connect(db3) as db:
+        first_b, second_b = db.execute(
+            'SELECT m.id FROM messages m JOIN topics t ON t.id = m.topic_id '
+            "WHERE t.name = '/b' ORDER BY m.timestamp LIMIT 2"
+        ).fetchall()
+        for (row,) in (first_b, second_b):
+            db.execute('UPDATE messages SET data = ? WHERE id = ?', (bad, row))
+    db.close()
+    expected = [m for m in expected_order(plan) if not (m.topic == '/b' and m.seq < 2)]
+    with open_source(path) as source:
+        got = as_expected(source.messages())
+        warnings = source.warnings
+    assert [(m.topic, m.log_time_ns, m.payload) for m in got] == [
+        (m.topic, m.log_time_ns, m.payload) for m in expected
+    ]
+    assert len(warnings) == 1
+    assert '2 message(s) on /b could not be decompressed' in warnings[0]
+    assert db3.name in warnings[0]
 
 
 def test_a_missing_data_file_is_a_one_line_source_error(tmp_path: Path) -> None:

@@ -16,6 +16,7 @@ __all__ = [
     'MAX_CHUNK_BYTES',
     'MappedFile',
     'decompress',
+    'decompress_chunk',
     'decompress_message',
     'decompress_partial',
     'normalize_msgtype',
@@ -84,6 +85,27 @@ def decompress(data: memoryview, compression: str, size: int) -> bytes:
         msg = f'{compression} chunk holds {held} bytes, not {size}'
         raise ValueError(msg)
     return out
+
+
+def decompress_chunk(
+    view: memoryview, start: int, length: int, compression: str, size: int, *, partial: bool
+) -> bytes:
+    """Decompress the chunk at ``view[start:start + length]`` (``partial``: its end is missing).
+
+    Every failure is a ValueError; the slice of ``view`` is released either way.
+    """
+    raw = view[start : start + length]
+    try:
+        if partial:
+            return decompress_partial(raw, compression, size)
+        return decompress(raw, compression, size)
+    except ValueError:
+        raise
+    except Exception as err:  # the codecs raise their own error types
+        msg = f'{type(err).__name__}: {err}'
+        raise ValueError(msg) from None
+    finally:
+        raw.release()
 
 
 def decompress_message(data: bytes | memoryview, limit: int | None = None) -> bytes:

@@ -21,7 +21,7 @@ import numpy as np
 
 from replaybench.errors import SourceError
 
-from ._common import MappedFile, decompress, decompress_partial, normalize_msgtype
+from ._common import MappedFile, decompress_chunk, normalize_msgtype
 from ._table import Channel, Chunk, TableSource
 
 if TYPE_CHECKING:
@@ -372,17 +372,18 @@ class McapSource(TableSource):
             end = ck.data_start + ck.data_len
             self._scan_records(mapped.view, ck.data_start, end, ck.data_start, k, chmap, schemas)
             return
-        raw = mapped.view[ck.data_start : ck.data_start + ck.data_len]
         try:
-            if ck.partial:
-                data = decompress_partial(raw, ck.compression, ck.uncompressed_size)
-            else:
-                data = decompress(raw, ck.compression, ck.uncompressed_size)
-        except Exception as err:
+            data = decompress_chunk(
+                mapped.view,
+                ck.data_start,
+                ck.data_len,
+                ck.compression,
+                ck.uncompressed_size,
+                partial=ck.partial,
+            )
+        except ValueError as err:
             self._warn(f'{mapped.path.name}: chunk at byte {ck.pos} cannot be decompressed ({err})')
             return
-        finally:
-            raw.release()
         view = memoryview(data)
         try:
             self._scan_records(view, 0, len(view), 0, k, chmap, schemas)

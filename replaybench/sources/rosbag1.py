@@ -18,7 +18,7 @@ import numpy as np
 
 from replaybench.errors import SourceError
 
-from ._common import MappedFile, decompress, decompress_partial, normalize_msgtype, normalize_topic
+from ._common import MappedFile, decompress_chunk, normalize_msgtype, normalize_topic
 from ._table import Channel, Chunk, TableSource
 
 __all__ = ['ROSBAG_MAGIC', 'Rosbag1Source', 'ros1_payload']
@@ -265,17 +265,18 @@ class Rosbag1Source(TableSource):
             end = ck.data_start + ck.data_len
             self._scan_records(view, ck.data_start, end, ck.data_start, k, chmap)
             return
-        raw = view[ck.data_start : ck.data_start + ck.data_len]
         try:
-            if ck.partial:
-                data = decompress_partial(raw, ck.compression, ck.uncompressed_size)
-            else:
-                data = decompress(raw, ck.compression, ck.uncompressed_size)
-        except Exception as err:
+            data = decompress_chunk(
+                view,
+                ck.data_start,
+                ck.data_len,
+                ck.compression,
+                ck.uncompressed_size,
+                partial=ck.partial,
+            )
+        except ValueError as err:
             self._warn(f'{self.path.name}: chunk at byte {ck.pos} cannot be decompressed ({err})')
             return
-        finally:
-            raw.release()
         inner = memoryview(data)
         try:
             self._scan_records(inner, 0, len(inner), 0, k, chmap)

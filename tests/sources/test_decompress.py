@@ -10,6 +10,7 @@ import zstandard
 from replaybench.sources._common import (
     MAX_CHUNK_BYTES,
     decompress,
+    decompress_chunk,
     decompress_message,
     decompress_partial,
 )
@@ -91,3 +92,23 @@ def test_a_cut_zstd_message_is_refused_with_or_without_a_declared_size(
     frame = zstandard.ZstdCompressor(write_content_size=write_content_size).compress(RAW)
     with pytest.raises(ValueError, match='zstd'):
         decompress_message(frame[: len(frame) // 2])
+
+
+@pytest.mark.parametrize('codec', sorted(COMPRESS))
+@pytest.mark.parametrize('partial', [False, True])
+def test_a_damaged_chunk_is_a_value_error_whatever_the_codec_raises(
+    codec: str, partial: bool
+) -> None:
+    data = bytearray(COMPRESS[codec](RAW))
+    data[0:4] = b'\xff' * 4  # the frame's magic number
+    view = memoryview(bytes(8) + bytes(data))
+    with pytest.raises(ValueError):  # the message is the codec's own
+        decompress_chunk(view, 8, len(data), codec, len(RAW), partial=partial)
+    view.release()  # the chunk's slice was released: nothing holds the buffer
+
+
+@pytest.mark.parametrize('codec', sorted(COMPRESS))
+def test_a_chunk_in_a_larger_buffer_decompresses(codec: str) -> None:
+    data = COMPRESS[codec](RAW)
+    view = memoryview(b'head' + data + b'tail')
+    assert decompress_chunk(view, 4, len(data), codec, len(RAW), partial=False) == RAW

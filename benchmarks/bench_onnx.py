@@ -55,7 +55,6 @@ MODEL = REAL / 'models' / 'yolox_nano.onnx'
 IMAGE = REAL / 'images' / 'astronaut.png'
 DEFAULT_OUT = Path(__file__).resolve().parent / 'results' / 'onnx.json'
 _SIZE = (640, 480)
-_THREAD_VARS = ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')
 
 
 def _frames() -> list[npt.NDArray[np.uint8]]:
@@ -79,8 +78,10 @@ def _threads_restored() -> Iterator[None]:
     """Undo what ``RunConfig(threads=...)`` sets (cv2 threads, BLAS variables) afterwards."""
     import cv2
 
+    from replaybench.replay.runner import THREAD_VARS
+
     before = cv2.getNumThreads()
-    env = {var: os.environ.get(var) for var in _THREAD_VARS}
+    env = {var: os.environ.get(var) for var in THREAD_VARS}
     try:
         yield
     finally:

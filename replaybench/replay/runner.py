@@ -65,6 +65,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     'DEFAULT_GROUND_TRUTH_TOPIC',
+    'THREAD_VARS',
     'RunConfig',
     'RunOutcome',
     'default_warmup',
@@ -851,11 +852,15 @@ def _make_backend(name: str, options: BackendOptions) -> Backend:
     return backend
 
 
+#: Environment variables ``--threads`` sets, besides OpenCV's thread count.
+THREAD_VARS = ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')
+
+
 def _set_threads(threads: int) -> None:
     import cv2
 
     cv2.setNumThreads(threads)
-    for var in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS'):
+    for var in THREAD_VARS:
         os.environ[var] = str(threads)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import mmap
 import os
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import SourceError
 
@@ -108,13 +108,16 @@ def decompress_chunk(
         raw.release()
 
 
-def decompress_message(data: bytes | memoryview, limit: int | None = None) -> bytes:
+def decompress_message(
+    data: bytes | memoryview, limit: int | None = None, dctx: Any = None
+) -> bytes:
     """Decompress one zstd-compressed message (rosbag2 ``compression_mode: message``).
 
     Unlike a chunk, a message declares no size outside its frame, so the frame is held to
     ``limit`` (default ``MAX_CHUNK_BYTES``): a frame header claiming more is refused before
     anything is allocated, and a frame without a size is decompressed into at most ``limit``
-    bytes and refused when it holds more.
+    bytes and refused when it holds more. ``dctx``: a ``zstandard.ZstdDecompressor`` to reuse
+    across the messages of one stream (one thread); a new one when None.
     """
     import zstandard
 
@@ -127,7 +130,8 @@ def decompress_message(data: bytes | memoryview, limit: int | None = None) -> by
     if claimed > cap:
         msg = f'zstd frame claims {claimed} bytes, beyond the {cap}-byte limit'
         raise ValueError(msg)
-    dctx = zstandard.ZstdDecompressor()
+    if dctx is None:
+        dctx = zstandard.ZstdDecompressor()
     try:
         if claimed >= 0:  # checked against the header: a frame cut short is an error
             return bytes(dctx.decompress(data))

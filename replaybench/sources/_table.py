@@ -17,7 +17,7 @@ import numpy as np
 from replaybench.errors import SourceError
 from replaybench.types import RawMessage, TopicInfo
 
-from ._common import decompress, decompress_partial
+from ._common import decompress_chunk
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Iterator, Sequence
@@ -352,30 +352,37 @@ class TableSource:
             return
         ck = self._chunks[k]
         where = f'chunk at byte {ck.pos}' if ck.pos >= 0 else 'data section'
-        name = self.files[ck.file_no].name if ck.file_no < len(self.files) else self.path.name
+        name = self._file_name(ck)
         self._warn(f'{name}: unreadable message record(s) on {topic} in {where}; skipped')
+
+    def _file_name(self, ck: Chunk) -> str:
+        return self.files[ck.file_no].name if ck.file_no < len(self.files) else self.path.name
+
+    def _chunk_bytes(self, k: int) -> bytes | None:
+        """Compressed chunk ``k`` decompressed; None (warned once) when it cannot be."""
+        ck = self._chunks[k]
+        try:
+            return decompress_chunk(
+                self._maps[ck.file_no].view,
+                ck.data_start,
+                ck.data_len,
+                ck.compression,
+                ck.uncompressed_size,
+                partial=ck.partial,
+            )
+        except ValueError as err:
+            if k not in self._bad_chunks:
+                self._bad_chunks.add(k)
+                name = self._file_name(ck)
+                self._warn(f'{name}: chunk at byte {ck.pos} cannot be decompressed ({err})')
+            return None
 
     def _decompressed(self, k: int) -> memoryview:
         buf = self._cache.get(k)
         if buf is not None:
             self._cache.move_to_end(k)
             return buf
-        ck = self._chunks[k]
-        raw = self._maps[ck.file_no].view[ck.data_start : ck.data_start + ck.data_len]
-        try:
-            if ck.partial:
-                data = decompress_partial(raw, ck.compression, ck.uncompressed_size)
-            else:
-                data = decompress(raw, ck.compression, ck.uncompressed_size)
-        except Exception as err:
-            if k not in self._bad_chunks:
-                self._bad_chunks.add(k)
-                name = self.files[ck.file_no].name
-                self._warn(f'{name}: chunk at byte {ck.pos} cannot be decompressed ({err})')
-            data = b''
-        finally:
-            raw.release()
-        buf = memoryview(data)
+        buf = memoryview(self._chunk_bytes(k) or b'')
         self._cache[k] = buf
         self._cache_bytes += len(buf)
         while len(self._cache) > 2 and self._cache_bytes > CACHE_BYTES:

@@ -21,7 +21,7 @@ import numpy as np
 
 from replaybench.errors import SourceError
 
-from ._common import MappedFile, decompress_chunk, normalize_msgtype
+from ._common import MappedFile, normalize_msgtype
 from ._table import Channel, Chunk, TableSource
 
 if TYPE_CHECKING:
@@ -372,17 +372,8 @@ class McapSource(TableSource):
             end = ck.data_start + ck.data_len
             self._scan_records(mapped.view, ck.data_start, end, ck.data_start, k, chmap, schemas)
             return
-        try:
-            data = decompress_chunk(
-                mapped.view,
-                ck.data_start,
-                ck.data_len,
-                ck.compression,
-                ck.uncompressed_size,
-                partial=ck.partial,
-            )
-        except ValueError as err:
-            self._warn(f'{mapped.path.name}: chunk at byte {ck.pos} cannot be decompressed ({err})')
+        data = self._chunk_bytes(k)
+        if data is None:
             return
         view = memoryview(data)
         try:

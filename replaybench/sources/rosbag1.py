@@ -18,7 +18,7 @@ import numpy as np
 
 from replaybench.errors import SourceError
 
-from ._common import MappedFile, decompress_chunk, normalize_msgtype, normalize_topic
+from ._common import MappedFile, normalize_msgtype, normalize_topic
 from ._table import Channel, Chunk, TableSource
 
 __all__ = ['ROSBAG_MAGIC', 'Rosbag1Source', 'ros1_payload']
@@ -265,17 +265,8 @@ class Rosbag1Source(TableSource):
             end = ck.data_start + ck.data_len
             self._scan_records(view, ck.data_start, end, ck.data_start, k, chmap)
             return
-        try:
-            data = decompress_chunk(
-                view,
-                ck.data_start,
-                ck.data_len,
-                ck.compression,
-                ck.uncompressed_size,
-                partial=ck.partial,
-            )
-        except ValueError as err:
-            self._warn(f'{self.path.name}: chunk at byte {ck.pos} cannot be decompressed ({err})')
+        data = self._chunk_bytes(k)
+        if data is None:
             return
         inner = memoryview(data)
         try:

@@ -264,14 +264,14 @@ class RosbagsSource:
         end_ns: int | None,
     ) -> Iterator[_Item]:
         chmap = self._chmaps[i]
-        compressed = self._message_compressed
+        dctx = _zstd_decompressor() if self._message_compressed else None
         n = 0
         try:
             for conn, log_time, data in sub.messages(conns, start_ns, end_ns):
                 channel = chmap[conn.id]
-                if compressed:
+                if dctx is not None:
                     try:
-                        payload = decompress_message(data)
+                        payload = decompress_message(data, dctx=dctx)
                     except ValueError as err:
                         self._undecompressed(i, channel.topic, str(err))
                         continue
@@ -345,3 +345,9 @@ class RosbagsSource:
                     topic = chmap[cid].topic
                     counts[topic] = counts.get(topic, 0) + count
         return counts
+
+
+def _zstd_decompressor() -> Any:
+    import zstandard
+
+    return zstandard.ZstdDecompressor()

@@ -15,7 +15,7 @@ exactly 4 reads, as a label of four NUL characters.
 from __future__ import annotations
 
 import struct
-from functools import cache
+from functools import cache, lru_cache
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -310,6 +310,21 @@ def _cdr_string(out: bytearray, text: str) -> None:
     out += b'\0'
 
 
+@lru_cache(maxsize=256)
+def _frame_id_cdr(frame_id: str) -> bytes:
+    """A header's frame_id as CDR after its stamp, padded to 4: what follows is 4-aligned.
+
+    The same bytes wherever a header starts 4-aligned (the array's and every Detection2D's).
+    """
+    out = bytearray(12)  # encapsulation header + stamp
+    _cdr_string(out, frame_id)
+    out += bytes(-(len(out) - 4) % 4)
+    return bytes(out[12:])
+
+
+_EMPTY_SEQUENCE = bytes(4)
+
+
 def _detections_cdr(stamp_ns: int, frame_id: str, detections: Sequence[Detection]) -> bytes:
     """``serialize_detections`` for ROS 2, written directly as little-endian CDR.
 
@@ -318,17 +333,15 @@ def _detections_cdr(stamp_ns: int, frame_id: str, detections: Sequence[Detection
     Alignment counts from the end of the 4-byte encapsulation header.
     """
     sec, nanosec = _stamp(stamp_ns, ros1=False)
-    stamp = struct.pack('<iI', sec, nanosec)
+    header = struct.pack('<iI', sec, nanosec) + _frame_id_cdr(frame_id)
+    if not detections:
+        return b'\x00\x01\x00\x00' + header + _EMPTY_SEQUENCE
     out = bytearray(b'\x00\x01\x00\x00')
-    out += stamp
-    _cdr_string(out, frame_id)
-    out += bytes(-(len(out) - 4) % 4)
+    out += header
     out += struct.pack('<I', len(detections))
     for det in detections:
         out += bytes(-(len(out) - 4) % 4)
-        out += stamp
-        _cdr_string(out, frame_id)
-        out += bytes(-(len(out) - 4) % 4)
+        out += header
         out += b'\x01\x00\x00\x00'  # one hypothesis
         _cdr_string(out, det.label)
         out += bytes(-(len(out) - 4) % 8)

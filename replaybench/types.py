@@ -87,9 +87,8 @@ class CameraInfo:
     topic: str = ''
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class Frame:
-    """A decoded camera frame as a backend receives it.
+class Frame(NamedTuple):
+    """A decoded camera frame as a backend receives it (one is built per replayed frame).
 
     ``image`` is HxW (mono) or HxWxC, dtype uint8 / uint16 / float32, laid out as ``encoding``
     says (one of ``CANONICAL_ENCODINGS``); it may be a read-only view into the container.

@@ -76,6 +76,12 @@ __all__ = [
 DEFAULT_GROUND_TRUTH_TOPIC = '/ground_truth/detections'
 _NS = 1_000_000_000
 
+#: Frames a max-rate pass reads inline first, timing reading + decoding (the first one, which
+#: pays for opening the input, is not counted).
+READ_AHEAD_PROBE = 16
+#: Read-ahead in a thread pays when reading + decoding a frame takes at least this long (s).
+READ_AHEAD_MIN_S = 0.2e-3
+
 
 def default_warmup(frames: int) -> int:
     """Warm-up frames for a topic of ``frames`` frames: 10, but never more than a tenth."""
@@ -149,13 +155,24 @@ class _Input(NamedTuple):
 
 
 class _Sample:
-    """The frame drawn for a topic, with each backend's detections on it."""
+    """The frame drawn for a topic, with each backend's detections on it.
 
-    def __init__(self, image_bgr: Any, seq: int, title: str) -> None:
-        self.image_bgr = image_bgr
+    The replay keeps a reference to the frame's image; ``settle`` converts it to a BGR copy
+    after the pass, so that the conversion (milliseconds at 1080p) is not in the replay.
+    """
+
+    def __init__(self, image: Any, encoding: str, seq: int, title: str) -> None:
+        self.image: Any = image
+        self.encoding: str | None = encoding
         self.seq = seq
         self.title = title
         self.detections: dict[str, tuple[Detection, ...]] = {}
+
+    def settle(self) -> None:
+        """Replace the image by its BGR copy (once): it may be a view into the input."""
+        if self.encoding is not None:
+            self.image = to_bgr8(self.image, self.encoding).copy()
+            self.encoding = None
 
 
 def _sha256(paths: Sequence[Path]) -> str:
@@ -333,6 +350,8 @@ class _Pass:
         self.t0 = 0.0
         self.taken: dict[str, int] = {}
         self.measures_latency = bool(getattr(backend, 'measures_latency', True))
+        # at max rate: whether frames were read ahead in a thread, and why (run.json)
+        self.read_ahead: dict[str, Any] | None = None
 
     def messages(self) -> Iterator[RawMessage]:
         return _replayed(self.inp, self.run.config)
@@ -359,13 +378,17 @@ class _Pass:
             )
         )
 
-    def process(self, raw: RawMessage, release: float, start: float, read_s: float) -> None:
-        """Decode and detect one frame now (timed modes, and max rate without prefetch)."""
+    def process(self, raw: RawMessage, release: float, start: float, read_s: float) -> float:
+        """Decode and detect one frame now (timed modes, and max rate without read-ahead).
+
+        Returns the frame's read + decode time.
+        """
         clock = self.run.clock
         t_decode = clock.now()
         decoded = _decode(raw)
         read_decode_s = read_s + clock.now() - t_decode
         self.complete(raw, decoded, release, start, start - release, read_decode_s)
+        return read_decode_s
 
     def complete(
         self,
@@ -383,79 +406,106 @@ class _Pass:
         """
         clock = self.run.clock
         run = self.run
-        base = FrameRecord(
-            input=self.inp.number,
-            backend=self.label,
-            topic=raw.topic,
-            seq=raw.seq,
-            log_time_ns=raw.log_time_ns,
-            stamp_ns=None,
-            status='skipped',
-            note='',
-            warmup=False,
-            dropped=False,
-            release_s=release - self.t0,
-            start_s=start - self.t0,
-            queue_wait_ms=queue_wait_s * 1e3,
-            read_decode_ms=read_decode_s * 1e3,
-        )
         if isinstance(decoded, DecodeError):
             reason = str(decoded)
             run.skip(reason)
-            self.record(base._replace(note=reason, done_s=clock.now() - self.t0))
+            self.record(
+                FrameRecord(
+                    input=self.inp.number,
+                    backend=self.label,
+                    topic=raw.topic,
+                    seq=raw.seq,
+                    log_time_ns=raw.log_time_ns,
+                    stamp_ns=None,
+                    status='skipped',
+                    note=reason,
+                    warmup=False,
+                    dropped=False,
+                    release_s=release - self.t0,
+                    start_s=start - self.t0,
+                    done_s=clock.now() - self.t0,
+                    queue_wait_ms=queue_wait_s * 1e3,
+                    read_decode_ms=read_decode_s * 1e3,
+                )
+            )
             return
         frame = self.make_frame(raw, decoded)
         t_detect = clock.now()
         result = self.backend.detect(frame)
         done = clock.now()
         key = (self.label, raw.topic)
-        run.detections.setdefault(key, {})[(self.inp.number, raw.seq)] = result.detections
+        detections = result.detections
+        run.detections.setdefault(key, {})[(self.inp.number, raw.seq)] = detections
         n_done = run.processed.get(key, 0)
         run.processed[key] = n_done + 1
-        stages = result.stages
         run.detections_out.add(
-            self.label,
-            raw.topic,
-            raw.log_time_ns,
-            decoded.stamp_ns,
-            decoded.frame_id,
-            result.detections,
+            self.label, raw.topic, raw.log_time_ns, decoded.stamp_ns, decoded.frame_id, detections
         )
         if self.inp.external is not None:
             truth = self.inp.external.lookup(raw.topic, raw.seq, decoded.stamp_ns)
             if truth is not None:
                 frame_key = (self.inp.number, raw.topic, raw.seq)
                 run.ground_truth[frame_key] = truth
-                run.scored.setdefault(key, {})[frame_key] = result.detections
+                run.scored.setdefault(key, {})[frame_key] = detections
         else:
             gt_key = (decoded.frame_id, decoded.stamp_ns)
             if gt_key in self.inp.ground_truth:
-                run.scored.setdefault(key, {})[(self.inp.number, *gt_key)] = result.detections
-        self.sample(frame, result.detections)
+                run.scored.setdefault(key, {})[(self.inp.number, *gt_key)] = detections
+        self.sample(frame, detections)
+        t0 = self.t0
         if not self.measures_latency:
             self.record(
-                base._replace(
-                    stamp_ns=decoded.stamp_ns,
-                    status='ok',
-                    note='recorded detections: latency not measured',
-                    done_s=done - self.t0,
-                    detections=len(result.detections),
+                FrameRecord(
+                    self.inp.number,
+                    self.label,
+                    raw.topic,
+                    raw.seq,
+                    raw.log_time_ns,
+                    decoded.stamp_ns,
+                    'ok',
+                    'recorded detections: latency not measured',
+                    False,
+                    False,
+                    release - t0,
+                    start - t0,
+                    done - t0,
+                    queue_wait_s * 1e3,
+                    read_decode_s * 1e3,
+                    None,
+                    None,
+                    None,
+                    None,
+                    None,
+                    None,
+                    len(detections),
                 )
             )
             return
+        stages = result.stages
         self.record(
-            base._replace(
-                stamp_ns=decoded.stamp_ns,
-                status='ok',
-                warmup=n_done < run.warmup_for(raw.topic),
-                done_s=done - self.t0,
-                preprocess_ms=_ms(stages.preprocess_ns),
-                infer_ms=_ms(stages.infer_ns),
-                postprocess_ms=_ms(stages.postprocess_ns),
-                h2d_ms=_ms(stages.h2d_ns),
-                d2h_ms=_ms(stages.d2h_ns),
-                latency_ms=(queue_wait_s + read_decode_s + done - t_detect) * 1e3,
-                detections=len(result.detections),
+            FrameRecord(
+                self.inp.number,
+                self.label,
+                raw.topic,
+                raw.seq,
+                raw.log_time_ns,
+                decoded.stamp_ns,
+                'ok',
+                '',
+                n_done < run.warmup_for(raw.topic),
+                False,
+                release - t0,
+                start - t0,
+                done - t0,
+                queue_wait_s * 1e3,
+                read_decode_s * 1e3,
+                _ms(stages.preprocess_ns),
+                _ms(stages.infer_ns),
+                _ms(stages.postprocess_ns),
+                _ms(stages.h2d_ns),
+                _ms(stages.d2h_ns),
+                (queue_wait_s + read_decode_s + done - t_detect) * 1e3,
+                len(detections),
             )
         )
 
@@ -466,9 +516,8 @@ class _Pass:
         self.taken[frame.topic] = taken + 1
         sample = self.run.samples.get(key)
         if sample is None and taken == self.inp.sample_index.get(frame.topic):
-            image = to_bgr8(frame.image, frame.encoding).copy()
             sample = self.run.samples[key] = _Sample(
-                image, frame.seq, f'{frame.topic} #{frame.seq}'
+                frame.image, frame.encoding, frame.seq, f'{frame.topic} #{frame.seq}'
             )
         if sample is not None and sample.seq == frame.seq:
             sample.detections[self.label] = detections
@@ -489,23 +538,64 @@ class _Pass:
         )
 
     def run_max(self) -> None:
-        """Every frame as fast as possible; reading and decoding run ahead in a bounded thread."""
+        """Every frame as fast as possible.
+
+        The first ``READ_AHEAD_PROBE`` frames are read inline and timed; when reading and
+        decoding a frame takes at least ``READ_AHEAD_MIN_S`` (compressed images, compressed
+        chunks, colour conversions), the rest are read and decoded ahead in a bounded thread
+        (``Prefetcher``), overlapping with the backend. Below that there is nothing to overlap
+        (a raw frame mapped from the file is a few microseconds of Python, holding the GIL)
+        and handing frames between threads would cost more than reading them.
+        """
         clock = self.run.clock
         self.t0 = clock.now()
+        messages = self.messages()
         depth = self.run.config.prefetch
         if depth < 1:
-            it = self.messages()
-            while True:
-                release = clock.now()
-                raw = next(it, None)
-                if raw is None:
-                    return
-                self.process(raw, release, release, clock.now() - release)
-        with Prefetcher(self.messages(), clock, depth) as frames:
+            self.inline(messages, None)
+            self.read_ahead = {'depth': 0, 'used': False, 'reason': 'prefetch=0'}
+            return
+        spent = self.inline(messages, READ_AHEAD_PROBE)
+        if len(spent) < READ_AHEAD_PROBE:
+            self.read_ahead = {'depth': depth, 'used': False, 'reason': 'input ended in the probe'}
+            return
+        # the mean, not the median: a compressed chunk holding several frames is paid by one
+        typical = sum(spent[1:]) / (len(spent) - 1)
+        used = typical >= READ_AHEAD_MIN_S
+        self.read_ahead = {
+            'depth': depth,
+            'used': used,
+            'probe_frames': len(spent) - 1,
+            'probe_read_decode_ms': typical * 1e3,
+            'threshold_ms': READ_AHEAD_MIN_S * 1e3,
+        }
+        if not used:
+            self.inline(messages, None)
+            return
+        with Prefetcher(messages, clock, depth) as frames:
             for item in frames:
                 self.complete(
                     item.raw, item.decoded, item.release, clock.now(), 0.0, item.read_decode_s
                 )
+
+    def inline(self, messages: Iterator[RawMessage], limit: int | None) -> list[float]:
+        """Read, decode and detect up to ``limit`` frames (all with None) in this thread.
+
+        Returns the read + decode time of each frame when ``limit`` is given (else empty).
+        """
+        clock = self.run.clock
+        spent: list[float] = []
+        count = 0
+        while limit is None or count < limit:
+            release = clock.now()
+            raw = next(messages, None)
+            if raw is None:
+                break
+            read_decode_s = self.process(raw, release, release, clock.now() - release)
+            if limit is not None:
+                spent.append(read_decode_s)
+                count += 1
+        return spent
 
     def run_timed(self, rate: Rate) -> None:
         clock = self.run.clock
@@ -527,11 +617,14 @@ class _Pass:
                 last = offset
                 yield offset, raw.topic, (raw, 0.0)
 
+        def process(item: tuple[RawMessage, float], release: float, start: float) -> None:
+            self.process(item[0], release, start, item[1])
+
         replay_timed(
             releases(),
             clock=clock,
             queue_depth=self.run.config.queue_depth,
-            process=lambda item, release, start: self.process(item[0], release, start, item[1]),
+            process=process,
             drop=lambda item, release: self.drop(item[0], release),
         )
 
@@ -823,13 +916,20 @@ def _run_backend(
             {(inp.number, *key): dets for inp in inputs for key, dets in inp.recorded.items()},
         )
     backend.open()
+    passes: list[_Pass] = []
     try:
         for inp in inputs:
             p = _Pass(run, name, label, backend, inp)
-            if config.rate.timed:
-                p.run_timed(config.rate)
-            else:
-                p.run_max()
+            passes.append(p)
+            try:
+                if config.rate.timed:
+                    p.run_timed(config.rate)
+                else:
+                    p.run_max()
+            finally:
+                # before the input can be closed: a sample may be a view into it
+                for sample in run.samples.values():
+                    sample.settle()
     finally:
         # after the passes: what the backend actually used and counted
         sampler.stop()
@@ -837,7 +937,17 @@ def _run_backend(
         resources = {'summary': summary, 'series': sampler.series()}
         run.resources[label] = summary
         backend_meta.append(
-            {'name': name, 'label': label, 'info': backend.info(), 'resources': resources}
+            {
+                'name': name,
+                'label': label,
+                'info': backend.info(),
+                'resources': resources,
+                'read_ahead': [
+                    {'input': p.inp.number, **p.read_ahead}
+                    for p in passes
+                    if p.read_ahead is not None
+                ],
+            }
         )
         backend.close()
 
@@ -940,7 +1050,8 @@ def _write_samples(out: Path, run: _Run) -> list[str]:
     folder.mkdir(exist_ok=True)
     for (index, topic), sample in sorted(run.samples.items()):
         rel = sample_relpath(index, topic)
-        write_sample(out / rel, sample.image_bgr, sample.detections, sample.title)
+        sample.settle()
+        write_sample(out / rel, sample.image, sample.detections, sample.title)
         paths.append(rel)
     return paths
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import csv
-import math
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, NamedTuple, get_args
@@ -97,28 +96,23 @@ _FLOAT_FORMAT = dict(_FORMATS)
 
 
 def _float_cell(spec: str) -> Callable[[object], str]:
+    fmt = f'%{spec}'
+
     def cell(value: object) -> str:
-        if value is None:
+        text = fmt % value
+        if text[-1] in 'nf':  # nan, inf, -inf
             return ''
-        number = float(value)  # type: ignore[arg-type]
-        if not math.isfinite(number):
-            return ''
-        text = format(number, spec)
-        return '0' + text[2:] if text.startswith('-0') and float(text) == 0 else text
+        return '0' + text[2:] if text[0] == '-' and float(text) == 0 else text
 
     return cell
 
 
 def _int_cell(value: object) -> str:
-    return '' if value is None else str(int(value))  # type: ignore[call-overload]
+    return str(int(value))  # type: ignore[call-overload]
 
 
 def _bool_cell(value: object) -> str:
-    return '' if value is None else ('1' if value else '0')
-
-
-def _str_cell(value: object) -> str:
-    return '' if value is None else str(value)
+    return '1' if value else '0'
 
 
 def _cell_formatter(name: str) -> Callable[[object], str]:
@@ -128,15 +122,18 @@ def _cell_formatter(name: str) -> Callable[[object], str]:
         return _float_cell(_FLOAT_FORMAT[name])
     if name in _INT_FIELDS:
         return _int_cell
-    return _str_cell
+    return str
 
 
-#: One formatter per frames.csv column, in column order (a row is written per frame).
+#: One formatter per frames.csv column, in column order (a row is written per frame); None is
+#: an empty cell and never reaches them.
 _CELLS: tuple[Callable[[object], str], ...] = tuple(map(_cell_formatter, FRAMES_CSV_COLUMNS))
 
 
 def _row(record: FrameRecord) -> list[str]:
-    return [cell(value) for cell, value in zip(_CELLS, record, strict=True)]
+    return [
+        '' if value is None else cell(value) for cell, value in zip(_CELLS, record, strict=True)
+    ]
 
 
 def _parse_bool(text: str) -> bool:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from replaybench import __version__
 from replaybench.errors import DecodeError
@@ -38,6 +38,7 @@ if TYPE_CHECKING:
     from types import TracebackType
     from typing import BinaryIO, Self
 
+    from replaybench.sinks._mcapio import McapWriter
     from replaybench.types import CameraInfo, Detection, RawMessage, Serialization
 
 __all__ = ['CHUNK_SIZE', 'DetectionsWriter', 'detections_channel', 'ros1_to_ros2_cdr']
@@ -54,6 +55,12 @@ def detections_channel(backend: str, image_topic: str) -> str:
     """
     topic = image_topic if image_topic.startswith('/') else f'/{image_topic}'
     return f'/replaybench/{backend.replace("-", "_")}{topic}/detections'
+
+
+@cache
+def _ros2msg_bytes(msgtype: str) -> bytes:
+    """The ros2msg schema text of ``msgtype``, encoded once (its hash is kept with it)."""
+    return ros2msg_schema(msgtype).encode()
 
 
 @cache
@@ -113,7 +120,7 @@ class DetectionsWriter:
         self, path: Path, *, annotations: bool = False, backends: Sequence[str] = ()
     ) -> None:
         """Open ``<path>.part`` for writing; ``finish`` renames it to ``path``."""
-        from mcap.writer import CompressionType, Writer
+        from replaybench.sinks._mcapio import McapWriter
 
         self.path = Path(path)
         self.part_path = self.path.with_name(f'{self.path.name}.part')
@@ -123,13 +130,15 @@ class DetectionsWriter:
         self._channels: dict[tuple[str, str, str], int] = {}
         self._sequences: dict[int, int] = {}
         self._colours: dict[str, str] = {}
+        # (backend, image topic) -> detections channel id: the per-frame path looks up one key
+        self._detections: dict[tuple[str, str], int] = {}
         for backend in backends:
             self._colour(backend)
         self._finished = False
         self._stream: BinaryIO = self.part_path.open('wb')
         try:
-            self._writer: Any = Writer(
-                self._stream, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD
+            self._writer: McapWriter = McapWriter(
+                self._stream, chunk_size=CHUNK_SIZE, compression='zstd'
             )
             self._writer.start(profile='ros2', library=f'replaybench {__version__}')
         except BaseException:
@@ -182,7 +191,7 @@ class DetectionsWriter:
         if encoding == 'protobuf':
             channel_id = self._channel(topic, msgtype, 'protobuf', schema or b'', 'protobuf')
         else:
-            schema_data = schema or ros2msg_schema(msgtype).encode()
+            schema_data = schema or _ros2msg_bytes(msgtype)
             channel_id = self._channel(topic, msgtype, 'ros2msg', schema_data, 'cdr')
         self._writer.add_message(
             channel_id=channel_id,
@@ -211,12 +220,28 @@ class DetectionsWriter:
 
         With ``annotations`` the frame's ImageAnnotations follow on the annotations channel.
         """
-        self._write(
-            detections_channel(backend, image_topic),
-            DETECTION2DARRAY,
-            log_time_ns,
-            serialize_detections(stamp_ns, frame_id, detections),
-        )
+        channel_id = self._detections.get((backend, image_topic))
+        if channel_id is None or self._finished:
+            self._write(
+                detections_channel(backend, image_topic),
+                DETECTION2DARRAY,
+                log_time_ns,
+                serialize_detections(stamp_ns, frame_id, detections),
+            )
+            self._detections[(backend, image_topic)] = self._channels[
+                (detections_channel(backend, image_topic), DETECTION2DARRAY, 'cdr')
+            ]
+        else:
+            sequence = self._sequences[channel_id]
+            self._writer.add_message(
+                channel_id,
+                log_time_ns,
+                serialize_detections(stamp_ns, frame_id, detections),
+                log_time_ns,
+                sequence,
+            )
+            self._sequences[channel_id] = sequence + 1
+            self.message_count += 1
         if self.annotations:
             self._write(
                 annotations_channel(backend, image_topic),

@@ -325,3 +325,83 @@ def test_backend_options_reach_the_backend(tmp_path):
         backend_factory=factory,
     )
     assert seen[0].threads == 1
+
+
+class SteppingClock:
+    """A clock that moves ``step`` seconds every time it is read: reading a frame takes as
+    long as the number of readings around it says, whatever the machine."""
+
+    def __init__(self, step: float) -> None:
+        self.step = step
+        self.t = 0.0
+
+    def now(self) -> float:
+        self.t += self.step
+        return self.t
+
+    def sleep_until(self, t: float) -> None:
+        self.t = max(self.t, t)
+
+
+def _max_rate_run(tmp_path: Path, name: str, clock: SteppingClock, **config: Any) -> Any:
+    return run_benchmark(
+        RunConfig(
+            inputs=[_bag(tmp_path / 'cam.mcap', n=40)],
+            backends=['hsv'],
+            out_dir=tmp_path / name,
+            force=True,
+            report=False,
+            **config,
+        ),
+        clock=clock,
+    )
+
+
+def _detections_by_frame(run_dir: Path) -> list[tuple[str, str, str]]:
+    return [(r['seq'], r['status'], r['detections']) for r in _rows(run_dir)]
+
+
+def test_at_max_rate_frames_cheap_to_read_are_read_inline_and_run_json_says_why(tmp_path):
+    outcome = _max_rate_run(tmp_path, 'fast', SteppingClock(1e-6))
+    (decision,) = outcome.run['backends'][0]['read_ahead']
+    assert decision['used'] is False
+    assert decision['probe_frames'] == 15
+    assert decision['probe_read_decode_ms'] < decision['threshold_ms']
+
+
+def test_at_max_rate_frames_slow_to_read_are_read_ahead_with_the_same_results(tmp_path):
+    slow = _max_rate_run(tmp_path, 'slow', SteppingClock(1e-3))
+    (decision,) = slow.run['backends'][0]['read_ahead']
+    assert decision == {
+        'input': 0,
+        'depth': 4,
+        'used': True,
+        'probe_frames': 15,
+        'probe_read_decode_ms': pytest.approx(2.0),  # two clock readings a frame
+        'threshold_ms': pytest.approx(0.2),
+    }
+    fast = _max_rate_run(tmp_path, 'fast', SteppingClock(1e-6))
+    serial = _max_rate_run(tmp_path, 'serial', SteppingClock(1e-3), prefetch=0)
+    assert serial.run['backends'][0]['read_ahead'] == [
+        {'input': 0, 'depth': 0, 'used': False, 'reason': 'prefetch=0'}
+    ]
+    expected = _detections_by_frame(serial.run_dir)
+    assert len(expected) == 40
+    assert _detections_by_frame(slow.run_dir) == expected
+    assert _detections_by_frame(fast.run_dir) == expected
+
+
+def test_a_bag_shorter_than_the_probe_is_read_inline(tmp_path):
+    outcome = run_benchmark(
+        RunConfig(
+            inputs=[_bag(tmp_path / 'cam.mcap', n=5)],
+            backends=['null'],
+            out_dir=tmp_path / 'run',
+            report=False,
+        ),
+        clock=SteppingClock(1e-3),
+    )
+    assert outcome.run['backends'][0]['read_ahead'] == [
+        {'input': 0, 'depth': 4, 'used': False, 'reason': 'input ended in the probe'}
+    ]
+    assert len(_rows(outcome.run_dir)) == 5

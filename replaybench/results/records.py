@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, NamedTuple, get_args
@@ -136,6 +137,83 @@ def _row(record: FrameRecord) -> list[str]:
     ]
 
 
+#: The cells from release_s to d2h_ms (with latency_ms) of a row whose times are all present.
+_TIMES = '%.6f,%.6f,%.6f,%.4f,%.4f'
+_STAGE_CELLS = _CELLS[15:20]
+_QUOTED: dict[str, str] = {}
+_NO_STAGES = [None] * 5
+
+
+def _quote(text: str) -> str:
+    """A text cell as ``csv.writer`` writes it: quoted when it holds , " CR or LF."""
+    cell = _QUOTED.get(text)
+    if cell is None:
+        special = any(c in text for c in ',"\r\n')
+        cell = '"' + text.replace('"', '""') + '"' if special else text
+        if len(_QUOTED) < 4096:
+            _QUOTED[text] = cell
+    return cell
+
+
+def _line(record: FrameRecord) -> str:
+    """One frames.csv line with its ``\\r\\n``: what ``csv_writer`` writes for ``_row(record)``.
+
+    The common case (every time present, non-negative and finite) is formatted in one
+    operation; any other record goes through the per-cell formatters.
+    """
+    (
+        input_,
+        backend,
+        topic,
+        seq,
+        log_time_ns,
+        stamp_ns,
+        status,
+        note,
+        warmup,
+        dropped,
+        release_s,
+        start_s,
+        done_s,
+        queue_wait_ms,
+        read_decode_ms,
+        *stages,
+        latency_ms,
+        detections,
+    ) = record
+    if (
+        latency_ms is not None
+        and detections is not None
+        and None not in (stamp_ns, start_s, done_s, queue_wait_ms, read_decode_ms)
+    ):
+        times = _TIMES % (release_s, start_s, done_s, queue_wait_ms, read_decode_ms)
+        latency = '%.4f' % latency_ms  # noqa: UP031 - the same format as the cells above
+        if '-' not in times and 'n' not in times and '-' not in latency and 'n' not in latency:
+            if stages == _NO_STAGES:
+                staged = ',,,,'
+            else:
+                staged = ','.join(
+                    [
+                        '' if v is None else cell(v)
+                        for cell, v in zip(_STAGE_CELLS, stages, strict=True)
+                    ]
+                )
+            quoted = _QUOTED
+            try:
+                return (
+                    f'{input_:d},{quoted.get(backend) or _quote(backend)},'
+                    f'{quoted.get(topic) or _quote(topic)},{seq:d},{log_time_ns:d},{stamp_ns:d},'
+                    f'{quoted.get(status) or _quote(status)},{quoted.get(note) or _quote(note)},'
+                    f'{"1" if warmup else "0"},{"1" if dropped else "0"},{times},{staged},'
+                    f'{latency},{detections:d}\r\n'
+                )
+            except ValueError:  # an int cell holding something else
+                pass
+    buffer = io.StringIO()
+    csv_writer(buffer).writerow(_row(record))
+    return buffer.getvalue()
+
+
 def _parse_bool(text: str) -> bool:
     if text in {'1', 'true', 'True'}:
         return True
@@ -212,7 +290,7 @@ class FramesCsvWriter:
         if self._file is None:
             msg = f'{self.path}: writer is closed'
             raise ValueError(msg)
-        self._csv.writerow(_row(record))
+        self._file.write(_line(record))
         self.rows += 1
         self._pending += 1
         if self._pending >= self._flush_every:

@@ -3,15 +3,21 @@
 from __future__ import annotations
 
 import csv
+import io
 from typing import TYPE_CHECKING
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from replaybench.errors import SourceError
 from replaybench.results.records import (
     FRAMES_CSV_COLUMNS,
     FrameRecord,
     FramesCsvWriter,
+    _line,
+    _row,
+    csv_writer,
     read_frames_csv,
 )
 
@@ -160,3 +166,86 @@ def test_a_topic_with_line_breaks_round_trips_through_frames_csv(tmp_path: Path)
     with FramesCsvWriter(path) as writer:
         writer.write_many(records)
     assert read_frames_csv(path) == records
+
+
+_TIMES = st.one_of(
+    st.none(),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.floats(min_value=0, max_value=1e6),
+    st.sampled_from([0.0, -0.0, -1e-9, 1e-9, -0.00004]),
+)
+_TEXT = st.one_of(
+    st.sampled_from(['', 'ok', '/cam/image_raw', 'a,b', 'say "hi"', '\r', 'x\ny']),
+    st.text(max_size=8),
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    ints=st.tuples(*[st.integers(0, 2**63) for _ in range(3)]),
+    stamp=st.one_of(st.none(), st.integers(0, 2**63)),
+    texts=st.tuples(_TEXT, _TEXT, st.sampled_from(['ok', 'dropped', 'skipped']), _TEXT),
+    flags=st.tuples(st.booleans(), st.booleans()),
+    release=st.floats(min_value=-1, max_value=1e6),
+    times=st.tuples(*[_TIMES for _ in range(10)]),
+    detections=st.one_of(st.none(), st.integers(0, 1000)),
+)
+def test_a_line_is_what_the_csv_writer_writes_for_the_row(
+    ints: tuple[int, int, int],
+    stamp: int | None,
+    texts: tuple[str, str, str, str],
+    flags: tuple[bool, bool],
+    release: float,
+    times: tuple[float | None, ...],
+    detections: int | None,
+) -> None:
+    input_, seq, log_time = ints
+    backend, topic, status, note = texts
+    record = FrameRecord(
+        input_,
+        backend,
+        topic,
+        seq,
+        log_time,
+        stamp,
+        status,
+        note,
+        *flags,
+        release,
+        *times,
+        detections,  # type: ignore[arg-type]
+    )
+    buffer = io.StringIO()
+    csv_writer(buffer).writerow(_row(record))
+    assert _line(record) == buffer.getvalue()
+
+
+def test_a_plain_ok_row_takes_the_one_format_path() -> None:
+    record = FrameRecord(
+        0,
+        'hsv',
+        '/cam/image_raw',
+        3,
+        10,
+        10,
+        'ok',
+        '',
+        False,
+        False,
+        0.5,
+        0.5,
+        0.51,
+        0.0,
+        1.25,
+        None,
+        2.5,
+        None,
+        None,
+        None,
+        3.75,
+        2,
+    )
+    assert _line(record) == (
+        '0,hsv,/cam/image_raw,3,10,10,ok,,0,0,0.500000,0.500000,0.510000,0.0000,1.2500,'
+        ',2.5000,,,,3.7500,2\r\n'
+    )

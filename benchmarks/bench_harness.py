@@ -66,11 +66,13 @@ class ReplayPass:
         self.label = f'{backend}, {bag.spec.name}{extra}'
         self.walls: list[float] = []
         self.cores: list[float] = []
+        self.records: list[float] = []
 
     def __call__(self) -> float:
-        fps, wall, cpu = replay(self.bag.path, self.backend, self.out, **self.overrides)
+        fps, wall, cpu, record_s = replay(self.bag.path, self.backend, self.out, **self.overrides)
         self.walls.append(wall)
         self.cores.append(cpu / wall)
+        self.records.append(record_s * 1e3 / self.bag.spec.frames)
         return fps
 
     def sampler(self) -> Sampler:
@@ -100,6 +102,14 @@ class ReplayPass:
                 frames,
                 'process CPU time / wall time of the whole run',
             ),
+            Measurement(
+                f'record keeping per frame[{self.label}]',
+                'ms',
+                tuple(self.records[-repeats:]),
+                frames,
+                'records, frames.csv rows, detections messages, made after the pass (run.json '
+                'backends[0].record_s / frames); in the wall time, not in the throughput',
+            ),
         ]
 
 
@@ -112,8 +122,13 @@ def runner_supports(name: str) -> bool:
     return any(f.name == name for f in fields(RunConfig))
 
 
-def replay(path: Path, backend: str, out: Path, **overrides: Any) -> tuple[float, float, float]:
-    """One ``run_benchmark`` at max rate, one thread: (steady-state frames/s, wall s, CPU s)."""
+def replay(
+    path: Path, backend: str, out: Path, **overrides: Any
+) -> tuple[float, float, float, float]:
+    """One ``run_benchmark`` at max rate, one thread.
+
+    Returns (steady-state frames/s, wall s, CPU s, record keeping s).
+    """
     from replaybench.replay.runner import RunConfig, run_benchmark
 
     config = RunConfig(
@@ -132,7 +147,7 @@ def replay(path: Path, backend: str, out: Path, **overrides: Any) -> tuple[float
     if outcome.status != 'complete' or summary.throughput_fps is None:
         msg = f'run of {backend} on {path.name}: status {outcome.status}, no throughput'
         raise RuntimeError(msg)
-    return summary.throughput_fps, wall, cpu
+    return summary.throughput_fps, wall, cpu, outcome.run['backends'][0]['record_s']
 
 
 def steady_read_sampler(source: Source, bag: Bag) -> Sampler:

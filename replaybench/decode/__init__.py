@@ -1,4 +1,4 @@
-"""RawMessage -> image arrays, CameraInfo and ground-truth detections.
+"""RawMessage -> Frame (image array and header), CameraInfo and ground-truth detections.
 
 Heavy libraries (OpenCV, rosbags, protobuf) are imported when a message first needs them.
 """
@@ -11,14 +11,13 @@ from replaybench.decode.camera_info import (
     decode_camera_info,
 )
 from replaybench.decode.detections import GroundTruth, decode_detections
-from replaybench.decode.image import DecodedImage, decode_image, to_bgr8
+from replaybench.decode.image import decode_image, to_bgr8
 from replaybench.decode.kinds import MessageKind, message_kind
 from replaybench.decode.probe import CameraTopic, probe_topics
 
 __all__ = [
     'CameraInfoIndex',
     'CameraTopic',
-    'DecodedImage',
     'GroundTruth',
     'MessageKind',
     'camera_info_topic_for',

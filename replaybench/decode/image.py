@@ -1,13 +1,15 @@
-"""RawMessage -> image array, for sensor_msgs Image / CompressedImage and Foxglove images.
+"""RawMessage -> Frame, for sensor_msgs Image / CompressedImage and Foxglove images.
 
-Raw images in CDR and ROS 1 are read by hand and returned as read-only views into the message
-buffer (padded rows become a strided view). Only byte-swapping, unaligned 16/32-bit data and
-encodings outside ``types.CANONICAL_ENCODINGS`` (Bayer, YUV, 8UCn) produce a new array.
+``decode_image`` returns the ``Frame`` a backend receives (the replay attaches camera info):
+one object per message. Raw images in CDR and ROS 1 are read by hand and returned as
+read-only views into the message buffer (padded rows become a strided view). Only
+byte-swapping, unaligned 16/32-bit data and encodings outside ``types.CANONICAL_ENCODINGS``
+(Bayer, YUV, 8UCn) produce a new array.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, NamedTuple, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -16,29 +18,14 @@ from replaybench.decode.compressed import decode_compressed
 from replaybench.decode.encodings import check_dimensions, lookup
 from replaybench.decode.kinds import message_kind
 from replaybench.errors import DecodeError
+from replaybench.types import Frame
 
 if TYPE_CHECKING:
     import numpy.typing as npt
 
     from replaybench.types import RawMessage
 
-__all__ = ['DecodedImage', 'decode_image', 'raw_image_array', 'to_bgr8']
-
-
-class DecodedImage(NamedTuple):
-    """One decoded image.
-
-    ``image`` is laid out as ``encoding`` (one of ``types.CANONICAL_ENCODINGS``) says;
-    ``source_encoding`` is the message's encoding, or for compressed images the codec
-    ('jpeg', 'png', 'webp', 'compressedDepth').
-    """
-
-    image: npt.NDArray[Any]
-    encoding: str
-    source_encoding: str
-    stamp_ns: int
-    frame_id: str
-    is_depth: bool
+__all__ = ['decode_image', 'raw_image_array', 'to_bgr8']
 
 
 def raw_image_array(
@@ -103,13 +90,18 @@ def raw_image_array(
     return image, spec.canonical, spec.is_depth
 
 
-def _decode_ros(msg: RawMessage, compressed: bool) -> DecodedImage:
+#: What a decoder finds besides the message's topic, seq and log time: (stamp_ns, frame_id,
+#: image, encoding, source encoding, is_depth), the rest of a ``Frame``.
+_Decoded = tuple[int, str, 'npt.NDArray[Any]', str, str, bool]
+
+
+def _decode_ros(msg: RawMessage, compressed: bool) -> _Decoded:
     buf = as_bytes_view(msg.data)
     if compressed:
         c = parse_compressed(buf, msg.serialization)
         payload = buf[c.offset : c.offset + c.size]
         image, encoding, codec, is_depth = decode_compressed(payload, c.format)
-        return DecodedImage(image, encoding, codec, c.stamp_ns, c.frame_id, is_depth)
+        return c.stamp_ns, c.frame_id, image, encoding, codec, is_depth
     f = parse_image(buf, msg.serialization)
     image, encoding, is_depth = raw_image_array(
         buf,
@@ -121,10 +113,10 @@ def _decode_ros(msg: RawMessage, compressed: bool) -> DecodedImage:
         encoding=f.encoding,
         is_bigendian=bool(f.is_bigendian),
     )
-    return DecodedImage(image, encoding, f.encoding, f.stamp_ns, f.frame_id, is_depth)
+    return f.stamp_ns, f.frame_id, image, encoding, f.encoding, is_depth
 
 
-def _decode_foxglove(msg: RawMessage, compressed: bool) -> DecodedImage:
+def _decode_foxglove(msg: RawMessage, compressed: bool) -> _Decoded:
     from replaybench.decode._protobuf import parse_protobuf, stamp_ns
 
     pb = parse_protobuf(msg)
@@ -132,7 +124,7 @@ def _decode_foxglove(msg: RawMessage, compressed: bool) -> DecodedImage:
     stamp = stamp_ns(pb.timestamp)
     if compressed:
         image, encoding, codec, is_depth = decode_compressed(data, pb.format)
-        return DecodedImage(image, encoding, codec, stamp, pb.frame_id, is_depth)
+        return stamp, pb.frame_id, image, encoding, codec, is_depth
     # foxglove.RawImage has no endianness field; its 16/32-bit encodings are little endian
     image, encoding, is_depth = raw_image_array(
         data,
@@ -144,11 +136,13 @@ def _decode_foxglove(msg: RawMessage, compressed: bool) -> DecodedImage:
         encoding=pb.encoding,
         is_bigendian=False,
     )
-    return DecodedImage(image, encoding, pb.encoding, stamp, pb.frame_id, is_depth)
+    return stamp, pb.frame_id, image, encoding, pb.encoding, is_depth
 
 
-def decode_image(msg: RawMessage) -> DecodedImage:
+def decode_image(msg: RawMessage) -> Frame:
     """Decode an Image / CompressedImage / foxglove.RawImage / foxglove.CompressedImage message.
+
+    The frame's ``camera_info`` is None and its ``input_index`` 0.
 
     Raises DecodeError for anything it cannot turn into a canonical image.
     """
@@ -161,9 +155,8 @@ def decode_image(msg: RawMessage) -> DecodedImage:
     if foxglove != (msg.serialization == 'protobuf'):
         err = f'{msg.msgtype} in {msg.serialization} serialization is not supported'
         raise DecodeError(err)
-    if foxglove:
-        return _decode_foxglove(msg, compressed)
-    return _decode_ros(msg, compressed)
+    decoded = _decode_foxglove(msg, compressed) if foxglove else _decode_ros(msg, compressed)
+    return Frame(msg.topic, msg.seq, msg.log_time_ns, *decoded)
 
 
 _TO_BGR = {

@@ -12,15 +12,15 @@ import queue
 import threading
 from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench.decode import DecodedImage, decode_image
+from replaybench.decode import decode_image
 from replaybench.errors import DecodeError
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
+    from collections.abc import Callable, Iterator
     from types import TracebackType
 
     from replaybench.replay.clock import Clock
-    from replaybench.types import RawMessage
+    from replaybench.types import Frame, RawMessage
 
 __all__ = ['Prefetched', 'Prefetcher']
 
@@ -29,7 +29,7 @@ class Prefetched(NamedTuple):
     """A message read and decoded ahead: when reading began, and how long read + decode took."""
 
     raw: RawMessage
-    decoded: DecodedImage | DecodeError
+    decoded: Frame | DecodeError
     release: float
     read_decode_s: float
 
@@ -39,11 +39,21 @@ class _End(NamedTuple):
 
 
 class Prefetcher:
-    """Iterate ``Prefetched`` items produced by a reader thread, at most ``depth`` ahead."""
+    """Iterate ``Prefetched`` items produced by a reader thread, at most ``depth`` ahead.
 
-    def __init__(self, messages: Iterator[RawMessage], clock: Clock, depth: int) -> None:
+    ``decode`` turns a message into a frame (``decode_image`` unless given) in that thread.
+    """
+
+    def __init__(
+        self,
+        messages: Iterator[RawMessage],
+        clock: Clock,
+        depth: int,
+        decode: Callable[[RawMessage], Frame] = decode_image,
+    ) -> None:
         self._messages = messages
         self._clock = clock
+        self._decode = decode
         self._queue: queue.Queue[Prefetched | _End] = queue.Queue(maxsize=depth)
         self._stop = threading.Event()
         self._thread = threading.Thread(
@@ -77,6 +87,7 @@ class Prefetcher:
 
     def _produce(self) -> None:
         clock = self._clock
+        decode = self._decode
         try:
             while not self._stop.is_set():
                 release = clock.now()
@@ -84,7 +95,7 @@ class Prefetcher:
                 if raw is None:
                     break
                 try:
-                    decoded: DecodedImage | DecodeError = decode_image(raw)
+                    decoded: Frame | DecodeError = decode(raw)
                 except DecodeError as err:
                     decoded = err
                 if not self._put(Prefetched(raw, decoded, release, clock.now() - release)):

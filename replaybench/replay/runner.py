@@ -17,6 +17,7 @@ import signal
 import sys
 import time
 from dataclasses import dataclass, field
+from itertools import islice
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
@@ -25,7 +26,6 @@ from replaybench.backends import get_backend
 from replaybench.backends.base import BackendOptions
 from replaybench.backends.recorded import RecordedBackend
 from replaybench.decode import (
-    DecodedImage,
     decode_detections,
     decode_image,
     message_kind,
@@ -40,7 +40,7 @@ from replaybench.errors import (
     UsageError,
 )
 from replaybench.replay.clock import Clock, MonotonicClock
-from replaybench.replay.prefetch import Prefetcher
+from replaybench.replay.prefetch import Prefetched, Prefetcher
 from replaybench.replay.rate import Rate
 from replaybench.replay.resources import ResourceSampler
 from replaybench.replay.scheduler import replay_timed
@@ -54,7 +54,7 @@ from replaybench.results.runfile import (
 )
 from replaybench.results.stats import Summary, summarize, summary_row
 from replaybench.sources import Source, open_source
-from replaybench.types import Detection, Frame, TopicInfo
+from replaybench.types import BackendResult, Detection, Frame, StageTimes, TopicInfo
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Sequence
@@ -81,6 +81,8 @@ _NS = 1_000_000_000
 READ_AHEAD_PROBE = 16
 #: Read-ahead in a thread pays when reading + decoding a frame takes at least this long (s).
 READ_AHEAD_MIN_S = 0.2e-3
+#: Frames a max-rate pass replays inline between two progress reports.
+PROGRESS_EVERY = 64
 
 
 def default_warmup(frames: int) -> int:
@@ -155,24 +157,16 @@ class _Input(NamedTuple):
 
 
 class _Sample:
-    """The frame drawn for a topic, with each backend's detections on it.
+    """The frame drawn for a topic (by its seq and log time), with each backend's detections.
 
-    The replay keeps a reference to the frame's image; ``settle`` converts it to a BGR copy
-    after the pass, so that the conversion (milliseconds at 1080p) is not in the replay.
+    The replay keeps no image: ``_write_samples`` reads the frame again after the passes.
     """
 
-    def __init__(self, image: Any, encoding: str, seq: int, title: str) -> None:
-        self.image: Any = image
-        self.encoding: str | None = encoding
+    def __init__(self, seq: int, log_time_ns: int, title: str) -> None:
         self.seq = seq
+        self.log_time_ns = log_time_ns
         self.title = title
         self.detections: dict[str, tuple[Detection, ...]] = {}
-
-    def settle(self) -> None:
-        """Replace the image by its BGR copy (once): it may be a view into the input."""
-        if self.encoding is not None:
-            self.image = to_bgr8(self.image, self.encoding).copy()
-            self.encoding = None
 
 
 def _sha256(paths: Sequence[Path]) -> str:
@@ -331,8 +325,44 @@ def _recorded_topic(path: Path, topics: Sequence[TopicInfo], config: RunConfig) 
     raise UsageError(msg)
 
 
+#: A frame's log entry (``_Pass.log``), made in the replay loop and turned into everything else
+#: by ``_Pass.finalize``: ``(key, outcome, release, start, queue_wait_s, read_decode_s,
+#: t_detect, done)``. ``key`` is (topic, seq, log_time_ns, stamp_ns, frame_id), the first five
+#: fields of the ``Frame`` (stamp None and frame_id '' where the frame did not decode);
+#: ``outcome`` is the ``BackendResult``, the ``DecodeError`` of a skipped frame, or None for a
+#: dropped one; the times are clock readings, ``*_s`` durations in seconds.
+_Key = tuple[str, int, int, int | None, str]
+_Entry = tuple[_Key, BackendResult | DecodeError | None, float, float, float, float, float, float]
+
+
+def _raw_key(raw: RawMessage) -> _Key:
+    return (raw.topic, raw.seq, raw.log_time_ns, None, '')
+
+
+def _decoder(inp: _Input) -> Callable[[RawMessage], Frame]:
+    """RawMessage -> the Frame a backend gets: ``decode_image``, plus camera info and the
+    input's index where there are any to add."""
+    number = inp.number
+    lookup = inp.camera_infos.lookup
+    if number == 0 and all(inp.camera_infos.topic_for(t.name) is None for t in inp.topics):
+        return decode_image
+
+    def decode(raw: RawMessage) -> Frame:
+        frame = decode_image(raw)
+        return frame._replace(camera_info=lookup(frame.topic, frame.stamp_ns), input_index=number)
+
+    return decode
+
+
 class _Pass:
-    """One backend over one input: fetch, decode, detect, record, write."""
+    """One backend over one input: fetch, decode, detect; then record and write.
+
+    The replay loops only read, decode, time and detect, appending one entry per frame to
+    ``log``. Everything else a frame leads to (its ``FrameRecord`` and frames.csv row, its
+    detections message, scoring, the sample) is done by ``finalize`` after the loop, so that
+    none of it runs between two frames and the replay measures the backend, not the harness's
+    own record keeping.
+    """
 
     def __init__(
         self,
@@ -348,6 +378,9 @@ class _Pass:
         self.backend = backend
         self.inp = inp
         self.t0 = 0.0
+        self.log: list[_Entry] = []
+        self.record_s = 0.0  # spent by finalize (wall clock)
+        self.decode = _decoder(inp)
         self.taken: dict[str, int] = {}
         self.measures_latency = bool(getattr(backend, 'measures_latency', True))
         # at max rate: whether frames were read ahead in a thread, and why (run.json)
@@ -356,186 +389,7 @@ class _Pass:
     def messages(self) -> Iterator[RawMessage]:
         return _replayed(self.inp, self.run.config)
 
-    def record(self, rec: FrameRecord) -> None:
-        self.run.records.append(rec)
-        self.run.frames_csv.write(rec)
-        self.run.tick()
-
-    def drop(self, raw: RawMessage, release: float) -> None:
-        self.record(
-            FrameRecord(
-                input=self.inp.number,
-                backend=self.label,
-                topic=raw.topic,
-                seq=raw.seq,
-                log_time_ns=raw.log_time_ns,
-                stamp_ns=None,
-                status='dropped',
-                note='pushed out of the queue',
-                warmup=False,
-                dropped=True,
-                release_s=release - self.t0,
-            )
-        )
-
-    def process(self, raw: RawMessage, release: float, start: float, read_s: float) -> float:
-        """Decode and detect one frame now (timed modes, and max rate without read-ahead).
-
-        Returns the frame's read + decode time.
-        """
-        clock = self.run.clock
-        t_decode = clock.now()
-        decoded = _decode(raw)
-        read_decode_s = read_s + clock.now() - t_decode
-        self.complete(raw, decoded, release, start, start - release, read_decode_s)
-        return read_decode_s
-
-    def complete(
-        self,
-        raw: RawMessage,
-        decoded: DecodedImage | DecodeError,
-        release: float,
-        start: float,
-        queue_wait_s: float,
-        read_decode_s: float,
-    ) -> None:
-        """Run the backend on a decoded frame (or record its decode failure) and write the row.
-
-        ``latency = queue wait + read/decode + backend``: the backend part runs from here to the
-        detections; read/decode was measured where it ran (here, or in the prefetch thread).
-        """
-        clock = self.run.clock
-        run = self.run
-        if isinstance(decoded, DecodeError):
-            reason = str(decoded)
-            run.skip(reason)
-            self.record(
-                FrameRecord(
-                    input=self.inp.number,
-                    backend=self.label,
-                    topic=raw.topic,
-                    seq=raw.seq,
-                    log_time_ns=raw.log_time_ns,
-                    stamp_ns=None,
-                    status='skipped',
-                    note=reason,
-                    warmup=False,
-                    dropped=False,
-                    release_s=release - self.t0,
-                    start_s=start - self.t0,
-                    done_s=clock.now() - self.t0,
-                    queue_wait_ms=queue_wait_s * 1e3,
-                    read_decode_ms=read_decode_s * 1e3,
-                )
-            )
-            return
-        frame = self.make_frame(raw, decoded)
-        t_detect = clock.now()
-        result = self.backend.detect(frame)
-        done = clock.now()
-        key = (self.label, raw.topic)
-        detections = result.detections
-        run.detections.setdefault(key, {})[(self.inp.number, raw.seq)] = detections
-        n_done = run.processed.get(key, 0)
-        run.processed[key] = n_done + 1
-        run.detections_out.add(
-            self.label, raw.topic, raw.log_time_ns, decoded.stamp_ns, decoded.frame_id, detections
-        )
-        if self.inp.external is not None:
-            truth = self.inp.external.lookup(raw.topic, raw.seq, decoded.stamp_ns)
-            if truth is not None:
-                frame_key = (self.inp.number, raw.topic, raw.seq)
-                run.ground_truth[frame_key] = truth
-                run.scored.setdefault(key, {})[frame_key] = detections
-        else:
-            gt_key = (decoded.frame_id, decoded.stamp_ns)
-            if gt_key in self.inp.ground_truth:
-                run.scored.setdefault(key, {})[(self.inp.number, *gt_key)] = detections
-        self.sample(frame, detections)
-        t0 = self.t0
-        if not self.measures_latency:
-            self.record(
-                FrameRecord(
-                    self.inp.number,
-                    self.label,
-                    raw.topic,
-                    raw.seq,
-                    raw.log_time_ns,
-                    decoded.stamp_ns,
-                    'ok',
-                    'recorded detections: latency not measured',
-                    False,
-                    False,
-                    release - t0,
-                    start - t0,
-                    done - t0,
-                    queue_wait_s * 1e3,
-                    read_decode_s * 1e3,
-                    None,
-                    None,
-                    None,
-                    None,
-                    None,
-                    None,
-                    len(detections),
-                )
-            )
-            return
-        stages = result.stages
-        self.record(
-            FrameRecord(
-                self.inp.number,
-                self.label,
-                raw.topic,
-                raw.seq,
-                raw.log_time_ns,
-                decoded.stamp_ns,
-                'ok',
-                '',
-                n_done < run.warmup_for(raw.topic),
-                False,
-                release - t0,
-                start - t0,
-                done - t0,
-                queue_wait_s * 1e3,
-                read_decode_s * 1e3,
-                _ms(stages.preprocess_ns),
-                _ms(stages.infer_ns),
-                _ms(stages.postprocess_ns),
-                _ms(stages.h2d_ns),
-                _ms(stages.d2h_ns),
-                (queue_wait_s + read_decode_s + done - t_detect) * 1e3,
-                len(detections),
-            )
-        )
-
-    def sample(self, frame: Frame, detections: tuple[Detection, ...]) -> None:
-        """Keep the sample frame of this topic (chosen by the first backend) and its boxes."""
-        key = (self.inp.number, frame.topic)
-        taken = self.taken.get(frame.topic, 0)
-        self.taken[frame.topic] = taken + 1
-        sample = self.run.samples.get(key)
-        if sample is None and taken == self.inp.sample_index.get(frame.topic):
-            sample = self.run.samples[key] = _Sample(
-                frame.image, frame.encoding, frame.seq, f'{frame.topic} #{frame.seq}'
-            )
-        if sample is not None and sample.seq == frame.seq:
-            sample.detections[self.label] = detections
-
-    def make_frame(self, raw: RawMessage, decoded: DecodedImage) -> Frame:
-        return Frame(
-            topic=raw.topic,
-            seq=raw.seq,
-            log_time_ns=raw.log_time_ns,
-            stamp_ns=decoded.stamp_ns,
-            frame_id=decoded.frame_id,
-            image=decoded.image,
-            encoding=decoded.encoding,
-            source_encoding=decoded.source_encoding,
-            is_depth=decoded.is_depth,
-            camera_info=self.inp.camera_infos.lookup(raw.topic, decoded.stamp_ns),
-            input_index=self.inp.number,
-        )
+    # -- the replay loops: nothing but read, decode, detect and one log entry per frame --------
 
     def run_max(self) -> None:
         """Every frame as fast as possible.
@@ -547,61 +401,120 @@ class _Pass:
         (a raw frame mapped from the file is a few microseconds of Python, holding the GIL)
         and handing frames between threads would cost more than reading them.
         """
-        clock = self.run.clock
-        self.t0 = clock.now()
+        self.t0 = self.run.clock.now()
         messages = self.messages()
         depth = self.run.config.prefetch
         if depth < 1:
-            self.inline(messages, None)
             self.read_ahead = {'depth': 0, 'used': False, 'reason': 'prefetch=0'}
+            self.inline_all(messages)
             return
-        spent = self.inline(messages, READ_AHEAD_PROBE)
-        if len(spent) < READ_AHEAD_PROBE:
+        probed = self.inline(messages, READ_AHEAD_PROBE)
+        if probed < READ_AHEAD_PROBE:
             self.read_ahead = {'depth': depth, 'used': False, 'reason': 'input ended in the probe'}
             return
-        # the mean, not the median: a compressed chunk holding several frames is paid by one
-        typical = sum(spent[1:]) / (len(spent) - 1)
+        # the mean, not the median: a compressed chunk holding several frames is paid by one;
+        # the first frame, which pays for opening the input, is left out
+        typical = sum(entry[5] for entry in self.log[-probed + 1 :]) / (probed - 1)
         used = typical >= READ_AHEAD_MIN_S
         self.read_ahead = {
             'depth': depth,
             'used': used,
-            'probe_frames': len(spent) - 1,
+            'probe_frames': probed - 1,
             'probe_read_decode_ms': typical * 1e3,
             'threshold_ms': READ_AHEAD_MIN_S * 1e3,
         }
         if not used:
-            self.inline(messages, None)
+            self.inline_all(messages)
             return
-        with Prefetcher(messages, clock, depth) as frames:
-            for item in frames:
-                self.complete(
-                    item.raw, item.decoded, item.release, clock.now(), 0.0, item.read_decode_s
-                )
+        with Prefetcher(messages, self.run.clock, depth, self.decode) as frames:
+            self.consume(frames)
 
-    def inline(self, messages: Iterator[RawMessage], limit: int | None) -> list[float]:
-        """Read, decode and detect up to ``limit`` frames (all with None) in this thread.
+    def inline_all(self, messages: Iterator[RawMessage]) -> None:
+        while self.inline(messages, PROGRESS_EVERY) == PROGRESS_EVERY:
+            pass
 
-        Returns the read + decode time of each frame when ``limit`` is given (else empty).
+    def inline(self, messages: Iterator[RawMessage], limit: int) -> int:
+        """Read, decode and detect up to ``limit`` frames in this thread; how many were read.
+
+        A frame is released when the previous one is done: its read + decode time runs from
+        there to the detector's call, and its latency from there to the detections.
         """
-        clock = self.run.clock
-        spent: list[float] = []
-        count = 0
-        while limit is None or count < limit:
-            release = clock.now()
-            raw = next(messages, None)
-            if raw is None:
-                break
-            read_decode_s = self.process(raw, release, release, clock.now() - release)
-            if limit is not None:
-                spent.append(read_decode_s)
-                count += 1
-        return spent
+        now = self.run.clock.now
+        decode = self.decode
+        detect = self.backend.detect
+        append = self.log.append
+        before = len(self.log)
+        done = now()
+        for raw in islice(messages, limit):
+            release = done
+            try:
+                frame = decode(raw)
+            except DecodeError as err:
+                done = now()
+                append((_raw_key(raw), err, release, release, 0.0, done - release, done, done))
+                continue
+            t_detect = now()
+            result = detect(frame)
+            done = now()
+            append((frame[:5], result, release, release, 0.0, t_detect - release, t_detect, done))
+        count = len(self.log) - before
+        self.run.advance(count)
+        return count
+
+    def consume(self, frames: Iterator[Prefetched]) -> None:
+        """Detect frames read and decoded ahead; their read + decode time is the reader's."""
+        now = self.run.clock.now
+        detect = self.backend.detect
+        append = self.log.append
+        advance = self.run.advance
+        for raw, decoded, release, read_decode_s in frames:
+            start = now()
+            if isinstance(decoded, DecodeError):
+                append((_raw_key(raw), decoded, release, start, 0.0, read_decode_s, start, start))
+            else:
+                result = detect(decoded)
+                done = now()
+                append((decoded[:5], result, release, start, 0.0, read_decode_s, start, done))
+            advance(1)
+
+    def process(self, raw: RawMessage, release: float, start: float) -> None:
+        """Decode and detect one frame now (timed modes): queued from ``release`` to ``start``."""
+        now = self.run.clock.now
+        try:
+            frame = self.decode(raw)
+        except DecodeError as err:
+            done = now()
+            self.log.append(
+                (_raw_key(raw), err, release, start, start - release, done - start, done, done)
+            )
+        else:
+            t_detect = now()
+            result = self.backend.detect(frame)
+            done = now()
+            self.log.append(
+                (
+                    frame[:5],
+                    result,
+                    release,
+                    start,
+                    start - release,
+                    t_detect - start,
+                    t_detect,
+                    done,
+                )
+            )
+        self.run.advance(1)
+
+    def drop(self, raw: RawMessage, release: float) -> None:
+        """A frame pushed out of its queue before the backend took it (timed modes)."""
+        self.log.append((_raw_key(raw), None, release, release, 0.0, 0.0, release, release))
+        self.run.advance(1)
 
     def run_timed(self, rate: Rate) -> None:
         clock = self.run.clock
         self.t0 = clock.now()
 
-        def releases() -> Iterator[tuple[float, str, tuple[RawMessage, float]]]:
+        def releases() -> Iterator[tuple[float, str, RawMessage]]:
             first_log: int | None = None
             per_topic: dict[str, int] = {}
             last = 0.0
@@ -615,25 +528,152 @@ class _Pass:
                         first_log = raw.log_time_ns
                     offset = max(last, (raw.log_time_ns - first_log) / _NS / rate.scale)
                 last = offset
-                yield offset, raw.topic, (raw, 0.0)
-
-        def process(item: tuple[RawMessage, float], release: float, start: float) -> None:
-            self.process(item[0], release, start, item[1])
+                yield offset, raw.topic, raw
 
         replay_timed(
             releases(),
             clock=clock,
             queue_depth=self.run.config.queue_depth,
-            process=process,
-            drop=lambda item, release: self.drop(item[0], release),
+            process=self.process,
+            drop=self.drop,
         )
 
+    # -- after the loop --------------------------------------------------------------------
 
-def _decode(raw: RawMessage) -> DecodedImage | DecodeError:
-    try:
-        return decode_image(raw)
-    except DecodeError as err:
-        return err
+    def finalize(self) -> None:
+        """Turn the log into records and frames.csv rows, detections messages, scores and the
+        sample; the log is emptied. Runs after the pass, also when it was cut short."""
+        began = time.perf_counter()
+        entries, self.log = self.log, []
+        for key, outcome, release, start, queue_wait_s, read_decode_s, t_detect, done in entries:
+            if isinstance(outcome, BackendResult):
+                self.record_processed(
+                    key, outcome, release, start, queue_wait_s, read_decode_s, t_detect, done
+                )
+            else:
+                self.record_unprocessed(
+                    key, outcome, release, start, queue_wait_s, read_decode_s, done
+                )
+        self.record_s += time.perf_counter() - began
+
+    def record(self, rec: FrameRecord) -> None:
+        self.run.records.append(rec)
+        self.run.frames_csv.write(rec)
+
+    def record_unprocessed(
+        self,
+        key: _Key,
+        error: DecodeError | None,
+        release: float,
+        start: float,
+        queue_wait_s: float,
+        read_decode_s: float,
+        done: float,
+    ) -> None:
+        """A frame the backend never saw: pushed out of its queue (``error`` None) or skipped
+        because it did not decode (its times up to the failed decode are kept)."""
+        topic, seq, log_time_ns, _, _ = key
+        t0 = self.t0
+        dropped = error is None
+        if error is not None:
+            self.run.skip(str(error))
+        self.record(
+            FrameRecord(
+                input=self.inp.number,
+                backend=self.label,
+                topic=topic,
+                seq=seq,
+                log_time_ns=log_time_ns,
+                stamp_ns=None,
+                status='dropped' if dropped else 'skipped',
+                note='pushed out of the queue' if error is None else str(error),
+                warmup=False,
+                dropped=dropped,
+                release_s=release - t0,
+                start_s=None if dropped else start - t0,
+                done_s=None if dropped else done - t0,
+                queue_wait_ms=None if dropped else queue_wait_s * 1e3,
+                read_decode_ms=None if dropped else read_decode_s * 1e3,
+            )
+        )
+
+    def record_processed(
+        self,
+        key: _Key,
+        result: BackendResult,
+        release: float,
+        start: float,
+        queue_wait_s: float,
+        read_decode_s: float,
+        t_detect: float,
+        done: float,
+    ) -> None:
+        """``latency = queue wait + read/decode + backend``: the backend part runs from the
+        detector's call to its detections; read/decode was measured where it ran."""
+        run = self.run
+        topic, seq, log_time_ns, stamp_ns, frame_id = key
+        assert stamp_ns is not None  # a processed frame decoded
+        number = self.inp.number
+        label_key = (self.label, topic)
+        detections = result.detections
+        run.detections.setdefault(label_key, {})[(number, seq)] = detections
+        n_done = run.processed.get(label_key, 0)
+        run.processed[label_key] = n_done + 1
+        run.detections_out.add(self.label, topic, log_time_ns, stamp_ns, frame_id, detections)
+        if self.inp.external is not None:
+            truth = self.inp.external.lookup(topic, seq, stamp_ns)
+            if truth is not None:
+                frame_key = (number, topic, seq)
+                run.ground_truth[frame_key] = truth
+                run.scored.setdefault(label_key, {})[frame_key] = detections
+        elif (frame_id, stamp_ns) in self.inp.ground_truth:
+            run.scored.setdefault(label_key, {})[(number, frame_id, stamp_ns)] = detections
+        self.sample(topic, seq, log_time_ns, detections)
+        t0 = self.t0
+        timed = self.measures_latency
+        stages = result.stages if timed else _NOT_TIMED
+        self.record(
+            FrameRecord(
+                number,
+                self.label,
+                topic,
+                seq,
+                log_time_ns,
+                stamp_ns,
+                'ok',
+                '' if timed else 'recorded detections: latency not measured',
+                timed and n_done < run.warmup_for(topic),
+                False,
+                release - t0,
+                start - t0,
+                done - t0,
+                queue_wait_s * 1e3,
+                read_decode_s * 1e3,
+                _ms(stages.preprocess_ns),
+                _ms(stages.infer_ns),
+                _ms(stages.postprocess_ns),
+                _ms(stages.h2d_ns),
+                _ms(stages.d2h_ns),
+                (queue_wait_s + read_decode_s + done - t_detect) * 1e3 if timed else None,
+                len(detections),
+            )
+        )
+
+    def sample(
+        self, topic: str, seq: int, log_time_ns: int, detections: tuple[Detection, ...]
+    ) -> None:
+        """Choose the sample frame of this topic (the first backend does) and keep its boxes."""
+        key = (self.inp.number, topic)
+        taken = self.taken.get(topic, 0)
+        self.taken[topic] = taken + 1
+        sample = self.run.samples.get(key)
+        if sample is None and taken == self.inp.sample_index.get(topic):
+            sample = self.run.samples[key] = _Sample(seq, log_time_ns, f'{topic} #{seq}')
+        if sample is not None and sample.seq == seq:
+            sample.detections[self.label] = detections
+
+
+_NOT_TIMED = StageTimes()
 
 
 def _ms(ns: int | None) -> float | None:
@@ -679,8 +719,8 @@ class _Run:
         short = reason.split(':', 1)[0] if len(reason) > 80 else reason
         self.skipped[short] = self.skipped.get(short, 0) + 1
 
-    def tick(self) -> None:
-        self.done += 1
+    def advance(self, frames: int) -> None:
+        self.done += frames
         if self.progress is not None:
             self.progress(self.done, self.total)
 
@@ -771,12 +811,21 @@ def _load_external(config: RunConfig) -> ExternalGroundTruth | None:
 
 def _replayed(inp: _Input, config: RunConfig) -> Iterator[RawMessage]:
     """The image messages a pass replays: the window, at most --max-frames per topic."""
-    limit = config.max_frames
-    counts: dict[str, int] = {}
     names = [t.name for t in inp.topics]
-    for raw in inp.source.messages(topics=names, start_ns=inp.start_ns, end_ns=inp.end_ns):
+    messages = inp.source.messages(topics=names, start_ns=inp.start_ns, end_ns=inp.end_ns)
+    if config.max_frames is None:
+        return messages
+    return _at_most(messages, names, config.max_frames)
+
+
+def _at_most(
+    messages: Iterator[RawMessage], names: Sequence[str], limit: int
+) -> Iterator[RawMessage]:
+    """The first ``limit`` messages of each topic in ``names``."""
+    counts: dict[str, int] = {}
+    for raw in messages:
         n = counts.get(raw.topic, 0)
-        if limit is not None and n >= limit:
+        if n >= limit:
             if all(counts.get(t, 0) >= limit for t in names):
                 return
             continue
@@ -879,7 +928,7 @@ def _execute(
     if len(config.backends) > 1:
         run.agreements = agreement_table(run.detections)
     write_summary_csv(out / 'summary.csv', summaries)
-    sample_paths = _write_samples(out, run)
+    sample_paths = _write_samples(out, run, inputs)
     record = _write_run_json(
         config, run, status, input_meta, backend_meta, summaries, started, t_start, sample_paths
     )
@@ -927,9 +976,7 @@ def _run_backend(
                 else:
                     p.run_max()
             finally:
-                # before the input can be closed: a sample may be a view into it
-                for sample in run.samples.values():
-                    sample.settle()
+                p.finalize()
     finally:
         # after the passes: what the backend actually used and counted
         sampler.stop()
@@ -947,6 +994,8 @@ def _run_backend(
                     for p in passes
                     if p.read_ahead is not None
                 ],
+                # records, frames.csv rows, detections messages: made after each pass
+                'record_s': sum(p.record_s for p in passes),
             }
         )
         backend.close()
@@ -1042,18 +1091,34 @@ def _summaries(run: _Run) -> list[Summary]:
     return [replace(s, resources=run.resources.get(s.backend)) for s in out]
 
 
-def _write_samples(out: Path, run: _Run) -> list[str]:
+def _write_samples(out: Path, run: _Run, inputs: Sequence[_Input]) -> list[str]:
+    """Each sample frame, read and decoded again, with every backend's boxes drawn on it."""
     from replaybench.report import sample_relpath, write_sample
 
     paths: list[str] = []
     folder = out / 'samples'
     folder.mkdir(exist_ok=True)
     for (index, topic), sample in sorted(run.samples.items()):
+        image = _sample_image(inputs[index].source, topic, sample)
+        if image is None:
+            continue
         rel = sample_relpath(index, topic)
-        sample.settle()
-        write_sample(out / rel, sample.image, sample.detections, sample.title)
+        write_sample(out / rel, image, sample.detections, sample.title)
         paths.append(rel)
     return paths
+
+
+def _sample_image(source: Source, topic: str, sample: _Sample) -> Any:
+    """The sample's frame as BGR, or None if it cannot be read again."""
+    log_time = sample.log_time_ns
+    for raw in source.messages(topics=[topic], start_ns=log_time, end_ns=log_time + 1):
+        if raw.seq == sample.seq:
+            try:
+                frame = decode_image(raw)
+            except DecodeError:
+                return None
+            return to_bgr8(frame.image, frame.encoding)
+    return None
 
 
 def _clean(value: Any) -> Any:

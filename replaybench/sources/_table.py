@@ -243,8 +243,10 @@ class TableSource:
         self._check_open()
         table = self._table
         n = len(table.time)
-        lo = 0 if start_ns is None else int(np.searchsorted(table.time, _clamp(start_ns), 'left'))
-        hi = n if end_ns is None else int(np.searchsorted(table.time, _clamp(end_ns), 'left'))
+        # np.uint64 keys: a Python int against uint64 times is compared as float64, which
+        # cannot tell nanoseconds apart at today's epoch times
+        lo = 0 if start_ns is None else int(table.time.searchsorted(np.uint64(_clamp(start_ns))))
+        hi = n if end_ns is None else int(table.time.searchsorted(np.uint64(_clamp(end_ns))))
         if end_ns is not None and end_ns > _U64_MAX:
             hi = n
         if hi <= lo:

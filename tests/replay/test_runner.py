@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import sys
 from pathlib import Path
@@ -377,7 +378,8 @@ def test_at_max_rate_frames_slow_to_read_are_read_ahead_with_the_same_results(tm
         'depth': 4,
         'used': True,
         'probe_frames': 15,
-        'probe_read_decode_ms': pytest.approx(2.0),  # two clock readings a frame
+        # a frame is released when the previous one is done: one clock reading until its detect
+        'probe_read_decode_ms': pytest.approx(1.0),
         'threshold_ms': pytest.approx(0.2),
     }
     fast = _max_rate_run(tmp_path, 'fast', SteppingClock(1e-6))
@@ -405,3 +407,69 @@ def test_a_bag_shorter_than_the_probe_is_read_inline(tmp_path):
         {'input': 0, 'depth': 4, 'used': False, 'reason': 'input ended in the probe'}
     ]
     assert len(_rows(outcome.run_dir)) == 5
+
+
+def test_inline_a_frame_is_released_the_moment_the_previous_one_is_done(tmp_path):
+    # prefetch=0: every frame read inline; the stepping clock moves 1 ms a reading
+    outcome = _max_rate_run(tmp_path, 'run', SteppingClock(1e-3), prefetch=0, warmup=0)
+    rows = _rows(outcome.run_dir)
+    assert len(rows) == 40
+    for previous, row in itertools.pairwise(rows):
+        assert row['release_s'] == previous['done_s']
+    # what latency includes: reading + decoding (one reading: the frame is decoded by the
+    # time the clock is read before detect) and the backend (one reading after detect)
+    assert {row['read_decode_ms'] for row in rows} == {'1.0000'}
+    assert {row['latency_ms'] for row in rows} == {'2.0000'}
+    assert {row['queue_wait_ms'] for row in rows} == {'0.0000'}
+
+
+def test_progress_is_reported_in_order_up_to_the_total(tmp_path):
+    seen: list[tuple[int, int]] = []
+    run_benchmark(
+        RunConfig(
+            inputs=[_bag(tmp_path / 'cam.mcap', n=150)],
+            backends=['null', 'hsv'],
+            out_dir=tmp_path / 'run',
+            report=False,
+        ),
+        progress=lambda done, total: seen.append((done, total)),
+    )
+    assert seen[-1] == (300, 300)
+    assert [done for done, _ in seen] == sorted(done for done, _ in seen)
+    # at max rate in batches, not once a frame
+    assert len(seen) < 20
+
+
+def test_the_sample_is_the_middle_frame_read_again_with_every_backends_boxes(tmp_path):
+    from replaybench.decode import decode_image, to_bgr8
+    from replaybench.report import write_sample
+    from replaybench.sources import open_source
+
+    bag = _bag(tmp_path / 'cam.mcap', n=9)
+    clock = VirtualClock()
+    outcome = run_benchmark(
+        RunConfig(inputs=[bag], backends=['service', 'null'], out_dir=tmp_path / 'run'),
+        clock=clock,
+        backend_factory=lambda name, options: (
+            ServiceTimeBackend(clock, 0.01) if name == 'service' else _null(options)
+        ),
+    )
+    assert outcome.run['outputs']['samples'] == ['samples/input0_cam_image_raw.jpg']
+    with open_source(bag) as source:
+        middle = next(m for m in source.messages() if m.seq == 4)
+        frame = decode_image(middle)
+        box = Detection(0, 'thing', 0.5, 1.0, 2.0, 10.0, 12.0)
+        write_sample(
+            tmp_path / 'expected.jpg',
+            to_bgr8(frame.image, frame.encoding),
+            {'service': (box,), 'null': ()},
+            '/cam/image_raw #4',
+        )
+    written = (outcome.run_dir / 'samples' / 'input0_cam_image_raw.jpg').read_bytes()
+    assert written == (tmp_path / 'expected.jpg').read_bytes()
+
+
+def _null(options: BackendOptions) -> Any:
+    from replaybench.backends.null import NullBackend
+
+    return NullBackend(options)

@@ -17,6 +17,7 @@ from sourcebags import (
     cdr,
     expected_order,
     tie_plan,
+    write_bag,
     write_mcap,
 )
 
@@ -331,3 +332,22 @@ def test_out_of_range_time_bounds_are_clamped(tmp_path: Path) -> None:
         assert len(list(source.messages(start_ns=-5, end_ns=2**70))) == len(plan)
         assert list(source.messages(start_ns=2**70)) == []
         assert list(source.messages(end_ns=-1)) == []
+
+
+@pytest.mark.parametrize('kind', ['mcap', 'ros1'])
+def test_a_window_one_nanosecond_wide_holds_exactly_the_message_logged_then(
+    tmp_path: Path, kind: str
+) -> None:
+    # epoch times in nanoseconds are beyond float64's integer precision: 1 ns apart must count
+    t = T0 + 166_666_667
+    plan = [('/a', t - 1, 'before'), ('/a', t, 'at'), ('/a', t + 1, 'after')]
+    path = (
+        write_mcap(tmp_path / 'ns.mcap', plan)
+        if kind == 'mcap'
+        else write_bag(tmp_path / 'ns.bag', plan)
+    )
+    with open_source(path) as source:
+        window = [(m.log_time_ns, m.seq) for m in source.messages(start_ns=t, end_ns=t + 1)]
+        from_t = [m.seq for m in source.messages(start_ns=t)]
+    assert window == [(t, 1)]
+    assert from_t == [1, 2]

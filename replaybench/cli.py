@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from replaybench import __version__
-from replaybench.errors import ReplaybenchError
+from replaybench.errors import ReplaybenchError, RunAborted
 
 if TYPE_CHECKING:
     from replaybench.backends.base import BackendOptions
@@ -626,6 +626,9 @@ def main() -> None:
         app()
     except KeyboardInterrupt:
         sys.stderr.write('replaybench: interrupted\n')
+        sys.exit(EXIT_INTERRUPTED)
+    except RunAborted:
+        sys.stderr.write('replaybench: interrupted again: stopped without finishing the outputs\n')
         sys.exit(EXIT_INTERRUPTED)
 
 

@@ -11,6 +11,7 @@ __all__ = [
     'BackendUnavailableError',
     'DecodeError',
     'ReplaybenchError',
+    'RunAborted',
     'SourceError',
     'UsageError',
 ]
@@ -40,3 +41,11 @@ class BackendError(ReplaybenchError):
 
 class BackendUnavailableError(BackendError):
     """A backend whose hardware or libraries are missing on this machine."""
+
+
+class RunAborted(BaseException):
+    """A second Ctrl-C or SIGTERM during a run: it stops at once, its outputs unfinished.
+
+    Not a ``ReplaybenchError`` (nor an ``Exception``): like ``KeyboardInterrupt`` it is a
+    request to stop, not a failure, and no ``except Exception`` should swallow it.
+    """

@@ -36,6 +36,7 @@ from replaybench.decode.probe import CameraTopic, probe_topics
 from replaybench.errors import (
     BackendUnavailableError,
     DecodeError,
+    RunAborted,
     SourceError,
     UsageError,
 )
@@ -81,8 +82,10 @@ _NS = 1_000_000_000
 READ_AHEAD_PROBE = 16
 #: Read-ahead in a thread pays when reading + decoding a frame takes at least this long (s).
 READ_AHEAD_MIN_S = 0.2e-3
-#: Frames a max-rate pass replays inline between two progress reports.
+#: A max-rate pass reports progress every this many frames read inline, or sooner when they
+#: have taken ``PROGRESS_S`` seconds.
 PROGRESS_EVERY = 64
+PROGRESS_S = 0.25
 
 
 def default_warmup(frames: int) -> int:
@@ -430,11 +433,12 @@ class _Pass:
             self.consume(frames)
 
     def inline_all(self, messages: Iterator[RawMessage]) -> None:
-        while self.inline(messages, PROGRESS_EVERY) == PROGRESS_EVERY:
+        while self.inline(messages, PROGRESS_EVERY, PROGRESS_S):
             pass
 
-    def inline(self, messages: Iterator[RawMessage], limit: int) -> int:
-        """Read, decode and detect up to ``limit`` frames in this thread; how many were read.
+    def inline(self, messages: Iterator[RawMessage], limit: int, seconds: float = math.inf) -> int:
+        """Read, decode and detect up to ``limit`` frames in this thread, stopping early once
+        ``seconds`` have passed; how many were read (0: the messages have run out).
 
         A frame is released when the previous one is done: its read + decode time runs from
         there to the detector's call, and its latency from there to the detections.
@@ -445,6 +449,7 @@ class _Pass:
         append = self.log.append
         before = len(self.log)
         done = now()
+        until = done + seconds
         for raw in islice(messages, limit):
             release = done
             try:
@@ -457,8 +462,11 @@ class _Pass:
             result = detect(frame)
             done = now()
             append((frame[:5], result, release, release, 0.0, t_detect - release, t_detect, done))
+            if done > until:
+                break
         count = len(self.log) - before
-        self.run.advance(count)
+        if count:
+            self.run.advance(count)
         return count
 
     def consume(self, frames: Iterator[Prefetched]) -> None:
@@ -876,9 +884,8 @@ def _execute(
     backend_meta: list[dict[str, Any]] = []
     copy_problems: dict[int, str] = {}
     status = 'complete'
-    previous = signal.getsignal(signal.SIGTERM)
-    with contextlib.suppress(ValueError):
-        signal.signal(signal.SIGTERM, _raise_interrupt)
+    interrupts = _Interrupts()
+    previous = interrupts.install()
     try:
         with (
             FramesCsvWriter(out / 'frames.csv') as frames_csv,
@@ -901,8 +908,7 @@ def _execute(
             except KeyboardInterrupt:
                 status = 'interrupted'
     finally:
-        with contextlib.suppress(ValueError):
-            signal.signal(signal.SIGTERM, previous)
+        interrupts.restore(previous)
     for inp, meta in zip(inputs, input_meta, strict=True):
         meta['truncated'] = inp.source.truncated
         meta['warnings'] = list(inp.source.warnings)
@@ -1001,8 +1007,33 @@ def _run_backend(
         backend.close()
 
 
-def _raise_interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
+class _Interrupts:
+    """Ctrl-C and SIGTERM while the backends replay: the first one ends the replay (as a
+    ``KeyboardInterrupt``: the outputs are finalized with the frames done so far); another one,
+    while that finalization runs, ends the run at once (``RunAborted``)."""
+
+    def __init__(self) -> None:
+        self.count = 0
+
+    def __call__(self, signum: int, frame: object) -> None:
+        self.count += 1
+        if self.count == 1:
+            raise KeyboardInterrupt
+        raise RunAborted
+
+    def install(self) -> dict[int, Any]:
+        """Handle SIGINT and SIGTERM (main thread only); the handlers replaced."""
+        previous: dict[int, Any] = {}
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(ValueError):  # not the main thread: signals stay as they are
+                previous[sig] = signal.signal(sig, self)
+        return previous
+
+    @staticmethod
+    def restore(previous: dict[int, Any]) -> None:
+        for sig, handler in previous.items():
+            if handler is not None:
+                signal.signal(sig, handler)
 
 
 def _make_backend(name: str, options: BackendOptions) -> Backend:

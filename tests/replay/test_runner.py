@@ -473,3 +473,19 @@ def _null(options: BackendOptions) -> Any:
     from replaybench.backends.null import NullBackend
 
     return NullBackend(options)
+
+
+def test_progress_of_a_slow_backend_is_reported_every_quarter_second_or_so(tmp_path):
+    seen: list[int] = []
+    run_benchmark(
+        RunConfig(
+            inputs=[_bag(tmp_path / 'cam.mcap', n=10)],
+            backends=['null'],
+            out_dir=tmp_path / 'run',
+            report=False,
+            prefetch=0,
+        ),
+        clock=SteppingClock(0.1),  # 0.2 s a frame: read + decode, then detect
+        progress=lambda done, total: seen.append(done),
+    )
+    assert seen == [2, 4, 6, 8, 10]

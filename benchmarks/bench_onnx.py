@@ -9,8 +9,9 @@ session options of onnx-cpu (two intra-op threads, no spinning). In alternating 
 * replay: ``run_benchmark(backends=['onnx-cpu'], threads=2)`` over the bag (as
   ``replaybench run --threads 2``: OpenCV's letterbox resize gets the same two threads; the
   suite's single cv2 thread is restored afterwards), ms per frame from the
-  frames.csv record times (first frame left out): reading, decoding, preprocess, inference,
-  postprocess and recording, i.e. everything the harness does per frame.
+  frames.csv record times (first frame left out): reading, decoding, preprocess, inference and
+  postprocess, i.e. everything the replay does between frames (the records themselves are made
+  after the pass, see docs/outputs.md).
 
 Run alone: ``python -m benchmarks.bench_onnx [--quick] [--out benchmarks/results/onnx.json]``.
 """

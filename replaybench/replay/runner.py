@@ -370,13 +370,11 @@ class _Pass:
     def __init__(
         self,
         run: _Run,
-        backend_name: str,
         label: str,
         backend: Backend,
         inp: _Input,
     ) -> None:
         self.run = run
-        self.backend_name = backend_name
         self.label = label
         self.backend = backend
         self.inp = inp
@@ -583,8 +581,9 @@ class _Pass:
         topic, seq, log_time_ns, _, _ = key
         t0 = self.t0
         dropped = error is None
-        if error is not None:
-            self.run.skip(str(error))
+        note = 'pushed out of the queue' if error is None else str(error)
+        if not dropped:
+            self.run.skip(note)
         self.record(
             FrameRecord(
                 input=self.inp.number,
@@ -594,7 +593,7 @@ class _Pass:
                 log_time_ns=log_time_ns,
                 stamp_ns=None,
                 status='dropped' if dropped else 'skipped',
-                note='pushed out of the queue' if error is None else str(error),
+                note=note,
                 warmup=False,
                 dropped=dropped,
                 release_s=release - t0,
@@ -974,7 +973,7 @@ def _run_backend(
     passes: list[_Pass] = []
     try:
         for inp in inputs:
-            p = _Pass(run, name, label, backend, inp)
+            p = _Pass(run, label, backend, inp)
             passes.append(p)
             try:
                 if config.rate.timed:

@@ -11,6 +11,7 @@ Readers are imported only when a file of their kind is opened.
 
 from __future__ import annotations
 
+import stat
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
@@ -122,11 +123,35 @@ def _sniff(path: Path, head: bytes) -> str:
     raise SourceError(msg)
 
 
+#: What a path that is neither a regular file nor a directory is, by ``stat`` type.
+_SPECIAL_KINDS: tuple[tuple[Callable[[int], bool], str], ...] = (
+    (stat.S_ISFIFO, 'a FIFO'),
+    (stat.S_ISCHR, 'a character device'),
+    (stat.S_ISBLK, 'a block device'),
+    (stat.S_ISSOCK, 'a socket'),
+)
+
+
+def _refuse_special(path: Path) -> None:
+    """SourceError when ``path`` is not a regular file or directory (checked before opening).
+
+    Opening a FIFO with no writer blocks forever and a device reads without end or nothing
+    at all, so their kind is named instead of their content being read.
+    """
+    mode = path.stat().st_mode
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        return
+    kind = next((name for test, name in _SPECIAL_KINDS if test(mode)), 'a special file')
+    msg = f'{path}: is {kind}, not a regular file; give a bag file or a rosbag2 folder'
+    raise SourceError(msg)
+
+
 def open_source(path: str | Path) -> Source:
     """Open a container read-only; SourceError (one line) when it cannot be read.
 
     Files are recognised by their magic bytes (the suffix only names what was expected);
-    directories must be rosbag2 bags with a ``metadata.yaml``.
+    directories must be rosbag2 bags with a ``metadata.yaml``. FIFOs, devices and sockets are
+    refused before they are opened.
     """
     path = Path(path).expanduser()
     if path.name == 'metadata.yaml' and path.is_file():
@@ -142,6 +167,7 @@ def open_source(path: str | Path) -> Source:
             msg = f'{path}: no such file or directory'
             raise SourceError(msg)
         else:
+            _refuse_special(path)
             with path.open('rb') as handle:
                 head = handle.read(16)
             if not head:

@@ -2,8 +2,8 @@
 
 ROS 2 uses the ``ROS2_HUMBLE`` store plus vision_msgs 4.x (Humble, Jazzy); these hash like
 the real package (RIHS01 of Detection2DArray: ``214274120007f4a6...``). The ROS 2 store also
-holds the foxglove_msgs image-annotation types (``foxglove_msgs`` 2.x/3.x as released for
-Humble and Jazzy) that ``--annotations`` writes for the Foxglove Image panel. ROS 1 uses the
+holds the foxglove_msgs image-annotation types (``foxglove_msgs`` 3.4.x, the layout released since
+March 2026) that ``--annotations`` writes for the Foxglove Image panel. ROS 1 uses the
 ``ROS1_NOETIC`` store plus the vision_msgs definitions released for Noetic (0.0.2) with one
 change: ``ObjectHypothesisWithPose.id`` is a ``string`` holding the class name where Noetic has
 an ``int64`` class index, because accuracy is scored by class name and a bag has no table from
@@ -32,6 +32,7 @@ __all__ = [
     'COMPRESSED_IMAGE',
     'DETECTION2DARRAY',
     'FOXGLOVE_MSGS_ROS2',
+    'FOXGLOVE_MSGS_VERSION',
     'IMAGE',
     'IMAGE_ANNOTATIONS',
     'VISION_MSGS_ROS1',
@@ -41,6 +42,7 @@ __all__ = [
     'serialize_compressed_image',
     'serialize_detections',
     'serialize_image',
+    'serialize_image_fields',
     'typestore',
 ]
 
@@ -116,13 +118,20 @@ VISION_MSGS_ROS1: dict[str, str] = {
 }
 
 
-#: foxglove_msgs (ROS 2) image annotations, field for field as in foxglove/schemas
-#: ``ros_foxglove_msgs/ros2`` (the ``foxglove_msgs`` 2.x/3.x packages), comments left out.
+#: The foxglove_msgs release whose ImageAnnotations layout ``--annotations`` writes.
+FOXGLOVE_MSGS_VERSION = '3.4.3'
+
+#: foxglove_msgs (ROS 2) image annotations as released since March 2026 (3.4.x): the
+#: ``ros/src/foxglove_msgs/ros2`` definitions of foxglove/foxglove-sdk, field for field, comments
+#: left out. Against 3.2.4 and earlier, ImageAnnotations gained a leading ``timestamp`` and a
+#: trailing ``metadata``, and every annotation a trailing ``metadata``.
 FOXGLOVE_MSGS_ROS2: dict[str, str] = {
     'foxglove_msgs/msg/ImageAnnotations': _msg(
+        'builtin_interfaces/Time timestamp',
         'foxglove_msgs/CircleAnnotation[] circles',
         'foxglove_msgs/PointsAnnotation[] points',
         'foxglove_msgs/TextAnnotation[] texts',
+        'foxglove_msgs/KeyValuePair[] metadata',
     ),
     'foxglove_msgs/msg/CircleAnnotation': _msg(
         'builtin_interfaces/Time timestamp',
@@ -131,6 +140,7 @@ FOXGLOVE_MSGS_ROS2: dict[str, str] = {
         'float64 thickness',
         'foxglove_msgs/Color fill_color',
         'foxglove_msgs/Color outline_color',
+        'foxglove_msgs/KeyValuePair[] metadata',
     ),
     'foxglove_msgs/msg/PointsAnnotation': _msg(
         'builtin_interfaces/Time timestamp',
@@ -145,6 +155,7 @@ FOXGLOVE_MSGS_ROS2: dict[str, str] = {
         'foxglove_msgs/Color[] outline_colors',
         'foxglove_msgs/Color fill_color',
         'float64 thickness',
+        'foxglove_msgs/KeyValuePair[] metadata',
     ),
     'foxglove_msgs/msg/TextAnnotation': _msg(
         'builtin_interfaces/Time timestamp',
@@ -153,6 +164,11 @@ FOXGLOVE_MSGS_ROS2: dict[str, str] = {
         'float64 font_size',
         'foxglove_msgs/Color text_color',
         'foxglove_msgs/Color background_color',
+        'foxglove_msgs/KeyValuePair[] metadata',
+    ),
+    'foxglove_msgs/msg/KeyValuePair': _msg(
+        'string key',
+        'string value',
     ),
     'foxglove_msgs/msg/Point2': _msg(
         'float64 x',
@@ -418,6 +434,32 @@ def serialize_image(
         data=pixels.reshape(-1).view(np.uint8),
     )
     return _serialize(message, IMAGE, ros1)
+
+
+def serialize_image_fields(
+    stamp_ns: int,
+    frame_id: str,
+    *,
+    height: int,
+    width: int,
+    encoding: str,
+    step: int,
+    data: bytes | memoryview,
+    is_bigendian: bool = False,
+) -> bytes:
+    """Serialise ``sensor_msgs/msg/Image`` (ROS 2 CDR) from its fields, ``data`` as it is."""
+    import numpy as np
+
+    message = typestore().types[IMAGE](
+        header=_header(stamp_ns, frame_id, False),
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=int(bool(is_bigendian)),
+        step=step,
+        data=np.frombuffer(data, dtype=np.uint8),
+    )
+    return _serialize(message, IMAGE, False)
 
 
 def serialize_compressed_image(

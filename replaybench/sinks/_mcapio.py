@@ -2,12 +2,13 @@
 
 It writes the file the ``mcap`` library's ``Writer`` writes with its defaults (chunks holding
 their schemas, channels and messages, a MessageIndex per channel after each chunk, the summary
-repeating schemas and channels, Statistics, ChunkIndex, empty attachment and metadata index
-groups, SummaryOffsets, chunk and summary CRCs) byte for byte, so that every MCAP reader reads it
-as it reads the library's files. The records other than Message are the library's own; only the
-per-message path is different: a Message record is one ``struct`` pack into the chunk buffer,
-and the chunk's indexes and the statistics are kept as flat lists and settled per chunk, where
-the library builds a record object and updates the statistics for every message.
+repeating schemas and channels, Statistics, ChunkIndex, an empty attachment index group, the
+Metadata records and their MetadataIndex group, SummaryOffsets, chunk and summary CRCs) byte for
+byte, so that every MCAP reader reads it as it reads the library's files. The records other than
+Message are the library's own; only the per-message path is different: a Message record is one
+``struct`` pack into the chunk buffer, and the chunk's indexes and the statistics are kept as
+flat lists and settled per chunk, where the library builds a record object and updates the
+statistics for every message.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ from mcap.records import (
     DataEnd,
     Footer,
     Header,
+    Metadata,
+    MetadataIndex,
     Schema,
     Statistics,
     SummaryOffset,
@@ -72,6 +75,7 @@ class McapWriter:
         self._index: dict[int, list[int]] = {}
         self._chunk_indexes: list[ChunkIndex] = []
         self._counts: dict[int, int] = {}  # messages per channel, in order of first message
+        self._metadata_indexes: list[MetadataIndex] = []
         self._message_count = 0
         self._start_time = 0
         self._end_time = 0
@@ -97,18 +101,32 @@ class McapWriter:
         self._add_record(schema)
         return schema.id
 
-    def register_channel(self, topic: str, message_encoding: str, schema_id: int) -> int:
+    def register_channel(
+        self,
+        topic: str,
+        message_encoding: str,
+        schema_id: int,
+        metadata: dict[str, str] | None = None,
+    ) -> int:
         """A new channel; its id (from 1)."""
         channel = Channel(
             id=len(self._channels) + 1,
             topic=topic,
             message_encoding=message_encoding,
-            metadata={},
+            metadata=dict(metadata or {}),
             schema_id=schema_id,
         )
         self._channels.append(channel)
         self._add_record(channel)
         return channel.id
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """A Metadata record, written at once (before the open chunk), and its index."""
+        record = _record(Metadata(name=name, metadata=dict(data)))
+        self._metadata_indexes.append(
+            MetadataIndex(offset=self._offset, length=len(record), name=name)
+        )
+        self._emit(record)
 
     def add_message(
         self,
@@ -215,7 +233,10 @@ class McapWriter:
         summary: Any = RecordBuilder()
         offsets: list[SummaryOffset] = []
 
-        def group(opcode: Opcode, records: list[Schema] | list[Channel] | list[ChunkIndex]) -> None:
+        def group(
+            opcode: Opcode,
+            records: list[Schema] | list[Channel] | list[ChunkIndex] | list[MetadataIndex],
+        ) -> None:
             begin = summary.count
             for record in records:
                 record.write(summary)
@@ -232,7 +253,7 @@ class McapWriter:
             message_count=self._message_count,
             message_end_time=self._end_time,
             message_start_time=self._start_time,
-            metadata_count=0,
+            metadata_count=len(self._metadata_indexes),
             schema_count=len(self._schemas),
         ).write(summary)
         offsets.append(
@@ -240,7 +261,7 @@ class McapWriter:
         )
         group(Opcode.CHUNK_INDEX, self._chunk_indexes)
         group(Opcode.ATTACHMENT_INDEX, [])
-        group(Opcode.METADATA_INDEX, [])
+        group(Opcode.METADATA_INDEX, self._metadata_indexes)
         summary_offset_start = summary_start + summary.count
         for offset in offsets:
             offset.write(summary)

@@ -2,9 +2,10 @@
 
 Each detection becomes a ``LINE_LOOP`` of its four box corners in the backend's colour and a
 ``label score`` text at the box's top-left corner, in one ``foxglove_msgs/msg/ImageAnnotations``
-(ROS 2 CDR) per frame. Coordinates are source-image pixels with the origin at the top-left corner
-of the top-left pixel, as in ``Detection``; every timestamp is the image's header stamp, which
-is what the Image panel matches annotations to images by.
+(ROS 2 CDR, the foxglove_msgs 3.4 layout: ``replaybench.msgs.FOXGLOVE_MSGS_ROS2``) per frame.
+Coordinates are source-image pixels with the origin at the top-left corner of the top-left
+pixel, as in ``Detection``; every timestamp (the message's and each annotation's) is the image's
+header stamp, which is what the Image panel matches annotations to images by.
 """
 
 from __future__ import annotations
@@ -85,7 +86,8 @@ def serialize_image_annotations(
     (x1, y1), (x0, y1), outline ``colour``, transparent fill) and one ``TextAnnotation``
     (``label score``, white on ``colour``) whose bottom-left corner sits on the box's top-left
     corner, or just inside the box when there is no room above it. No circles. An empty
-    ``detections`` gives an empty message, which clears the previous frame's boxes.
+    ``detections`` gives an empty message, which clears the previous frame's boxes. The
+    message's own ``timestamp`` is the stamp too; every ``metadata`` is empty.
     """
     store = typestore()
     types = store.types
@@ -118,6 +120,7 @@ def serialize_image_annotations(
                 outline_colors=[],
                 fill_color=col(*outline[:3], 0.0),
                 thickness=float(thickness),
+                metadata=[],
             )
         )
         text_y = y0 if y0 >= font_size else y0 + font_size
@@ -129,7 +132,10 @@ def serialize_image_annotations(
                 font_size=float(font_size),
                 text_color=col(*_TEXT_COLOUR),
                 background_color=col(*background),
+                metadata=[],
             )
         )
-    message = types[IMAGE_ANNOTATIONS](circles=[], points=points, texts=texts)
+    message = types[IMAGE_ANNOTATIONS](
+        timestamp=stamp(), circles=[], points=points, texts=texts, metadata=[]
+    )
     return bytes(store.serialize_cdr(message, IMAGE_ANNOTATIONS))

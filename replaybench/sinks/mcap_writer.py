@@ -1,30 +1,42 @@
 """Detections MCAP writer: one vision_msgs/Detection2DArray per processed frame.
 
-The file is a ROS 2 MCAP (profile ``ros2``, schemas ``ros2msg``, messages ``cdr``, zstd chunks).
-It is written as ``<path>.part`` and renamed into place when finished, also when the run stops
-on an exception, so an interrupted run leaves a valid MCAP with everything written so far.
+The file is a ROS 2 MCAP as ``ros2 bag record`` writes it: profile ``ros2``, every schema
+``ros2msg`` and every message ``cdr``, zstd chunks, messages in non-decreasing log time across
+channels, each channel with the ``offered_qos_profiles`` and ``topic_type_hash`` metadata of
+rosbag2's MCAP storage and a ``rosbag2`` metadata record (``serialized_metadata``, version 8).
+
+Messages are staged as they come (``<path>.stage``: the bytes, plus four numbers each in memory)
+and written at ``finish``, merged by log time with a fixed tie order: copied source messages
+(CameraInfo, images) first, then detections, then annotations, each by channel then arrival. The
+MCAP is written as ``<path>.part`` and renamed into place, also when the run stops on an
+exception, so an interrupted run leaves a valid MCAP with everything added so far.
 
 Optionally it also holds, for viewing in Foxglove, ``foxglove_msgs/msg/ImageAnnotations`` beside
 each Detection2DArray (``annotations=True``) and copies of the source images (``add_image``):
-ROS 2 CDR messages byte for byte, ROS 1 messages converted to ROS 2 CDR, protobuf messages with
-their protobuf schema.
+ROS 2 CDR messages byte for byte, ROS 1 messages converted to ROS 2 CDR, Foxglove protobuf
+images and calibrations converted to their sensor_msgs counterparts in ROS 2 CDR.
 """
 
 from __future__ import annotations
 
+from array import array
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from replaybench import __version__
 from replaybench.errors import DecodeError
 from replaybench.msgs import (
     CAMERA_INFO,
+    COMPRESSED_IMAGE,
     DETECTION2DARRAY,
+    IMAGE,
     IMAGE_ANNOTATIONS,
     ros2msg_schema,
     serialize_camera_info,
+    serialize_compressed_image,
     serialize_detections,
+    serialize_image_fields,
     typestore,
 )
 from replaybench.sinks.annotations import (
@@ -38,13 +50,41 @@ if TYPE_CHECKING:
     from types import TracebackType
     from typing import BinaryIO, Self
 
-    from replaybench.sinks._mcapio import McapWriter
     from replaybench.types import CameraInfo, Detection, RawMessage, Serialization
 
-__all__ = ['CHUNK_SIZE', 'DetectionsWriter', 'detections_channel', 'ros1_to_ros2_cdr']
+__all__ = [
+    'CHUNK_SIZE',
+    'OFFERED_QOS_PROFILES',
+    'DetectionsWriter',
+    'detections_channel',
+    'protobuf_to_ros2_cdr',
+    'ros1_to_ros2_cdr',
+]
 
 #: Target uncompressed chunk size in bytes.
 CHUNK_SIZE = 1 << 20
+
+#: The QoS every channel offers, as rosbag2 (metadata version <= 8, integer policies) writes a
+#: recorded publisher's: reliable, volatile, history and depth unknown, no deadline, lifespan or
+#: lease limit.
+OFFERED_QOS_PROFILES = """- history: 3
+  depth: 0
+  reliability: 1
+  durability: 2
+  deadline:
+    sec: 9223372036
+    nsec: 854775807
+  lifespan:
+    sec: 9223372036
+    nsec: 854775807
+  liveliness: 1
+  liveliness_lease_duration:
+    sec: 9223372036
+    nsec: 854775807
+  avoid_ros_namespace_conventions: false"""
+
+# tie order of messages with one log time: copied source messages, detections, annotations
+_SOURCE, _DETECTIONS, _ANNOTATIONS = 0, 1, 2
 
 
 def detections_channel(backend: str, image_topic: str) -> str:
@@ -61,6 +101,15 @@ def detections_channel(backend: str, image_topic: str) -> str:
 def _ros2msg_bytes(msgtype: str) -> bytes:
     """The ros2msg schema text of ``msgtype``, encoded once (its hash is kept with it)."""
     return ros2msg_schema(msgtype).encode()
+
+
+@cache
+def _type_hash(msgtype: str) -> str:
+    """The RIHS01 type hash of ``msgtype`` (rosbag2's ``topic_type_hash``); '' when unknown."""
+    try:
+        return str(typestore().hash_rihs01(msgtype))
+    except Exception:
+        return ''
 
 
 @cache
@@ -107,44 +156,86 @@ def ros1_to_ros2_cdr(data: bytes | memoryview, msgtype: str) -> bytes:
         raise DecodeError(msg) from None
 
 
+def protobuf_to_ros2_cdr(
+    data: bytes | memoryview, msgtype: str, schema: bytes, topic: str = ''
+) -> tuple[str, bytes]:
+    """Convert a Foxglove protobuf image or calibration to ROS 2 CDR: (ROS 2 type, bytes).
+
+    ``foxglove.RawImage`` becomes ``sensor_msgs/msg/Image`` (little endian, the data as it is),
+    ``foxglove.CompressedImage`` a ``sensor_msgs/msg/CompressedImage`` (same format string and
+    bytes), ``foxglove.CameraCalibration`` a ``sensor_msgs/msg/CameraInfo``; the header is the
+    message's timestamp and frame_id. Raises ``DecodeError`` for other types and for a message
+    that does not parse.
+    """
+    from replaybench.decode._protobuf import parse_protobuf, stamp_ns
+    from replaybench.types import RawMessage
+
+    raw = RawMessage(topic, msgtype, 'protobuf', 0, 0, data, schema)
+    if msgtype == 'foxglove.CameraCalibration':
+        from replaybench.decode import decode_camera_info
+
+        return CAMERA_INFO, serialize_camera_info(decode_camera_info(raw))
+    if msgtype not in {'foxglove.RawImage', 'foxglove.CompressedImage'}:
+        msg = f'cannot copy protobuf {msgtype}: only images and calibrations convert to ROS 2'
+        raise DecodeError(msg)
+    pb = parse_protobuf(raw)
+    stamp = stamp_ns(pb.timestamp)
+    if msgtype == 'foxglove.CompressedImage':
+        return COMPRESSED_IMAGE, serialize_compressed_image(stamp, pb.frame_id, pb.data, pb.format)
+    return IMAGE, serialize_image_fields(
+        stamp,
+        pb.frame_id,
+        height=int(pb.height),
+        width=int(pb.width),
+        encoding=pb.encoding,
+        step=int(pb.step),
+        data=pb.data,
+    )
+
+
+class _Channel(NamedTuple):
+    topic: str
+    msgtype: str
+    schema: bytes
+    rank: int
+
+
 class DetectionsWriter:
     """Write detections (and the CameraInfo they refer to) into a ROS 2 MCAP, atomically.
 
     With ``annotations`` each ``add`` also writes a ``foxglove_msgs/msg/ImageAnnotations`` on
     ``annotations_channel(backend, image_topic)``, in the backend's colour: the ``backends``
     labels get the report's palette colours in order, other labels the next colours in order
-    of first use.
+    of first use. Nothing reaches the MCAP before ``finish``, which writes every message in
+    log time order (see the module's description).
     """
 
     def __init__(
         self, path: Path, *, annotations: bool = False, backends: Sequence[str] = ()
     ) -> None:
-        """Open ``<path>.part`` for writing; ``finish`` renames it to ``path``."""
-        from replaybench.sinks._mcapio import McapWriter
-
+        """Open ``<path>.stage`` for the messages; ``finish`` writes ``path``."""
         self.path = Path(path)
         self.part_path = self.path.with_name(f'{self.path.name}.part')
+        self.stage_path = self.path.with_name(f'{self.path.name}.stage')
         self.annotations = bool(annotations)
         self.message_count = 0
-        self._schemas: dict[tuple[str, str, bytes], int] = {}
-        self._channels: dict[tuple[str, str, str], int] = {}
-        self._sequences: dict[int, int] = {}
+        # (topic, msgtype) -> channel id (from 1); _specs[id - 1] describes it
+        self._channels: dict[tuple[str, str], int] = {}
+        self._specs: list[_Channel] = []
         self._colours: dict[str, str] = {}
         # (backend, image topic) -> detections channel id: the per-frame path looks up one key
         self._detections: dict[tuple[str, str], int] = {}
+        # per staged message, in arrival order: log time, channel id, offset and size in the
+        # stage file; a message counts once its size is recorded (the last of the four)
+        self._times = array('Q')
+        self._ids = array('H')
+        self._offsets = array('Q')
+        self._sizes = array('Q')
+        self._staged_bytes = 0
         for backend in backends:
             self._colour(backend)
         self._finished = False
-        self._stream: BinaryIO = self.part_path.open('wb')
-        try:
-            self._writer: McapWriter = McapWriter(
-                self._stream, chunk_size=CHUNK_SIZE, compression='zstd'
-            )
-            self._writer.start(profile='ros2', library=f'replaybench {__version__}')
-        except BaseException:
-            self._stream.close()
-            self.part_path.unlink(missing_ok=True)
-            raise
+        self._stage: BinaryIO = self.stage_path.open('w+b')
 
     def _colour(self, backend: str) -> str:
         label = backend.replace('-', '_')
@@ -152,27 +243,14 @@ class DetectionsWriter:
             colour = self._colours[label] = backend_colour(len(self._colours))
         return colour
 
-    def _channel(
-        self,
-        topic: str,
-        schema_name: str,
-        schema_encoding: str,
-        schema_data: bytes,
-        message_encoding: str,
-    ) -> int:
-        key = (topic, schema_name, message_encoding)
+    def _channel(self, topic: str, msgtype: str, schema: bytes | None, rank: int) -> int:
+        key = (topic, msgtype)
         if (channel_id := self._channels.get(key)) is None:
-            schema_key = (schema_name, schema_encoding, schema_data)
-            if (schema_id := self._schemas.get(schema_key)) is None:
-                schema_id = self._writer.register_schema(
-                    name=schema_name, encoding=schema_encoding, data=schema_data
-                )
-                self._schemas[schema_key] = schema_id
-            channel_id = self._writer.register_channel(
-                topic=topic, message_encoding=message_encoding, schema_id=schema_id
-            )
-            self._channels[key] = channel_id
-            self._sequences[channel_id] = 0
+            if len(self._specs) >= 0xFFFF:
+                msg = f'{self.path}: too many channels'
+                raise ValueError(msg)
+            self._specs.append(_Channel(topic, msgtype, schema or _ros2msg_bytes(msgtype), rank))
+            channel_id = self._channels[key] = len(self._specs)
         return channel_id
 
     def _write(
@@ -183,24 +261,30 @@ class DetectionsWriter:
         data: bytes | memoryview,
         *,
         schema: bytes | None = None,
-        encoding: str = 'cdr',
+        rank: int = _SOURCE,
     ) -> None:
         if self._finished:
             msg = f'{self.path} is already finished'
             raise ValueError(msg)
-        if encoding == 'protobuf':
-            channel_id = self._channel(topic, msgtype, 'protobuf', schema or b'', 'protobuf')
-        else:
-            schema_data = schema or _ros2msg_bytes(msgtype)
-            channel_id = self._channel(topic, msgtype, 'ros2msg', schema_data, 'cdr')
-        self._writer.add_message(
-            channel_id=channel_id,
-            log_time=log_time_ns,
-            data=data,
-            publish_time=log_time_ns,
-            sequence=self._sequences[channel_id],
-        )
-        self._sequences[channel_id] += 1
+        self._stage_message(self._channel(topic, msgtype, schema, rank), log_time_ns, data)
+
+    def _stage_message(self, channel_id: int, log_time_ns: int, data: bytes | memoryview) -> None:
+        offset, size = self._staged_bytes, len(data)
+        try:
+            self._staged_bytes = offset + size
+            self._stage.write(data)
+        except BaseException:  # a Ctrl-C inside the write: drop what part of it got through
+            self._stage.seek(offset)
+            self._stage.truncate()
+            self._staged_bytes = offset
+            raise
+        n = len(self._sizes)
+        if len(self._times) != n:  # an earlier message was interrupted while being indexed
+            del self._times[n:], self._ids[n:], self._offsets[n:]
+        self._times.append(log_time_ns)
+        self._ids.append(channel_id)
+        self._offsets.append(offset)
+        self._sizes.append(size)
         self.message_count += 1
 
     def add_camera_info(self, topic: str, log_time_ns: int, ci: CameraInfo) -> None:
@@ -227,27 +311,22 @@ class DetectionsWriter:
                 DETECTION2DARRAY,
                 log_time_ns,
                 serialize_detections(stamp_ns, frame_id, detections),
+                rank=_DETECTIONS,
             )
             self._detections[(backend, image_topic)] = self._channels[
-                (detections_channel(backend, image_topic), DETECTION2DARRAY, 'cdr')
+                (detections_channel(backend, image_topic), DETECTION2DARRAY)
             ]
         else:
-            sequence = self._sequences[channel_id]
-            self._writer.add_message(
-                channel_id,
-                log_time_ns,
-                serialize_detections(stamp_ns, frame_id, detections),
-                log_time_ns,
-                sequence,
+            self._stage_message(
+                channel_id, log_time_ns, serialize_detections(stamp_ns, frame_id, detections)
             )
-            self._sequences[channel_id] = sequence + 1
-            self.message_count += 1
         if self.annotations:
             self._write(
                 annotations_channel(backend, image_topic),
                 IMAGE_ANNOTATIONS,
                 log_time_ns,
                 serialize_image_annotations(stamp_ns, detections, self._colour(backend)),
+                rank=_ANNOTATIONS,
             )
 
     def add_image(
@@ -259,13 +338,14 @@ class DetectionsWriter:
         data: bytes | memoryview,
         schema: bytes = b'',
     ) -> None:
-        """Copy a source message (an image or its CameraInfo) onto ``topic``.
+        """Copy a source message (an image or its CameraInfo) onto ``topic``, as ROS 2 CDR.
 
         ``cdr``: the bytes unchanged, under ``schema`` (ros2msg text) or, when empty, the
         definition of ``msgtype`` in the ROS 2 typestore. ``ros1``: converted to ROS 2 CDR
-        (``ros1_to_ros2_cdr``). ``protobuf``: the bytes unchanged on a protobuf channel whose
-        schema is ``schema`` (the FileDescriptorSet the source gives). Raises ``DecodeError``
-        for a message that cannot be copied, before anything is written.
+        (``ros1_to_ros2_cdr``). ``protobuf``: a Foxglove image or calibration converted to its
+        sensor_msgs type (``protobuf_to_ros2_cdr``; ``schema`` is the FileDescriptorSet the
+        source gives). Raises ``DecodeError`` for a message that cannot be copied, before
+        anything is written.
         """
         if serialization == 'cdr':
             if not schema and msgtype not in typestore().fielddefs:
@@ -278,7 +358,8 @@ class DetectionsWriter:
             if not schema:
                 msg = f'cannot copy {topic}: protobuf {msgtype} without its schema'
                 raise DecodeError(msg)
-            self._write(topic, msgtype, log_time_ns, data, schema=schema, encoding='protobuf')
+            ros2_type, cdr = protobuf_to_ros2_cdr(data, msgtype, schema, topic)
+            self._write(topic, ros2_type, log_time_ns, cdr)
         else:
             msg = f'cannot copy {topic}: unknown serialization {serialization!r}'
             raise DecodeError(msg)
@@ -294,15 +375,86 @@ class DetectionsWriter:
             message.schema,
         )
 
+    def _order(self) -> list[int]:
+        """Staged message numbers by (log time, channel rank, channel id, arrival)."""
+        import numpy as np
+
+        n = len(self._sizes)
+        times = np.frombuffer(self._times, dtype=np.uint64, count=n)
+        ranks = np.array([0] + [spec.rank for spec in self._specs], dtype=np.uint8)
+        ids = np.frombuffer(self._ids, dtype=np.uint16, count=n)
+        order = np.lexsort((np.arange(n), ids, ranks[ids], times))
+        result: list[int] = order.tolist()
+        return result
+
+    def _summary(self) -> tuple[list[int], int, int]:
+        """Messages per channel (index 0 unused), first and last log time of the staged ones."""
+        counts = [0] * (len(self._specs) + 1)
+        for channel_id in self._ids[: len(self._sizes)]:
+            counts[channel_id] += 1
+        times = self._times[: len(self._sizes)]
+        return counts, (min(times) if times else 0), (max(times) if times else 0)
+
+    def _write_mcap(self, stream: BinaryIO) -> None:
+        from replaybench.sinks._mcapio import McapWriter
+        from replaybench.sinks.rosbag2 import bag_information, serialized_metadata
+
+        n = len(self._sizes)
+        counts, start, end = self._summary()
+        topics = [
+            (spec.topic, spec.msgtype, counts[i], OFFERED_QOS_PROFILES, _type_hash(spec.msgtype))
+            for i, spec in enumerate(self._specs, start=1)
+        ]
+        info = bag_information(self.path.name, topics, start, end)
+        writer = McapWriter(stream, chunk_size=CHUNK_SIZE, compression='zstd')
+        writer.start(profile='ros2', library=f'replaybench {__version__}')
+        writer.add_metadata('rosbag2', {'serialized_metadata': serialized_metadata(info)})
+        schemas: dict[tuple[str, bytes], int] = {}
+        for spec in self._specs:
+            key = (spec.msgtype, spec.schema)
+            if (schema_id := schemas.get(key)) is None:
+                schema_id = schemas[key] = writer.register_schema(
+                    name=spec.msgtype, encoding='ros2msg', data=spec.schema
+                )
+            writer.register_channel(
+                topic=spec.topic,
+                message_encoding='cdr',
+                schema_id=schema_id,
+                metadata={
+                    'offered_qos_profiles': OFFERED_QOS_PROFILES,
+                    'topic_type_hash': _type_hash(spec.msgtype),
+                },
+            )
+        if n:
+            import mmap
+
+            self._stage.flush()
+            sequences = [0] * (len(self._specs) + 1)
+            times, ids, offsets, sizes = self._times, self._ids, self._offsets, self._sizes
+            size = self._staged_bytes
+            with mmap.mmap(self._stage.fileno(), size, access=mmap.ACCESS_READ) as staged:
+                view = memoryview(staged)
+                try:
+                    for i in self._order():
+                        channel_id, t, at = ids[i], times[i], offsets[i]
+                        seq = sequences[channel_id]
+                        sequences[channel_id] = seq + 1
+                        writer.add_message(channel_id, t, view[at : at + sizes[i]], t, seq)
+                finally:
+                    view.release()
+        writer.finish()
+
     def finish(self) -> None:
-        """Write the summary, close the file and rename it into place; later calls do nothing."""
+        """Write the MCAP, close it and rename it into place; later calls do nothing."""
         if self._finished:
             return
         self._finished = True
         try:
-            self._writer.finish()
+            with self.part_path.open('wb') as stream:
+                self._write_mcap(stream)
         finally:
-            self._stream.close()
+            self._stage.close()
+            self.stage_path.unlink(missing_ok=True)
         self.part_path.replace(self.path)
 
     def __enter__(self) -> Self:

@@ -142,15 +142,16 @@ def test_annotations_channel_is_named_like_the_detections_channel() -> None:
     assert annotations_channel('hsv', 'cam/image') == '/replaybench/hsv/cam/image/annotations'
 
 
-def test_annotation_schema_has_the_foxglove_msgs_fields_in_order() -> None:
+def test_annotation_schema_has_the_current_foxglove_msgs_fields_in_order() -> None:
     text = msgs.ros2msg_schema(msgs.IMAGE_ANNOTATIONS)
     blocks = {
         b.split('\n', 1)[0].removeprefix('MSG: '): b.split('\n', 1)[1]
         for b in text.split('\n' + '=' * 80 + '\n')[1:]
     }
     assert text.startswith(
+        'builtin_interfaces/Time timestamp\n'
         'foxglove_msgs/CircleAnnotation[] circles\nfoxglove_msgs/PointsAnnotation[] points\n'
-        'foxglove_msgs/TextAnnotation[] texts\n'
+        'foxglove_msgs/TextAnnotation[] texts\nfoxglove_msgs/KeyValuePair[] metadata\n'
     )
     fields = {
         name: [ln for ln in body.splitlines() if '=' not in ln] for name, body in blocks.items()
@@ -163,6 +164,7 @@ def test_annotation_schema_has_the_foxglove_msgs_fields_in_order() -> None:
         'foxglove_msgs/Color[] outline_colors',
         'foxglove_msgs/Color fill_color',
         'float64 thickness',
+        'foxglove_msgs/KeyValuePair[] metadata',
     ]
     assert 'uint8 LINE_LOOP=2' in blocks['foxglove_msgs/PointsAnnotation']
     assert fields['foxglove_msgs/TextAnnotation'] == [
@@ -172,6 +174,7 @@ def test_annotation_schema_has_the_foxglove_msgs_fields_in_order() -> None:
         'float64 font_size',
         'foxglove_msgs/Color text_color',
         'foxglove_msgs/Color background_color',
+        'foxglove_msgs/KeyValuePair[] metadata',
     ]
     assert fields['foxglove_msgs/CircleAnnotation'] == [
         'builtin_interfaces/Time timestamp',
@@ -180,7 +183,9 @@ def test_annotation_schema_has_the_foxglove_msgs_fields_in_order() -> None:
         'float64 thickness',
         'foxglove_msgs/Color fill_color',
         'foxglove_msgs/Color outline_color',
+        'foxglove_msgs/KeyValuePair[] metadata',
     ]
+    assert fields['foxglove_msgs/KeyValuePair'] == ['string key', 'string value']
     assert fields['foxglove_msgs/Point2'] == ['float64 x', 'float64 y']
     assert fields['foxglove_msgs/Color'] == ['float64 r', 'float64 g', 'float64 b', 'float64 a']
 
@@ -335,7 +340,9 @@ def _raw_image_schema() -> bytes:
     return data
 
 
-def test_protobuf_images_keep_their_schema_and_channel_encoding(tmp_path: Path) -> None:
+def test_protobuf_images_are_copied_as_sensor_msgs_cdr_with_the_same_pixels(
+    tmp_path: Path,
+) -> None:
     schema = _raw_image_schema()
     pool = descriptor_pool.DescriptorPool()
     for proto in reversed(descriptor_pb2.FileDescriptorSet.FromString(schema).file):
@@ -352,18 +359,17 @@ def test_protobuf_images_keep_their_schema_and_channel_encoding(tmp_path: Path) 
         writer.add_raw(original)
         writer.add_raw(original._replace(log_time_ns=T0 + 1))
     copied = _raw(path)
-    assert len(copied) == 2
+    assert [message.log_time for *_, message in copied] == [T0, T0 + 1]
     for _, stored_schema, channel, message in copied:
-        assert (stored_schema.name, stored_schema.encoding, stored_schema.data) == (
-            'foxglove.RawImage',
-            'protobuf',
-            schema,
-        )
-        assert channel.message_encoding == 'protobuf'
-        assert message.data == original.data
+        assert (stored_schema.name, stored_schema.encoding) == (msgs.IMAGE, 'ros2msg')
+        assert stored_schema.data == msgs.ros2msg_schema(msgs.IMAGE).encode()
+        assert channel.message_encoding == 'cdr'
         got = decode_image(_as_raw(stored_schema, channel, message))
-        assert got.stamp_ns == T0 + 5
+        assert (got.stamp_ns, got.frame_id, got.encoding) == (T0 + 5, 'cam', 'rgb8')
         np.testing.assert_array_equal(got.image, pixels)
+    with AnyReader([path]) as reader:
+        decoded = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()]
+    assert [(m.width, m.height, m.step, m.is_bigendian) for m in decoded] == [(8, 6, 24, 0)] * 2
 
 
 def test_real_foxglove_protobuf_recording_copies_to_the_same_pixels(tmp_path: Path) -> None:
@@ -373,13 +379,18 @@ def test_real_foxglove_protobuf_recording_copies_to_the_same_pixels(tmp_path: Pa
     path = tmp_path / 'detections.mcap'
     sources = _copy(path, bag)
     assert len(sources) == 4
-    for topic, stored_schema, channel, message in _raw(path):
-        if channel.message_encoding != 'protobuf':
-            continue
+    copied = [row for row in _raw(path) if row[0] in sources]
+    assert len(copied) == 4
+    for topic, stored_schema, channel, message in copied:
+        assert (stored_schema.name, channel.message_encoding) == (msgs.IMAGE, 'cdr')
         original = sources[topic][0]
         got = decode_image(_as_raw(stored_schema, channel, message))
         want = decode_image(original)
-        assert got.encoding == want.encoding
+        assert (got.stamp_ns, got.frame_id, got.encoding) == (
+            want.stamp_ns,
+            want.frame_id,
+            want.encoding,
+        )
         np.testing.assert_array_equal(got.image, want.image)
 
 

@@ -137,16 +137,16 @@ def test_channels_and_schemas_are_registered_in_first_use_order(tmp_path: Path) 
     assert schemas == ['sensor_msgs/msg/CameraInfo', 'vision_msgs/msg/Detection2DArray']
 
 
-def test_part_file_is_written_first_and_gone_after_finish(tmp_path: Path) -> None:
+def test_messages_are_staged_until_finish_and_the_stage_is_gone_after(tmp_path: Path) -> None:
     path = tmp_path / 'detections.mcap'
     writer = DetectionsWriter(path)
     writer.add('hsv', '/camera/image_raw', T0, T0, 'cam', [RED])
-    assert (tmp_path / 'detections.mcap.part').exists()
+    assert (tmp_path / 'detections.mcap.stage').exists()
     assert not path.exists()
     writer.finish()
     writer.finish()
     assert path.exists()
-    assert not (tmp_path / 'detections.mcap.part').exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['detections.mcap']
     with pytest.raises(ValueError, match='already finished'):
         writer.add('hsv', '/camera/image_raw', T0, T0, 'cam', [RED])
 

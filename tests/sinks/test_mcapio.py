@@ -10,9 +10,12 @@ from mcap.writer import CompressionType, Writer
 
 from replaybench.sinks._mcapio import McapWriter
 
-# one step: a new channel (on a new or the last schema), or a message on an existing channel
+# one step: a new channel (on a new or the last schema, with or without metadata), a metadata
+# record, or a message on an existing channel
+_KEYS = st.dictionaries(st.text(max_size=8), st.text(max_size=20), max_size=3)
 _STEP = st.one_of(
-    st.tuples(st.just('channel'), st.booleans(), st.text(max_size=12)),
+    st.tuples(st.just('channel'), st.booleans(), st.text(max_size=12), _KEYS),
+    st.tuples(st.just('metadata'), st.text(max_size=10), _KEYS),
     st.tuples(
         st.just('message'),
         st.integers(0, 50),
@@ -27,15 +30,21 @@ def _write(writer: Writer | McapWriter, steps: list[tuple[object, ...]]) -> None
     channels: list[int] = []
     schema = 0
     for step in steps:
-        if step[0] == 'channel':
-            _, new_schema, topic = step
+        if step[0] == 'metadata':
+            _, name, data = step
+            writer.add_metadata(name, data)  # type: ignore[arg-type]
+        elif step[0] == 'channel':
+            _, new_schema, topic, metadata = step
             if new_schema or not schema:
                 schema = writer.register_schema(
                     name=f'pkg/msg/T{schema}', encoding='ros2msg', data=b'int32 x'
                 )
             channels.append(
                 writer.register_channel(
-                    topic=f'/t{len(channels)}{topic}', message_encoding='cdr', schema_id=schema
+                    topic=f'/t{len(channels)}{topic}',
+                    message_encoding='cdr',
+                    schema_id=schema,
+                    metadata=metadata,  # type: ignore[arg-type]
                 )
             )
         elif channels:

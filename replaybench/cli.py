@@ -337,6 +337,15 @@ def run(
     skipped = outcome.run.get('skipped') or {}
     for reason, count in skipped.items():
         typer.echo(f'replaybench: warning: skipped {count} message(s): {reason}', err=True)
+    for entry in outcome.run.get('backends') or []:
+        facts = entry.get('info') or {}
+        if facts.get('nonfinite_dropped'):
+            typer.echo(
+                f'replaybench: warning: {entry["name"]}: left out {facts["nonfinite_dropped"]} '
+                f'candidate(s) with NaN or inf model outputs in {facts["nonfinite_frames"]} '
+                'frame(s)',
+                err=True,
+            )
     report = outcome.run_dir / 'report.html'
     typer.echo(f'Run folder: {outcome.run_dir}')
     if report.exists():

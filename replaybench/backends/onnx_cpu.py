@@ -10,6 +10,9 @@ Options: ``model`` (default: the bundled ``DEFAULT_MODEL``), ``model_family``, `
 preprocessing overrides (``channel_order``, ``scale``, ``pad_value``, ``letterbox_align``,
 ``letterbox``, ``mean``, ``std``), ``size`` (``W`` or ``WxH`` for dynamic inputs),
 ``max_det`` and ``allow_spinning`` (``1``: let idle intra-op threads spin; default ``0``).
+
+Candidates whose model outputs are NaN or inf are left out; ``info()`` counts them
+(``nonfinite_dropped`` candidates in ``nonfinite_frames`` frames).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import time
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from replaybench.backends.base import Availability, BackendOptions
+from replaybench.detector.decoders import NonfiniteTally
 from replaybench.detector.spec import DEFAULT_CONF, DEFAULT_IOU, DEFAULT_MODEL, FAMILIES, SPEC_KEYS
 from replaybench.errors import BackendError, BackendUnavailableError
 from replaybench.types import BackendResult, StageTimes
@@ -129,6 +133,7 @@ class OnnxCpuBackend:
         self._postprocess: Callable[..., tuple[Detection, ...]] = _not_open
         self._names: list[str] = []
         self._feed: dict[str, Any] = {}
+        self.nonfinite = NonfiniteTally()
 
     @classmethod
     def available(cls) -> Availability:
@@ -247,6 +252,7 @@ class OnnxCpuBackend:
             self.conf if self.conf is not None else DEFAULT_CONF[spec.family],
             self.iou,
             self.max_det,
+            self.nonfinite,
         )
         t3 = clock()
         return BackendResult(
@@ -260,6 +266,7 @@ class OnnxCpuBackend:
             'iou': self.iou,
             'max_det': self.max_det,
             'threads': self.options.threads,
+            **self.nonfinite.info(),
         }
         spec = self.spec
         if spec is None or self._session is None:

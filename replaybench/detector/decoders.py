@@ -13,10 +13,20 @@ Layouts:
 * ``decode_yolov5``: ``[1, N, 5+C]`` decoded cx, cy, w, h, obj, classes; score = obj * cls.
 * ``decode_yolov8``: ``[1, 4+C, N]`` decoded cx, cy, w, h, classes (no objectness).
 * ``decode_nms``: detections after NMS in the graph (see its docstring).
+
+Non-finite outputs: a candidate (a row of a dense head, a detection of an NMS head) is left
+out when a value the decoder reads for it is NaN or +-inf: its objectness, its best score
+(objectness x best class score), its box, or (NMS heads) its score or class; decoding that
+overflows to inf (YOLOX's ``exp(log w)``) counts too. A NaN score is never below ``conf`` and
+is read; values a threshold has already rejected are not: the class scores of a row whose
+objectness is at most ``conf`` (-inf included), the box of a candidate scored at most
+``conf``. ``postprocess`` counts the candidates left out in a ``NonfiniteTally``.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any, TypeAlias
 
@@ -39,6 +49,7 @@ __all__ = [
     'MAX_CANDIDATES',
     'MAX_DETECTIONS',
     'Decoded',
+    'NonfiniteTally',
     'decode',
     'decode_nms',
     'decode_yolov5',
@@ -60,8 +71,52 @@ MAX_DETECTIONS = 300
 MAX_CANDIDATES = 30000
 
 
+@dataclass(slots=True)
+class NonfiniteTally:
+    """Candidates left out because the model gave NaN or inf for them, over a run.
+
+    ``dropped``: candidates (rows of a dense head, detections of an NMS head); ``frames``:
+    frames that had at least one. A backend keeps one and reports ``info()`` in run.json.
+    """
+
+    dropped: int = 0
+    frames: int = 0
+
+    def add(self, dropped: int) -> None:
+        """Count one frame's non-finite candidates (nothing when there were none)."""
+        if dropped:
+            self.dropped += dropped
+            self.frames += 1
+
+    def info(self) -> dict[str, int]:
+        """``nonfinite_dropped`` and ``nonfinite_frames`` for a backend's ``info()``."""
+        return {'nonfinite_dropped': self.dropped, 'nonfinite_frames': self.frames}
+
+
+def _quiet() -> np.errstate:
+    """NaN / inf arithmetic on model outputs is expected (and left out): no RuntimeWarnings."""
+    return np.errstate(over='ignore', invalid='ignore')
+
+
 def _empty() -> Decoded:
     return np.zeros((0, 4), F32), np.zeros(0, F32), np.zeros(0, np.int64)
+
+
+def _finite(
+    boxes: npt.NDArray[np.float32],
+    scores: npt.NDArray[np.float32],
+    classes: npt.NDArray[np.int64],
+    rows: npt.NDArray[np.intp],
+) -> tuple[Decoded, int]:
+    """The (row, class) pairs whose decoded boxes are finite, and the rows left out.
+
+    Scores are finite already (``_pairs``); a row's pairs share its box, so a row counts once.
+    """
+    if math.isfinite(boxes.sum()):
+        return (boxes, scores, classes), 0
+    ok = np.isfinite(boxes).all(axis=1)
+    lost = np.unique(rows[~ok])
+    return (boxes[ok], scores[ok], classes[ok]), int(lost.size)
 
 
 def _xywh_to_xyxy(xywh: npt.NDArray[Any]) -> npt.NDArray[np.float32]:
@@ -81,25 +136,39 @@ def _rank3(out: npt.NDArray[Any], what: str) -> npt.NDArray[Any]:
     return out
 
 
+def _above(best: npt.NDArray[Any], conf: float) -> tuple[npt.NDArray[np.bool_], int]:
+    """Which best scores are above ``conf`` and finite; how many NaN / inf ones were read."""
+    if math.isfinite(best.sum()):  # the usual case: nothing NaN or inf (or a sum overflow)
+        return best > conf, 0
+    read = ~(best <= conf)  # above conf, or NaN
+    finite = np.isfinite(best)
+    return read & finite, int(np.count_nonzero(read & ~finite))
+
+
 def _pairs(
     cls: npt.NDArray[Any], obj: npt.NDArray[Any] | None, conf: float
-) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.int64], npt.NDArray[np.float32]]:
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.int64], npt.NDArray[np.float32], int]:
     """Rows, classes and scores of every (row, class) with ``obj * cls > conf`` (row-major).
 
     ``cls`` is ``[N, C]`` (may be a strided view); ``obj`` ``[N]`` or None. Both hold
-    probabilities (0..1, sigmoid applied in the graph).
+    probabilities (0..1, sigmoid applied in the graph). Rows whose best score (``obj`` x the
+    best class score) is NaN or above ``conf`` are read; those of them with a NaN or inf
+    objectness or best score are left out and counted (the last item). ``max`` propagates
+    NaN, so one NaN class score makes the best score NaN. Call under ``np.errstate``.
     """
     if obj is not None:
         # scores are probabilities: obj * cls > conf needs obj > conf (a cheap first cut)
-        rows = np.flatnonzero(obj > conf)
-        rows = rows[cls[rows].max(axis=1) * obj[rows] > conf]
+        rows = np.flatnonzero(~(obj <= conf))  # above conf, or NaN
+        keep, bad = _above(cls[rows].max(axis=1) * obj[rows], conf)
+        rows = rows[keep]
     else:
-        rows = np.flatnonzero(cls.max(axis=1) > conf)
+        keep, bad = _above(cls.max(axis=1), conf)
+        rows = np.flatnonzero(keep)
     sub = cls[rows].astype(F32, copy=False)
     if obj is not None:
         sub = sub * obj[rows, None]
     r, c = np.nonzero(sub > conf)
-    return rows[r], c.astype(np.int64), sub[r, c].astype(F32, copy=False)
+    return rows[r], c.astype(np.int64), sub[r, c].astype(F32, copy=False), bad
 
 
 @lru_cache(maxsize=8)
@@ -127,6 +196,13 @@ def decode_yolox(
     conf: float = 0.0,
 ) -> Decoded:
     """YOLOX raw grid output ``[1, N, 5+C]``, input ``size`` (w, h)."""
+    with _quiet():
+        return _yolox(out, size, strides, conf)[0]
+
+
+def _yolox(
+    out: npt.NDArray[Any], size: tuple[int, int], strides: Sequence[int], conf: float
+) -> tuple[Decoded, int]:
     out = _rank3(out, 'yolox')[0]
     grid, stride = yolox_grid((int(size[0]), int(size[1])), tuple(strides))
     if out.shape[0] != grid.shape[0]:
@@ -138,39 +214,52 @@ def decode_yolox(
     if out.shape[1] < 6:
         msg = f'yolox: output rows have {out.shape[1]} values; expected 5 + classes'
         raise BackendError(msg)
-    rows, classes, scores = _pairs(out[:, 5:], out[:, 4], conf)
+    rows, classes, scores, bad = _pairs(out[:, 5:], out[:, 4], conf)
     if rows.size == 0:
-        return _empty()
+        return _empty(), bad
     picked = out[rows, :4].astype(F32)
     s = stride[rows]
     xywh = np.empty_like(picked)
     xywh[:, 0:2] = (picked[:, 0:2] + grid[rows]) * s
     xywh[:, 2:4] = np.exp(picked[:, 2:4]) * s
-    return _xywh_to_xyxy(xywh), scores, classes
+    decoded, lost = _finite(_xywh_to_xyxy(xywh), scores, classes, rows)
+    return decoded, bad + lost
 
 
 def decode_yolov5(out: npt.NDArray[Any], conf: float = 0.0) -> Decoded:
     """YOLOv5 / YOLOv7 decoded output ``[1, N, 5+C]`` (cx, cy, w, h, obj, classes)."""
+    with _quiet():
+        return _yolov5(out, conf)[0]
+
+
+def _yolov5(out: npt.NDArray[Any], conf: float) -> tuple[Decoded, int]:
     out = _rank3(out, 'yolov5')[0]
     if out.shape[1] < 6:
         msg = f'yolov5: output rows have {out.shape[1]} values; expected 5 + classes'
         raise BackendError(msg)
-    rows, classes, scores = _pairs(out[:, 5:], out[:, 4], conf)
+    rows, classes, scores, bad = _pairs(out[:, 5:], out[:, 4], conf)
     if rows.size == 0:
-        return _empty()
-    return _xywh_to_xyxy(out[rows, :4]), scores, classes
+        return _empty(), bad
+    decoded, lost = _finite(_xywh_to_xyxy(out[rows, :4]), scores, classes, rows)
+    return decoded, bad + lost
 
 
 def decode_yolov8(out: npt.NDArray[Any], conf: float = 0.0) -> Decoded:
     """YOLOv8 / YOLO11 output ``[1, 4+C, N]`` (cx, cy, w, h, classes; no objectness)."""
+    with _quiet():
+        return _yolov8(out, conf)[0]
+
+
+def _yolov8(out: npt.NDArray[Any], conf: float) -> tuple[Decoded, int]:
     out = _rank3(out, 'yolov8')[0]
     if out.shape[0] < 5:
         msg = f'yolov8: output has {out.shape[0]} channels; expected 4 + classes'
         raise BackendError(msg)
-    rows, classes, scores = _pairs(out[4:].T, None, conf)
+    rows, classes, scores, bad = _pairs(out[4:].T, None, conf)
     if rows.size == 0:
-        return _empty()
-    return _xywh_to_xyxy(out[:4, rows].T), scores, classes
+        return _empty(), bad
+    decoded, lost = _finite(_xywh_to_xyxy(out[:4, rows].T), scores, classes, rows)
+    return decoded, bad + lost
 
 
 def _find(outputs: Mapping[str, npt.NDArray[Any]], words: Sequence[str]) -> str | None:
@@ -195,6 +284,11 @@ def decode_nms(outputs: Mapping[str, npt.NDArray[Any]], conf: float = 0.0) -> De
       count (name containing ``num``, e.g. ``num_dets`` ``[1, 1]``) that limits K (TensorRT
       EfficientNMS-style ``num_dets, det_boxes, det_scores, det_classes``).
     """
+    with _quiet():
+        return _nms_head(outputs, conf)[0]
+
+
+def _nms_head(outputs: Mapping[str, npt.NDArray[Any]], conf: float) -> tuple[Decoded, int]:
     if len(outputs) == 1:
         (arr,) = outputs.values()
         det = np.asarray(arr)
@@ -230,15 +324,20 @@ def decode_nms(outputs: Mapping[str, npt.NDArray[Any]], conf: float = 0.0) -> De
         num_name = _find(outputs, ('num',))
         if num_name is not None and num_name not in (boxes_name, scores_name, classes_name):
             num = np.asarray(outputs[num_name]).reshape(-1)
-            if num.size:
+            if num.size and np.isfinite(num[0]):  # a NaN count limits nothing
                 count = min(count, max(int(num[0]), 0))
         boxes, scores, classes = boxes[:count], scores[:count], classes[:count]
-    keep = scores > conf
+    keep = ~(scores <= conf)  # above conf, or NaN: read further
+    ok = np.isfinite(boxes).all(axis=1) & np.isfinite(scores)
+    if classes.dtype.kind == 'f':
+        ok &= np.isfinite(classes)
+    bad = int(np.count_nonzero(keep & ~ok))
+    keep &= ok
     return (
         np.ascontiguousarray(boxes[keep], dtype=F32),
         np.ascontiguousarray(scores[keep], dtype=F32),
         classes[keep].astype(np.int64),
-    )
+    ), bad
 
 
 def nms(
@@ -289,16 +388,24 @@ def nms(
 
 def decode(outputs: Mapping[str, npt.NDArray[Any]], spec: ModelSpec, conf: float) -> Decoded:
     """The family decoder of ``spec`` applied to ``outputs`` (name -> array)."""
+    return _decode(outputs, spec, conf)[0]
+
+
+def _decode(
+    outputs: Mapping[str, npt.NDArray[Any]], spec: ModelSpec, conf: float
+) -> tuple[Decoded, int]:
+    """``decode`` and the number of candidates left out for NaN / inf values."""
     family = spec.family
-    if family == 'nms':
-        return decode_nms(outputs, conf)
-    out = outputs[spec.output_names[0]]
-    if family == 'yolox':
-        return decode_yolox(out, spec.preprocess.size, conf=conf)
-    if family == 'yolov5':
-        return decode_yolov5(out, conf)
-    if family == 'yolov8':
-        return decode_yolov8(out, conf)
+    with _quiet():
+        if family == 'nms':
+            return _nms_head(outputs, conf)
+        out = outputs[spec.output_names[0]]
+        if family == 'yolox':
+            return _yolox(out, spec.preprocess.size, STRIDES, conf)
+        if family == 'yolov5':
+            return _yolov5(out, conf)
+        if family == 'yolov8':
+            return _yolov8(out, conf)
     msg = f'unknown model family {family!r}'
     raise BackendError(msg)
 
@@ -314,12 +421,16 @@ def postprocess(
     conf: float,
     iou: float,
     max_det: int = MAX_DETECTIONS,
+    tally: NonfiniteTally | None = None,
 ) -> tuple[Detection, ...]:
     """Decode, NMS (not for ``nms`` models: done in the graph), map to source pixels, label.
 
     Boxes left empty by clipping to the image are dropped. Sorted by (-score, class, x0, y0).
+    Candidates with NaN or inf values are left out and counted in ``tally`` when given.
     """
-    boxes, scores, classes = decode(outputs, spec, conf)
+    (boxes, scores, classes), nonfinite = _decode(outputs, spec, conf)
+    if tally is not None:
+        tally.add(nonfinite)
     if scores.shape[0] == 0:
         return ()
     if spec.family == 'nms':

@@ -26,6 +26,7 @@ __all__ = [
     'NMS_CHUNK',
     'batched_nms',
     'boxes_to_source',
+    'decode',
     'decode_yolov5',
     'decode_yolov8',
     'decode_yolox',
@@ -110,10 +111,33 @@ def _rank3(out: Tensor, what: str) -> Tensor:
 
 
 def _pairs(torch: Any, cls: Tensor, obj: Tensor | None, conf: float) -> tuple[Tensor, ...]:
-    """Rows, classes and scores of every (row, class) with ``obj * cls > conf``, row-major."""
-    scores = cls if obj is None else cls * obj[:, None]
-    rows, classes = torch.nonzero(scores > conf, as_tuple=True)
-    return rows, classes, scores[rows, classes]
+    """Rows, classes and scores of every (row, class) with ``obj * cls > conf``, row-major.
+
+    As ``decoders._pairs``: rows whose best score (objectness x best class score) is NaN or
+    above ``conf`` (objectness NaN or above ``conf`` too) are read; those with a NaN or inf
+    best score are left out, and the last item is their count (a 0-d tensor).
+    """
+    best = cls.amax(dim=1)  # NaN if any class score is NaN
+    if obj is None:
+        scores = cls
+    else:
+        scores = cls * obj[:, None]
+        best = torch.where(obj <= conf, torch.zeros_like(best), best * obj)
+    read = ~(best <= conf)
+    finite = torch.isfinite(best)
+    mask = (scores > conf) & (read & finite)[:, None]
+    rows, classes = torch.nonzero(mask, as_tuple=True)
+    return rows, classes, scores[rows, classes], (read & ~finite).sum()
+
+
+def _finite(
+    torch: Any, boxes: Tensor, scores: Tensor, classes: Tensor, rows: Tensor, bad: Tensor, n: int
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Drop the pairs whose box is not finite; ``bad`` plus the rows they came from."""
+    ok = torch.isfinite(boxes).all(dim=1)
+    row_bad = torch.zeros(n, dtype=torch.bool, device=boxes.device)
+    row_bad[rows[~ok]] = True
+    return boxes[ok], scores[ok], classes[ok], bad + row_bad.sum()
 
 
 def _xywh_to_xyxy(torch: Any, xy: Tensor, wh: Tensor) -> Tensor:
@@ -121,10 +145,37 @@ def _xywh_to_xyxy(torch: Any, xy: Tensor, wh: Tensor) -> Tensor:
     return torch.cat((xy - half, xy + half), dim=1)
 
 
+def decode(
+    torch: Any, family: str, out: Tensor, conf: float, grid: tuple[Tensor, Tensor] | None = None
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The dense head ``family`` (yolox needs ``grid``: cells and strides) decoded.
+
+    Boxes, scores, classes as the ``decode_*`` functions give them, and the number of
+    candidate rows left out for NaN or inf values (a 0-d int64 tensor, still on the device).
+    """
+    if family == 'yolox':
+        if grid is None:
+            msg = 'yolox: the grid is needed'
+            raise BackendError(msg)
+        return _yolox(torch, out, grid[0], grid[1], conf)
+    if family == 'yolov5':
+        return _yolov5(torch, out, conf)
+    if family == 'yolov8':
+        return _yolov8(torch, out, conf)
+    msg = f'unknown model family {family!r}'
+    raise BackendError(msg)
+
+
 def decode_yolox(
     torch: Any, out: Tensor, grid: Tensor, stride: Tensor, conf: float
 ) -> tuple[Tensor, Tensor, Tensor]:
     """YOLOX raw grid ``[1, N, 5+C]`` -> boxes ``[K, 4]``, scores ``[K]``, classes ``[K]``."""
+    return _yolox(torch, out, grid, stride, conf)[:3]
+
+
+def _yolox(
+    torch: Any, out: Tensor, grid: Tensor, stride: Tensor, conf: float
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     rows_all = _rank3(out, 'yolox').to(torch.float32)
     if rows_all.shape[0] != grid.shape[0] or rows_all.shape[1] < 6:
         msg = (
@@ -132,34 +183,45 @@ def decode_yolox(
             'of the input size with 5 + classes values'
         )
         raise BackendError(msg)
-    rows, classes, scores = _pairs(torch, rows_all[:, 5:], rows_all[:, 4], conf)
+    rows, classes, scores, bad = _pairs(torch, rows_all[:, 5:], rows_all[:, 4], conf)
     picked = rows_all[rows, 0:4]
     step = stride[rows]
     xy = (picked[:, 0:2] + grid[rows]) * step
     wh = torch.exp(picked[:, 2:4]) * step
-    return _xywh_to_xyxy(torch, xy, wh), scores, classes
+    boxes = _xywh_to_xyxy(torch, xy, wh)
+    return _finite(torch, boxes, scores, classes, rows, bad, int(rows_all.shape[0]))
 
 
 def decode_yolov5(torch: Any, out: Tensor, conf: float) -> tuple[Tensor, Tensor, Tensor]:
     """YOLOv5 / v7 ``[1, N, 5+C]`` (cx, cy, w, h, obj, classes)."""
+    return _yolov5(torch, out, conf)[:3]
+
+
+def _yolov5(torch: Any, out: Tensor, conf: float) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     rows_all = _rank3(out, 'yolov5').to(torch.float32)
     if rows_all.shape[1] < 6:
         msg = f'yolov5: output rows have {rows_all.shape[1]} values; expected 5 + classes'
         raise BackendError(msg)
-    rows, classes, scores = _pairs(torch, rows_all[:, 5:], rows_all[:, 4], conf)
+    rows, classes, scores, bad = _pairs(torch, rows_all[:, 5:], rows_all[:, 4], conf)
     picked = rows_all[rows, 0:4]
-    return _xywh_to_xyxy(torch, picked[:, 0:2], picked[:, 2:4]), scores, classes
+    boxes = _xywh_to_xyxy(torch, picked[:, 0:2], picked[:, 2:4])
+    return _finite(torch, boxes, scores, classes, rows, bad, int(rows_all.shape[0]))
 
 
 def decode_yolov8(torch: Any, out: Tensor, conf: float) -> tuple[Tensor, Tensor, Tensor]:
     """YOLOv8 / YOLO11 ``[1, 4+C, N]`` (cx, cy, w, h, classes)."""
+    return _yolov8(torch, out, conf)[:3]
+
+
+def _yolov8(torch: Any, out: Tensor, conf: float) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     chans = _rank3(out, 'yolov8').to(torch.float32)
     if chans.shape[0] < 5:
         msg = f'yolov8: output has {chans.shape[0]} channels; expected 4 + classes'
         raise BackendError(msg)
-    rows, classes, scores = _pairs(torch, chans[4:].T, None, conf)
+    rows, classes, scores, bad = _pairs(torch, chans[4:].T, None, conf)
     picked = chans[0:4, rows].T
-    return _xywh_to_xyxy(torch, picked[:, 0:2], picked[:, 2:4]), scores, classes
+    boxes = _xywh_to_xyxy(torch, picked[:, 0:2], picked[:, 2:4])
+    return _finite(torch, boxes, scores, classes, rows, bad, int(chans.shape[1]))
 
 
 def _suppression(

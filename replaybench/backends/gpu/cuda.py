@@ -11,7 +11,8 @@ Per frame, all on one GPU (``options.device``):
   as a CUDA graph when capture works);
 * ``postprocess``: decode, class-aware greedy NMS (torch ops, no torchvision) and the mapping
   to source pixels on the device, then Detections on the host;
-* ``d2h``: only the kept boxes (x0, y0, x1, y1, score, class) come back.
+* ``d2h``: only the kept boxes (x0, y0, x1, y1, score, class) come back, with the count of
+  candidates left out for NaN or inf model outputs (``info()``: ``nonfinite_dropped``).
 
 Each stage boundary synchronises the device before the clock is read (``StageClock``).
 The backend never runs on the CPU: a session whose first provider is not the GPU one is
@@ -37,6 +38,7 @@ from replaybench.backends.gpu.availability import (
     ort_provider_problem,
     torch_problem,
 )
+from replaybench.detector.decoders import NonfiniteTally
 from replaybench.detector.spec import (
     DEFAULT_CONF,
     DEFAULT_IOU,
@@ -322,6 +324,8 @@ class DnnPipeline:
         if spec.family == 'yolox':
             self._grid = ops.yolox_grid(torch, spec.preprocess.size, device)
         self._pinned: Tensor = None
+        #: Candidates left out for NaN or inf model outputs.
+        self.nonfinite = NonfiniteTally()
 
     def upload(self, pixels: npt.NDArray[np.uint8]) -> Tensor:
         """The pixels on the device; through one reused pinned buffer on CUDA."""
@@ -354,26 +358,20 @@ class DnnPipeline:
         return transform
 
     def postprocess(self, outputs: Mapping[str, Tensor], transform: Transform) -> list[Tensor]:
-        """What to download: ``[rows K x 6]`` for YOLO heads; the raw outputs for ``nms`` ones."""
+        """What to download: ``[rows K x 6]`` and the count of candidates left out for NaN or
+        inf values (0-d) for YOLO heads; the raw outputs for ``nms`` ones."""
         torch = self.torch
         spec = self.spec
         if spec.family == 'nms':
             return [outputs[name] for name in spec.output_names]
         out = outputs[spec.output_names[0]]
-        if spec.family == 'yolox':
-            assert self._grid is not None
-            boxes, scores, classes = ops.decode_yolox(torch, out, *self._grid, self.conf)
-        elif spec.family == 'yolov5':
-            boxes, scores, classes = ops.decode_yolov5(torch, out, self.conf)
-        elif spec.family == 'yolov8':
-            boxes, scores, classes = ops.decode_yolov8(torch, out, self.conf)
-        else:
-            msg = f'unknown model family {spec.family!r}'
-            raise BackendError(msg)
+        boxes, scores, classes, nonfinite = ops.decode(
+            torch, spec.family, out, self.conf, self._grid
+        )
         keep = ops.batched_nms(torch, boxes, scores, classes, self.iou, self.max_det)
         src = ops.boxes_to_source(torch, boxes[keep], transform)
         rows = torch.cat((src, scores[keep, None], classes[keep, None].to(torch.float32)), dim=1)
-        return [rows]
+        return [rows, nonfinite]
 
     def download(self, tensors: Sequence[Tensor]) -> list[npt.NDArray[Any]]:
         return [t.detach().to('cpu').numpy() for t in tensors]
@@ -387,7 +385,10 @@ class DnnPipeline:
             from replaybench.detector.decoders import postprocess
 
             outputs = dict(zip(spec.output_names, arrays, strict=True))
-            return postprocess(outputs, spec, transform, self.conf, self.iou, self.max_det)
+            return postprocess(
+                outputs, spec, transform, self.conf, self.iou, self.max_det, self.nonfinite
+            )
+        self.nonfinite.add(int(arrays[1]))
         return to_detections(arrays[0], spec.class_names)
 
 
@@ -640,6 +641,7 @@ class CudaBackend:
             'max_det': self.max_det,
             'providers': [],
             'timing': 'device synchronised at every stage boundary',
+            **(self._pipeline.nonfinite if self._pipeline else NonfiniteTally()).info(),
         }
         spec = self.spec
         if spec is not None:

@@ -363,26 +363,28 @@ def info(
 
     Example: replaybench info fixtures/bags/two_camera.mcap
     """
-    from replaybench.decode.probe import probe_topics
+    from replaybench.decode.probe import probe_topics, unreadable_image_topics
     from replaybench.sources import open_source
 
     try:
         with open_source(bag) as source:
             topics = source.topics()
             cameras = {c.name: c for c in probe_topics(source)}
+            skipped = source.skipped_topics()
+            unreadable = {t.name for t in unreadable_image_topics(source)}
             truncated = source.truncated
             warnings = list(source.warnings)
     except ReplaybenchError as err:
         raise _fail(err) from None
     first = min((t.first_ns for t in topics), default=0)
     last = max((t.last_ns for t in topics), default=0)
-    total = sum(t.count for t in topics)
+    total = sum(t.count for t in topics) + sum(t.count for t in skipped)
     typer.echo(f'path:       {bag}')
     typer.echo(f'format:     {source.format}{" (truncated)" if truncated else ""}')
     typer.echo(f'duration:   {(last - first) / 1e9:.3f} s')
     typer.echo(f'messages:   {total}')
     typer.echo('camera topics:')
-    if not cameras:
+    if not cameras and not unreadable:
         typer.echo('  (none)')
     for cam in cameras.values():
         span = (cam.last_ns - cam.first_ns) / 1e9
@@ -396,11 +398,17 @@ def info(
             f'  {cam.name}  {cam.msgtype}  {cam.count} msgs  {rate}  {size}  '
             f'{cam.encoding}{flags}{extra}{problem}'
         )
+    for st in skipped:
+        if st.name in unreadable:
+            typer.echo(f'  {st.name}  {st.msgtype}  {st.count} msgs  skipped: {st.reason}')
     others = [t for t in topics if t.name not in cameras]
-    if others:
+    skipped_others = [st for st in skipped if st.name not in unreadable]
+    if others or skipped_others:
         typer.echo('other topics:')
         for t in others:
             typer.echo(f'  {t.name}  {t.msgtype}  {t.count} msgs')
+        for st in skipped_others:
+            typer.echo(f'  {st.name}  {st.msgtype}  {st.count} msgs  skipped: {st.reason}')
     for warning in warnings:
         typer.echo(f'replaybench: warning: {warning}', err=True)
 

@@ -20,6 +20,7 @@ __all__ = [
     'Frame',
     'RawMessage',
     'Serialization',
+    'SkippedTopic',
     'StageTimes',
     'TopicInfo',
 ]
@@ -59,6 +60,20 @@ class TopicInfo(NamedTuple):
     count: int  # type: ignore[assignment]
     first_ns: int
     last_ns: int
+
+
+class SkippedTopic(NamedTuple):
+    """A topic whose messages a container holds but replaybench cannot read at all.
+
+    ``encoding`` is the message encoding (or serialization format) the file names; ``count`` the
+    messages it holds; ``reason`` one line saying why they are skipped.
+    """
+
+    name: str
+    msgtype: str
+    encoding: str
+    count: int  # type: ignore[assignment]
+    reason: str
 
 
 @dataclass(frozen=True, slots=True)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 from replaybench.decode._wire import as_bytes_view, parse_compressed
 from replaybench.decode.camera_info import camera_info_topic_for
@@ -13,9 +13,17 @@ from replaybench.errors import ReplaybenchError
 
 if TYPE_CHECKING:
     from replaybench.decode.kinds import MessageSource
-    from replaybench.types import RawMessage, TopicInfo
+    from replaybench.types import RawMessage, SkippedTopic, TopicInfo
 
-__all__ = ['CameraTopic', 'probe_topics']
+__all__ = ['CameraTopic', 'probe_topics', 'unreadable_image_topics']
+
+_IMAGE_KINDS = frozenset({'image', 'compressed_image'})
+
+
+class SkippingSource(Protocol):
+    """A source that lists the topics it holds but cannot read."""
+
+    def skipped_topics(self) -> list[SkippedTopic]: ...
 
 
 class CameraTopic(NamedTuple):
@@ -61,6 +69,14 @@ def _depth_hint(topic: str, raw: RawMessage | None) -> bool:
     except ReplaybenchError:
         return False
     return parse_format(fields.format).depth
+
+
+def unreadable_image_topics(source: SkippingSource) -> list[SkippedTopic]:
+    """The image / compressed-image topics ``source`` holds in an encoding it cannot read.
+
+    They are not in :func:`probe_topics`: none of their messages can be replayed.
+    """
+    return [t for t in source.skipped_topics() if message_kind(t.msgtype) in _IMAGE_KINDS]
 
 
 def probe_topics(source: MessageSource) -> list[CameraTopic]:

@@ -32,7 +32,7 @@ from replaybench.decode import (
     to_bgr8,
 )
 from replaybench.decode.camera_info import CameraInfoIndex
-from replaybench.decode.probe import CameraTopic, probe_topics
+from replaybench.decode.probe import CameraTopic, probe_topics, unreadable_image_topics
 from replaybench.errors import (
     BackendUnavailableError,
     DecodeError,
@@ -62,7 +62,7 @@ if TYPE_CHECKING:
 
     from replaybench.backends.base import Backend
     from replaybench.results.groundtruth import ExternalGroundTruth, MatchMode
-    from replaybench.types import RawMessage
+    from replaybench.types import RawMessage, SkippedTopic
 
 __all__ = [
     'DEFAULT_GROUND_TRUTH_TOPIC',
@@ -196,10 +196,21 @@ def _prepare_out_dir(out: Path, force: bool) -> None:
 
 
 def _select_topics(
-    path: Path, found: list[CameraTopic], wanted: Sequence[str] | None
+    path: Path,
+    found: list[CameraTopic],
+    wanted: Sequence[str] | None,
+    unreadable: Sequence[SkippedTopic] = (),
 ) -> list[CameraTopic]:
+    """The camera topics to replay; ``unreadable``: image topics in an unsupported encoding."""
+    if wanted and (asked := [t for t in unreadable if t.name in wanted]):
+        t = asked[0]
+        msg = f'{path}: topic {t.name} cannot be replayed: {t.reason} ({t.count} messages)'
+        raise UsageError(msg)
     if not found:
         msg = f'{path}: no image messages (sensor_msgs Image / CompressedImage) in this file'
+        if unreadable:
+            held = '; '.join(f'{t.name}: {t.count} messages, {t.reason}' for t in unreadable)
+            msg = f'{path}: no readable image topic ({held})'
         raise SourceError(msg)
     if wanted:
         by_name = {t.name: t for t in found}
@@ -225,8 +236,13 @@ def _open_input(
 ) -> _Input:
     source = open_source(path)
     try:
+        skipped = source.skipped_topics()
+        if not any(t.count for t in source.topics()) and not any(t.count for t in skipped):
+            damaged = ' before the damage' if source.truncated else ' in this file'
+            msg = f'{path}: no messages{damaged}'
+            raise SourceError(msg)
         found = probe_topics(source)
-        topics = _select_topics(path, found, config.topics)
+        topics = _select_topics(path, found, config.topics, unreadable_image_topics(source))
         if external is not None:
             _check_external_topics(path, external, [t.name for t in topics])
         all_topics = source.topics()

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from types import TracebackType
     from typing import Self
 
-    from replaybench.types import RawMessage, TopicInfo
+    from replaybench.types import RawMessage, SkippedTopic, TopicInfo
 
 __all__ = ['STORAGE_PLUGINS', 'Source', 'open_source']
 
@@ -46,6 +46,10 @@ class Source(Protocol):
 
     def topics(self) -> list[TopicInfo]:
         """Topics sorted by name."""
+        ...
+
+    def skipped_topics(self) -> list[SkippedTopic]:
+        """Topics held in an encoding that cannot be read (not in ``topics``), sorted by name."""
         ...
 
     def messages(
@@ -150,19 +154,16 @@ def open_source(path: str | Path) -> Source:
     """Open a container read-only; SourceError (one line) when it cannot be read.
 
     Files are recognised by their magic bytes (the suffix only names what was expected);
-    directories must be rosbag2 bags with a ``metadata.yaml``. FIFOs, devices and sockets are
-    refused before they are opened.
+    directories must be rosbag2 bags: with a ``metadata.yaml``, or without one (a recording that
+    was not closed) holding one storage file or the files of one split bag. FIFOs, devices and
+    sockets are refused before they are opened.
     """
     path = Path(path).expanduser()
     if path.name == 'metadata.yaml' and path.is_file():
         path = path.parent
     try:
         if path.is_dir():
-            if not (path / 'metadata.yaml').is_file():
-                hint = '; open its .mcap files directly' if any(path.glob('*.mcap')) else ''
-                msg = f'{path}: directory has no metadata.yaml (not a rosbag2 bag){hint}'
-                raise SourceError(msg)
-            key = ''
+            key = ''  # a rosbag2 bag; without metadata.yaml, its storage files (rosbag2.py)
         elif not path.exists():
             msg = f'{path}: no such file or directory'
             raise SourceError(msg)

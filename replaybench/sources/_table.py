@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from replaybench.errors import SourceError
-from replaybench.types import RawMessage, TopicInfo
+from replaybench.types import RawMessage, SkippedTopic, TopicInfo
 
 from ._common import decompress_chunk
 
@@ -111,6 +111,8 @@ class TableSource:
             np.empty(0, np.int64),
         )
         self._topics: list[TopicInfo] = []
+        #: topic -> its messages in an encoding that cannot be read (counted by the reader)
+        self._unreadable: dict[str, SkippedTopic] = {}
 
     # -- building -------------------------------------------------------------------------
 
@@ -232,6 +234,11 @@ class TableSource:
         """Topics sorted by name, with message counts and first / last log times."""
         self._check_open()
         return list(self._topics)
+
+    def skipped_topics(self) -> list[SkippedTopic]:
+        """Topics held in an encoding that cannot be read, with their message counts."""
+        self._check_open()
+        return [self._unreadable[name] for name in sorted(self._unreadable)]
 
     def messages(
         self,

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from replaybench.errors import SourceError
+from replaybench.types import SkippedTopic
 
 from ._common import MappedFile, normalize_msgtype
 from ._table import Channel, Chunk, TableSource
@@ -228,6 +229,8 @@ class McapSource(TableSource):
         path = Path(path)
         super().__init__(path, fmt, files if files is not None else [path], mcap_payload)
         self._channel_warned: set[str] = set()
+        #: topics of the channels in an unsupported encoding; chmap maps them to -2 - index
+        self._unreadable_names: list[str] = []
         try:
             for file_no, file in enumerate(self.files):
                 mapped = MappedFile(file)
@@ -250,7 +253,7 @@ class McapSource(TableSource):
             return
         serialization = _SERIALIZATIONS.get(record.encoding.lower())
         if serialization is None:
-            chmap[record.id] = -1
+            chmap[record.id] = self._unreadable_channel(record, schemas)
             if record.topic not in self._channel_warned:
                 self._channel_warned.add(record.topic)
                 self._warn(
@@ -265,6 +268,23 @@ class McapSource(TableSource):
         else:
             channel = Channel(record.topic, normalize_msgtype(name), serialization, b'')
         chmap[record.id] = self._add_channel(channel)
+
+    def _unreadable_channel(self, record: _ChannelRecord, schemas: dict[int, _Schema]) -> int:
+        """The chmap value (-2 or less) of a channel whose message encoding is not supported."""
+        if record.topic not in self._unreadable:
+            schema = schemas.get(record.schema_id)
+            msgtype = normalize_msgtype(schema.name) if schema else ''
+            reason = f'message encoding {record.encoding!r} is not supported'
+            self._unreadable[record.topic] = SkippedTopic(
+                record.topic, msgtype, record.encoding, 0, reason
+            )
+            self._unreadable_names.append(record.topic)
+        return -2 - self._unreadable_names.index(record.topic)
+
+    def _count_unreadable(self, g: int, count: int) -> None:
+        topic = self._unreadable_names[-2 - g]
+        entry = self._unreadable[topic]
+        self._unreadable[topic] = entry._replace(count=entry.count + count)
 
     # -- indexing -------------------------------------------------------------------------
 
@@ -339,6 +359,8 @@ class McapSource(TableSource):
                 continue
             for cid, offset, count in entries:
                 g = chmap.get(cid, -1)
+                if g < -1:
+                    self._count_unreadable(g, count)
                 if g < 0 or not count:
                     continue
                 pairs = np.frombuffer(mapped.map, '<u8', count=2 * count, offset=offset)
@@ -415,6 +437,8 @@ class McapSource(TableSource):
                         self._warn(f'{name}: messages on undeclared channel {cid}; skipped')
                     elif g >= 0:
                         self._add_row(log_time, g, k, pos - base)
+                    else:
+                        self._count_unreadable(g, 1)
                 elif op == _OP_SCHEMA:
                     sid, schema = _parse_schema(buf, body, rec_end)
                     schemas[sid] = schema

@@ -129,6 +129,8 @@ class Rosbag1Source(TableSource):
         reason = ''
         if index_pos == 0:
             reason = 'bag is not indexed (recording was not closed)'
+        elif index_pos == size and self._declares_nothing(buf, size):
+            return  # closed without a connection or a chunk: an empty bag, not a cut one
         elif index_pos >= size:
             reason = 'bag index is missing (file cut short)'
         else:
@@ -166,6 +168,16 @@ class Rosbag1Source(TableSource):
             raise SourceError(msg)
         value = fields.get('index_pos', b'')
         return int(_U64(value, 0)[0]) if len(value) == 8 else 0
+
+    def _declares_nothing(self, buf: memoryview, size: int) -> bool:
+        """Whether the bag header counts no connection and no chunk (a closed, empty bag)."""
+        pos = len(ROSBAG_MAGIC)
+        try:
+            (hlen,) = _U32(buf, pos)
+            fields = _fields(buf, pos + 4, min(pos + 4 + hlen, size))
+        except (struct.error, _CorruptError):
+            return False
+        return fields.get('conn_count') == bytes(4) and fields.get('chunk_count') == bytes(4)
 
     def _index_with_rosbags(self, mapped: MappedFile) -> None:
         from rosbags.rosbag1 import Reader

@@ -5,29 +5,37 @@ A directory with uncompressed mcap storage is read file by file with the fast MC
 sqlite3 storage and compressed bags are read with ``rosbags``: each file's stream is
 re-ordered within equal timestamps (by topic) and the files are merged by
 (log time, topic, file, position), so a split bag replays as one input.
+
+A recording that was not closed is read whole:
+
+- a ``.db3`` with a write-ahead log beside it (``x.db3-wal``) is read with its log
+  (:class:`~replaybench.sources._sqlite.SqliteStorage`), never changing the files;
+- a directory without ``metadata.yaml`` is read from its storage files when they are one
+  ``.db3`` or ``.mcap`` file or the numbered files of one split bag (``name_0.db3``,
+  ``name_1.db3``, ...); otherwise it is refused with the ways to go on.
 """
 
 from __future__ import annotations
 
 import contextlib
 import heapq
+import re
 from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import SourceError
-from replaybench.types import RawMessage, TopicInfo
+from replaybench.types import RawMessage, SkippedTopic, TopicInfo
 
 from ._common import decompress_message, normalize_msgtype
 from ._table import Channel
 from .mcap import McapSource
 
 if TYPE_CHECKING:
-    from collections.abc import Collection, Iterable, Iterator
+    from collections.abc import Callable, Collection, Iterable, Iterator
     from types import TracebackType
     from typing import Self
 
     from rosbags.interfaces import Connection
-    from rosbags.rosbag2 import Reader
 
 __all__ = ['RosbagsSource', 'open_rosbag2']
 
@@ -63,15 +71,20 @@ def _metadata(path: Path) -> dict[str, Any]:
 
 
 def open_rosbag2(path: str | Path) -> McapSource | RosbagsSource:
-    """Open a rosbag2 directory or a bare ``.db3`` file."""
+    """Open a rosbag2 directory (with or without ``metadata.yaml``) or a bare ``.db3`` file."""
+    from ._sqlite import has_wal
+
     path = Path(path)
     files = [path]
     if path.is_dir():
+        if not (path / 'metadata.yaml').is_file():
+            return _open_unclosed(path)
         info = _metadata(path)
         try:
             files = [path / PurePath(name).name for name in info['relative_file_paths']]
             storage = str(info.get('storage_identifier', ''))
             mode = str(info.get('compression_mode', '') or '').lower()
+            compression = str(info.get('compression_format', '') or '').lower()
         except (KeyError, TypeError) as err:
             msg = f'{path / "metadata.yaml"}: not valid rosbag2 metadata ({_one_line(err)})'
             raise SourceError(msg) from None
@@ -80,6 +93,11 @@ def open_rosbag2(path: str | Path) -> McapSource | RosbagsSource:
             raise SourceError(msg)
         if storage == 'mcap' and mode in ('', 'none', 'storage'):  # storage: compressed chunks
             return McapSource(path, files, fmt='rosbag2')
+        plain = mode in ('', 'none') or (mode == 'message' and compression == 'zstd')
+        if storage == 'sqlite3' and plain and any(has_wal(file) for file in files):
+            return _open_sqlite(path, files, message_compressed=mode == 'message')
+    elif has_wal(path):
+        return _open_sqlite(path, files)
 
     from rosbags.rosbag2 import Reader
 
@@ -89,7 +107,97 @@ def open_rosbag2(path: str | Path) -> McapSource | RosbagsSource:
     except Exception as err:
         msg = f'{path}: cannot read rosbag2 bag: {_one_line(err)}'
         raise SourceError(msg) from None
-    return RosbagsSource(path, reader, files)
+    opened = reader.storage
+    storages = getattr(opened, 'storages', None)
+    return RosbagsSource(
+        path,
+        files,
+        list(storages) if storages is not None else [opened],
+        close=reader.close,
+        message_compressed=reader.compression_mode == 'message',
+    )
+
+
+def _open_sqlite(
+    path: Path, files: list[Path], *, message_compressed: bool = False, note: str = ''
+) -> RosbagsSource:
+    """Read ``.db3`` files with :class:`SqliteStorage` (write-ahead logs included)."""
+    from ._sqlite import SqliteStorage
+
+    storages: list[SqliteStorage] = []
+
+    def close() -> None:
+        for storage in storages:
+            storage.close()
+
+    try:
+        for file in files:
+            storages.append(SqliteStorage(file))
+    except BaseException:
+        close()
+        raise
+    notes = [note] if note else []
+    notes += [line for storage in storages for line in storage.notes]
+    return RosbagsSource(
+        path, files, storages, close=close, message_compressed=message_compressed, notes=notes
+    )
+
+
+#: The data files of a split rosbag2 bag: ``<name>_<n>.db3`` / ``.mcap``, n = 0, 1, 2, ...
+_SPLIT_NAME = re.compile(r'(?P<name>.+)_(?P<n>[0-9]+)')
+_STORAGE_SUFFIXES = ('.db3', '.mcap')
+
+
+def _one_bag(found: list[Path]) -> list[Path] | None:
+    """``found`` in replay order when it is one storage file or the files of one split bag."""
+    if len(found) == 1:
+        return found
+    matches = [_SPLIT_NAME.fullmatch(file.stem) for file in found]
+    if len({file.suffix for file in found}) != 1 or any(m is None for m in matches):
+        return None
+    numbered = sorted(
+        (int(m['n']), m['name'], file) for m, file in zip(matches, found, strict=True) if m
+    )
+    if len({name for _, name, _ in numbered}) != 1:
+        return None
+    if [n for n, _, _ in numbered] != list(range(len(numbered))):
+        return None
+    return [file for _, _, file in numbered]
+
+
+def _open_unclosed(path: Path) -> McapSource | RosbagsSource:
+    """A rosbag2 directory without ``metadata.yaml``: the recorder was killed before writing it.
+
+    Its storage files are read directly when they are one bag; otherwise SourceError says how
+    to go on.
+    """
+    entries = sorted(path.iterdir())
+    found = [p for p in entries if p.suffix in _STORAGE_SUFFIXES and p.is_file()]
+    if not found:
+        hint = ''
+        if any(p.suffix == '.bag' for p in entries):
+            hint = '; for a ROS 1 bag, pass the .bag file itself'
+        elif any(p.name.endswith(('.db3.zstd', '.mcap.zstd')) for p in entries):
+            hint = '; its compressed data files need their metadata.yaml (run `ros2 bag reindex`)'
+        msg = f'{path}: no bag in this folder (no metadata.yaml, .db3 or .mcap file){hint}'
+        raise SourceError(msg)
+    files = _one_bag(found)
+    names = ', '.join(p.name for p in found[:4]) + (', ...' if len(found) > 4 else '')
+    if files is None:
+        msg = (
+            f'{path}: metadata.yaml is missing and the {len(found)} storage files ({names}) are '
+            'not one split bag; pass one storage file, or run `ros2 bag reindex` on the folder'
+        )
+        raise SourceError(msg)
+    note = (
+        f'{path.name}: metadata.yaml is missing (the recording was not closed); '
+        f'read {names} directly'
+    )
+    if files[0].suffix == '.mcap':
+        source = McapSource(path, files, fmt='rosbag2')
+        source._warn(note)
+        return source
+    return _open_sqlite(path, files, note=note)
 
 
 def _ties_by_topic(items: Iterable[_Item]) -> Iterator[_Item]:
@@ -110,34 +218,53 @@ def _merge_key(item: _Item) -> tuple[int, str, int, int]:
 
 
 class RosbagsSource:
-    """A rosbag2 bag read through ``rosbags`` (sqlite3 storage, compressed bags)."""
+    """A rosbag2 bag read through ``rosbags`` (sqlite3 storage, compressed bags).
 
-    def __init__(self, path: Path, reader: Reader, files: list[Path]) -> None:
+    ``storages``: one opened storage reader per data file (``rosbags``' readers or
+    :class:`~replaybench.sources._sqlite.SqliteStorage`); ``close`` closes them all; ``notes``
+    are warnings found while opening them.
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        files: list[Path],
+        storages: list[Any],
+        *,
+        close: Callable[[], None],
+        message_compressed: bool = False,
+        notes: Iterable[str] = (),
+    ) -> None:
         self.path = path
         self.format = 'rosbag2'
         self.files = files
-        self._reader = reader
+        self._close_storages = close
         self._closed = False
         self._truncated = False
-        self._warnings: list[str] = []
+        self._warnings: list[str] = list(notes)
         #: (file name, topic) -> (messages that could not be decompressed, the first reason)
         self._skipped: dict[tuple[str, str], tuple[int, str]] = {}
-        storage = reader.storage
-        storages = getattr(storage, 'storages', None)
-        self._storages: list[Any] = list(storages) if storages is not None else [storage]
-        self._message_compressed = reader.compression_mode == 'message'
+        self._storages = storages
+        self._message_compressed = message_compressed
         self._chmaps: list[dict[int, Channel]] = []
+        #: per storage: connection id -> (topic, msgtype, serialization) of unsupported ones
+        self._unsupported: list[dict[int, tuple[str, str, str]]] = []
         for sub in self._storages:
             chmap: dict[int, Channel] = {}
+            unsupported: dict[int, tuple[str, str, str]] = {}
             for conn in sub.connections:
+                msgtype = normalize_msgtype(conn.msgtype)
                 fmt = getattr(conn.ext, 'serialization_format', 'cdr')
                 if fmt != 'cdr':
                     self._warn(
                         f'topic {conn.topic}: serialization {fmt!r} is not supported; skipped'
                     )
+                    unsupported[conn.id] = (conn.topic, msgtype, str(fmt))
                     continue
-                chmap[conn.id] = Channel(conn.topic, normalize_msgtype(conn.msgtype), 'cdr', b'')
+                chmap[conn.id] = Channel(conn.topic, msgtype, 'cdr', b'')
             self._chmaps.append(chmap)
+            self._unsupported.append(unsupported)
+        self._per_conn: dict[int, dict[int, tuple[int, int, int]]] = {}
         self._topics: list[TopicInfo] | None = None
 
     # -- Source API -----------------------------------------------------------------------
@@ -164,7 +291,7 @@ class RosbagsSource:
             stats: dict[str, list[int]] = {}
             first_channel: dict[str, Channel] = {}
             for i, sub in enumerate(self._storages):
-                per_conn = self._stats(i, sub)
+                per_conn = self._conn_stats(i, sub)
                 for cid, channel in self._chmaps[i].items():
                     first_channel.setdefault(channel.topic, channel)
                     acc = stats.setdefault(channel.topic, [0, 0, 0])
@@ -178,6 +305,21 @@ class RosbagsSource:
                 for name in sorted(stats)
             ]
         return list(self._topics)
+
+    def skipped_topics(self) -> list[SkippedTopic]:
+        """Topics in a serialization format other than CDR, with their message counts."""
+        self._check_open()
+        found: dict[str, SkippedTopic] = {}
+        for i, sub in enumerate(self._storages):
+            if not self._unsupported[i]:
+                continue
+            per_conn = self._conn_stats(i, sub)
+            for cid, (topic, msgtype, fmt) in self._unsupported[i].items():
+                count = per_conn.get(cid, (0, 0, 0))[0]
+                before = found[topic].count if topic in found else 0
+                reason = f'serialization {fmt!r} is not supported'
+                found[topic] = SkippedTopic(topic, msgtype, fmt, before + count, reason)
+        return [found[name] for name in sorted(found)]
 
     def messages(
         self,
@@ -211,7 +353,7 @@ class RosbagsSource:
             return
         self._closed = True
         with contextlib.suppress(Exception):
-            self._reader.close()
+            self._close_storages()
 
     def __enter__(self) -> Self:
         return self
@@ -293,6 +435,11 @@ class RosbagsSource:
                 f'{self._file_name(i)}: read error after {n} messages ({_one_line(err)}); '
                 'replaying the messages before it'
             )
+
+    def _conn_stats(self, i: int, sub: Any) -> dict[int, tuple[int, int, int]]:
+        if i not in self._per_conn:
+            self._per_conn[i] = self._stats(i, sub)
+        return self._per_conn[i]
 
     def _stats(self, i: int, sub: Any) -> dict[int, tuple[int, int, int]]:
         """Per connection id: (count, first log time, last log time)."""

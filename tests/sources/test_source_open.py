@@ -61,9 +61,11 @@ def test_a_text_file_named_mcap_is_a_source_error(tmp_path: Path) -> None:
     _assert_one_line_error(path, 'not an MCAP file')
 
 
-def test_a_directory_without_metadata_is_a_source_error(tmp_path: Path) -> None:
+def test_a_directory_without_metadata_whose_db3_is_no_database_is_a_source_error(
+    tmp_path: Path,
+) -> None:
     (tmp_path / 'some.db3').write_bytes(b'SQLite format 3\x00')
-    _assert_one_line_error(tmp_path, 'no metadata.yaml')
+    _assert_one_line_error(tmp_path, 'some.db3: .*not a database')
 
 
 def test_an_sqlite_file_that_is_no_rosbag2_is_a_source_error(tmp_path: Path) -> None:

@@ -432,16 +432,13 @@ class DetectionsWriter:
             sequences = [0] * (len(self._specs) + 1)
             times, ids, offsets, sizes = self._times, self._ids, self._offsets, self._sizes
             size = self._staged_bytes
+            # slices of an mmap are bytes: no view on the map outlives it, even on an exception
             with mmap.mmap(self._stage.fileno(), size, access=mmap.ACCESS_READ) as staged:
-                view = memoryview(staged)
-                try:
-                    for i in self._order():
-                        channel_id, t, at = ids[i], times[i], offsets[i]
-                        seq = sequences[channel_id]
-                        sequences[channel_id] = seq + 1
-                        writer.add_message(channel_id, t, view[at : at + sizes[i]], t, seq)
-                finally:
-                    view.release()
+                for i in self._order():
+                    channel_id, t, at = ids[i], times[i], offsets[i]
+                    seq = sequences[channel_id]
+                    sequences[channel_id] = seq + 1
+                    writer.add_message(channel_id, t, staged[at : at + sizes[i]], t, seq)
         writer.finish()
 
     def finish(self) -> None:

@@ -600,8 +600,17 @@ def compare(
     strict: Annotated[
         bool, typer.Option('--strict', help='Judge conditions on the point estimate, not the CI.')
     ] = False,
+    allow_inconclusive: Annotated[
+        bool,
+        typer.Option(
+            '--allow-inconclusive',
+            help='Exit 0, not 3, when no condition failed but the data could not decide one.',
+        ),
+    ] = False,
 ) -> None:
     """Compare runs across backends, machines or GPUs, with confidence intervals and a CI gate.
+
+    Exit status: 0 passed, 1 a condition failed, 2 bad input, 3 a condition inconclusive.
 
     Example: replaybench compare runs/baseline runs/candidate --out cmp --fail-if "p99_ms > +10%"
     """
@@ -612,6 +621,7 @@ def compare(
         out,
         fail_if,
         strict,
+        allow_inconclusive=allow_inconclusive,
         echo=typer.echo,
         echo_err=lambda text: typer.echo(text, err=True),
     )

@@ -39,6 +39,7 @@ BUILTIN_BACKENDS: dict[str, str] = {
     'hsv': 'replaybench.backends.hsv:HsvBackend',
     'onnx-cpu': 'replaybench.backends.onnx_cpu:OnnxCpuBackend',
     'recorded': 'replaybench.backends.recorded:RecordedBackend',
+    'busy': 'replaybench.backends.busywait:BusyBackend',
     'cuda': 'replaybench.backends.gpu.cuda:CudaBackend',
     'tensorrt': 'replaybench.backends.gpu.tensorrt:TensorrtBackend',
     'hsv-cuda': 'replaybench.backends.gpu.hsv_cuda:HsvCudaBackend',

@@ -1,8 +1,16 @@
-"""Compare run folders: latency and throughput ratios with block-bootstrap CIs, accuracy
-deltas, stability flags, and a CI gate (``replaybench compare``)."""
+"""Compare run folders: latency and throughput ratios with exact rank intervals between blocks
+of frames, accuracy deltas, stability flags, and a CI gate whose conditions pass, fail or are
+inconclusive (``replaybench compare``)."""
 
 from __future__ import annotations
 
+from replaybench.compare.blocks import (
+    BLOCK_FRAMES,
+    MAX_BLOCKS,
+    MIN_BLOCKS,
+    ChangeInterval,
+    change_interval,
+)
 from replaybench.compare.bootstrap import (
     CONFIDENCE,
     DEFAULT_RESAMPLES,
@@ -21,15 +29,24 @@ from replaybench.compare.core import (
     Row,
     compare_runs,
 )
+from replaybench.compare.exact import ratio_interval, shift_interval
 from replaybench.compare.gate import (
     CONDITION_GRAMMAR,
     Condition,
     GateResult,
+    Judgement,
     evaluate_gate,
     gate_failed,
+    gate_verdict,
+    judge_series,
     parse_condition,
 )
-from replaybench.compare.main import EXIT_GATE_FAILED, format_summary, main_compare
+from replaybench.compare.main import (
+    EXIT_GATE_FAILED,
+    EXIT_INCONCLUSIVE,
+    format_summary,
+    main_compare,
+)
 from replaybench.compare.output import (
     COMPARISON_SCHEMA_VERSION,
     CSV_COLUMNS,
@@ -37,9 +54,11 @@ from replaybench.compare.output import (
     write_comparison,
 )
 from replaybench.compare.runs import CV_LIMIT, RunInfo
+from replaybench.compare.verdict import EXIT_STATUS, VERDICTS, Verdict, decide
 
 __all__ = [
     'ACCURACY_METRICS',
+    'BLOCK_FRAMES',
     'COMPARISON_SCHEMA_VERSION',
     'CONDITION_GRAMMAR',
     'CONFIDENCE',
@@ -47,25 +66,39 @@ __all__ = [
     'CV_LIMIT',
     'DEFAULT_RESAMPLES',
     'EXIT_GATE_FAILED',
+    'EXIT_INCONCLUSIVE',
+    'EXIT_STATUS',
+    'MAX_BLOCKS',
     'METRICS',
+    'MIN_BLOCKS',
     'MIN_FRAMES',
     'TIMING_METRICS',
+    'VERDICTS',
+    'ChangeInterval',
     'Comparison',
     'Condition',
     'GateResult',
+    'Judgement',
     'MetricComparison',
     'Replicates',
     'Row',
     'RunInfo',
+    'Verdict',
     'block_length',
+    'change_interval',
     'compare_runs',
     'comparison_json',
+    'decide',
     'evaluate_gate',
     'format_summary',
     'gate_failed',
+    'gate_verdict',
+    'judge_series',
     'main_compare',
     'parse_condition',
     'ratio_ci',
+    'ratio_interval',
     'replicates',
+    'shift_interval',
     'write_comparison',
 ]

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 import numpy as np
 
+from replaybench.compare.blocks import change_interval
 from replaybench.compare.bootstrap import (
     CONFIDENCE,
     DEFAULT_RESAMPLES,
@@ -26,6 +27,7 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
+    from replaybench.compare.blocks import ChangeInterval
     from replaybench.compare.runs import RunInfo
     from replaybench.results.records import FrameRecord
     from replaybench.results.stats import Summary
@@ -41,7 +43,7 @@ __all__ = [
     'compare_runs',
 ]
 
-#: Timing metrics: compared as candidate / baseline ratios with block-bootstrap CIs.
+#: Timing metrics: compared as candidate / baseline ratios with exact rank intervals.
 TIMING_METRICS: tuple[str, ...] = ('median_ms', 'p99_ms', 'mean_ms', 'fps')
 
 #: Accuracy metrics: compared as candidate - baseline differences of the run.json numbers.
@@ -67,8 +69,12 @@ Interval = tuple[float, float]
 class MetricComparison:
     """One metric of one row against its baseline row.
 
-    ``ratio`` is candidate / baseline and ``diff`` candidate - baseline. CIs are 95 %
-    block-bootstrap percentile intervals (timing metrics only; accuracy metrics have none).
+    ``ratio`` is candidate / baseline and ``diff`` candidate - baseline, of the whole runs (the
+    summary.csv values). ``value_ci`` is the block-bootstrap interval of the row's own value.
+    ``ratio_ci`` and ``diff_ci`` are the intervals the gate judges (timing metrics only;
+    accuracy metrics have none): exact rank intervals of the typical change between blocks of
+    frames, or between frames for short runs (``method``: ``between-block`` or ``per-frame``;
+    blocks.py); ``typical_ratio`` / ``typical_diff`` are their Hodges–Lehmann centres.
     ``significant`` is None without a CI, else whether the ratio CI excludes 1.0.
     """
 
@@ -80,6 +86,11 @@ class MetricComparison:
     ratio_ci: Interval | None = None
     diff: float | None = None
     diff_ci: Interval | None = None
+    typical_ratio: float | None = None
+    typical_diff: float | None = None
+    method: str | None = None
+    #: blocks compared (baseline, candidate); None when frames were compared
+    blocks: tuple[int, int] | None = None
 
     @property
     def significant(self) -> bool | None:
@@ -218,14 +229,6 @@ def _rng(seed: int, run: int, backend: str, topic: str) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(run, key)))
 
 
-def _ratio_interval(
-    cand: npt.NDArray[np.float64], base: npt.NDArray[np.float64], confidence: float
-) -> tuple[Interval | None, Interval | None]:
-    with np.errstate(divide='ignore', invalid='ignore'):
-        ratio = percentile_interval(cand / base, confidence)
-    return ratio, percentile_interval(cand - base, confidence)
-
-
 def _reps(reps: Replicates | None, metric: str) -> npt.NDArray[np.float64] | None:
     if reps is None:
         return None
@@ -238,23 +241,32 @@ def _timing(
     value: float | None,
     own: Replicates | None,
     base_value: float | None,
-    base: Replicates | None,
+    change: ChangeInterval | None,
     confidence: float,
-    paired: bool,
 ) -> MetricComparison:
+    """``change`` is None for a row without a baseline (baseline and unpaired rows)."""
     mine = _reps(own, metric)
     value_ci = percentile_interval(mine, confidence) if mine is not None else None
-    if not paired:
+    if change is None:
         return MetricComparison(metric, value, value_ci)
     ratio = diff = None
     if value is not None and base_value is not None:
         diff = value - base_value
         ratio = value / base_value if base_value > 0 else None
-    theirs = _reps(base, metric)
-    ratio_ci = diff_ci = None
-    if mine is not None and theirs is not None and ratio is not None:
-        ratio_ci, diff_ci = _ratio_interval(mine, theirs, confidence)
-    return MetricComparison(metric, value, value_ci, base_value, ratio, ratio_ci, diff, diff_ci)
+    return MetricComparison(
+        metric,
+        value,
+        value_ci,
+        base_value,
+        ratio,
+        change.ratio_ci if ratio is not None else None,
+        diff,
+        change.diff_ci if diff is not None else None,
+        change.ratio,
+        change.diff,
+        change.method,
+        change.blocks,
+    )
 
 
 def _accuracy_metric(
@@ -369,7 +381,10 @@ def compare_runs(
             if cv is not None and cv > CV_LIMIT:
                 flags.append(f'unstable latency: CV {cv:.3f} > {CV_LIMIT:g}')
             if s.latency.size < MIN_FRAMES:
-                flags.append(f'{s.latency.size} measured frames: too few for a CI (< {MIN_FRAMES})')
+                flags.append(
+                    f'{s.latency.size} measured frames: fewer than {MIN_FRAMES}, compared frame by '
+                    'frame (no blocks, no bootstrap CI of its own)'
+                )
             engine = engines.get((run.index, backend))
             if engine:
                 flags.append(engine)
@@ -377,7 +392,6 @@ def compare_runs(
                 flags.append('no baseline row for this backend and topic')
             own = reps(run.index, backend, topic)
             base_series = series[baseline][ref, topic] if ref is not None else None
-            base_reps = reps(baseline, ref, topic) if paired and ref is not None else None
             metrics: dict[str, MetricComparison] = {}
             for metric in TIMING_METRICS:
                 value = getattr(summary, _SUMMARY[metric])
@@ -386,9 +400,17 @@ def compare_runs(
                     if base_series is not None
                     else None
                 )
-                metrics[metric] = _timing(
-                    metric, value, own, base_value, base_reps, confidence, paired
-                )
+                change = None
+                if paired and base_series is not None:
+                    change = change_interval(
+                        metric,
+                        base_series.latency,
+                        s.latency,
+                        baseline_intervals_s=base_series.intervals,
+                        candidate_intervals_s=s.intervals,
+                        confidence=confidence,
+                    )
+                metrics[metric] = _timing(metric, value, own, base_value, change, confidence)
             acc = accuracy[run.index].get((backend, topic), {})
             base_acc = accuracy[baseline].get((ref, topic), {}) if ref is not None else {}
             for metric in ACCURACY_METRICS:

@@ -1,16 +1,21 @@
-"""The CI gate: conditions such as ``p99_ms > +10%`` judged against a comparison."""
+"""The CI gate: conditions such as ``p99_ms > +10%`` judged against a comparison: each one
+passed, failed or inconclusive (``verdict.py``)."""
 
 from __future__ import annotations
 
 import re
 from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench.compare.bootstrap import MIN_FRAMES
-from replaybench.compare.core import ACCURACY_METRICS, METRICS
+from replaybench.compare.blocks import change_interval, point_value
+from replaybench.compare.bootstrap import CONFIDENCE
+from replaybench.compare.core import ACCURACY_METRICS, METRICS, TIMING_METRICS
+from replaybench.compare.verdict import Verdict, decide, overall, past
 from replaybench.errors import UsageError
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
+
+    import numpy.typing as npt
 
     from replaybench.compare.core import Comparison, MetricComparison, Row
 
@@ -18,8 +23,12 @@ __all__ = [
     'CONDITION_GRAMMAR',
     'Condition',
     'GateResult',
+    'Judgement',
     'evaluate_gate',
     'gate_failed',
+    'gate_verdict',
+    'judge_series',
+    'method_text',
     'parse_condition',
 ]
 
@@ -70,6 +79,9 @@ class GateResult(NamedTuple):
 
     ``estimate``, ``ci_low`` and ``ci_high`` are in the threshold's unit: percent change for a
     relative condition, the metric's unit for an absolute one (None when not available).
+    ``estimate`` is the change of the whole runs; the interval is that of the typical change
+    (``method``: between blocks, or between frames for short runs). ``verdict`` is
+    ``passed``, ``failed`` or ``inconclusive``; ``failed`` is ``verdict == 'failed'``.
     """
 
     condition: str
@@ -81,6 +93,17 @@ class GateResult(NamedTuple):
     failed: bool
     explanation: str
     run: str = ''
+    verdict: Verdict = 'passed'
+    method: str = ''
+
+
+class Judgement(NamedTuple):
+    """``judge_series``: the verdict, the whole-series change, its interval and the method."""
+
+    verdict: Verdict
+    estimate: float | None
+    interval: tuple[float, float] | None
+    method: str
 
 
 def parse_condition(text: str) -> Condition:
@@ -110,15 +133,6 @@ def _signed(value: float, relative: bool) -> str:
     return f'{value:+.4g}%' if relative else f'{value:+.4g}'
 
 
-def _past(value: float, op: str, threshold: float) -> bool:
-    # Values within rounding noise of the threshold count as equal to it (0.79 - 0.8 is -0.01).
-    if abs(value - threshold) <= 1e-9 * max(1.0, abs(threshold)):
-        return op in {'>=', '<='}
-    if op in {'>', '>='}:
-        return value > threshold
-    return value < threshold
-
-
 def _change(
     m: MetricComparison, condition: Condition
 ) -> tuple[float | None, tuple[float, float] | None]:
@@ -131,6 +145,12 @@ def _change(
             ci = ((m.ratio_ci[0] - 1.0) * 100.0, (m.ratio_ci[1] - 1.0) * 100.0)
         return (m.ratio - 1.0) * 100.0, ci
     return m.diff, m.diff_ci
+
+
+def _typical(m: MetricComparison, condition: Condition) -> float | None:
+    if condition.relative:
+        return None if m.typical_ratio is None else (m.typical_ratio - 1.0) * 100.0
+    return m.typical_diff
 
 
 def _value(metric: str, value: float | None) -> str:
@@ -147,22 +167,51 @@ def _change_text(value: float, condition: Condition) -> str:
     return f'{value:+.4g}{_UNITS.get(condition.metric, "")}'
 
 
-def _judge(row: Row, condition: Condition, strict: bool, level: int) -> GateResult:
+def method_text(m: MetricComparison) -> str:
+    """``between-block 10/10`` or ``per-frame 10/10``: how the interval was made, from what."""
+    if m.method is None:
+        return ''
+    if m.blocks is not None:
+        return f'{m.method} {m.blocks[0]}/{m.blocks[1]}'
+    return m.method
+
+
+_WORD: dict[Verdict, str] = {'failed': 'FAIL', 'passed': 'pass', 'inconclusive': 'INCONCLUSIVE'}
+_SIDE = {'>': 'above', '>=': 'at or above', '<': 'below', '<=': 'at or below'}
+_OTHER_SIDE = {'>': 'at or below', '>=': 'below', '<': 'at or above', '<=': 'above'}
+
+
+def _missing(row: Row, condition: Condition, m: MetricComparison) -> tuple[Verdict, str]:
+    name = _NAMES[condition.metric]
+    if m.baseline is not None and m.value is None:
+        return 'failed', f'the baseline has {name} but this run does not'
+    if m.value is None:
+        return 'inconclusive', f'{name} measured in neither run: nothing to judge'
+    if m.baseline is None:
+        return 'inconclusive', f'the baseline has no {name}: nothing to judge'
+    return 'inconclusive', f'the baseline {name} is 0: a relative change is undefined'
+
+
+def _no_interval(m: MetricComparison, row: Row, baseline: Row | None) -> str:
+    if m.method == 'per-frame':
+        theirs = baseline.measured if baseline is not None else '?'
+        return (
+            f'no CI: {theirs} baseline against {row.measured} measured frames are too few for a '
+            f'{CONFIDENCE:.0%} rank interval'
+        )
+    return 'no CI: a value is not positive and finite'
+
+
+def _judge(
+    row: Row, baseline: Row | None, condition: Condition, strict: bool, level: int
+) -> GateResult:
     m = row.metrics[condition.metric]
     where = f'{row.backend} {row.topic} in {row.run_label}'
     name = _NAMES[condition.metric]
     est, ci = _change(m, condition)
+    method = method_text(m)
     if est is None:
-        failed = m.baseline is not None and m.value is None
-        if failed:
-            reason = f'the baseline has {name} but this run does not'
-        elif m.value is None:
-            reason = f'{name} measured in neither run'
-        elif m.baseline is None:
-            reason = f'the baseline has no {name}'
-        else:
-            reason = f'the baseline {name} is 0: a relative change is undefined'
-        verdict = 'FAIL' if failed else 'pass'
+        verdict, reason = _missing(row, condition, m)
         return GateResult(
             condition.text,
             row.backend,
@@ -170,47 +219,55 @@ def _judge(row: Row, condition: Condition, strict: bool, level: int) -> GateResu
             None,
             None,
             None,
-            failed,
-            f'{verdict} {condition.text}: {where} ({condition.metric}): {reason}',
+            verdict == 'failed',
+            f'{_WORD[verdict]} {condition.text}: {where} ({condition.metric}): {reason}',
             row.run_label,
+            verdict,
+            method,
         )
-    shown = _change_text(est, condition)
-    ci_text = (
-        f' ({level}% CI {_change_text(ci[0], condition)} … {_change_text(ci[1], condition)})'
-        if ci
-        else ' (no CI)'
-    )
-    point_past = _past(est, condition.op, condition.threshold)
-    past = 'past' if point_past else 'not past'
-    if strict:
-        failed = point_past
-        why = f'strict: the point estimate is {past} {condition.describe()}'
-    elif ci is None and condition.metric in ACCURACY_METRICS:
-        failed = point_past
-        why = f'accuracy has no CI: the point estimate is {past} {condition.describe()}'
-    elif ci is None:
-        failed = False
+    accuracy = condition.metric in ACCURACY_METRICS
+    threshold = condition.describe()
+    point_past = past(est, condition.op, condition.threshold)
+    past_text = 'past' if point_past else 'not past'
+    if strict or accuracy:
+        verdict = decide(est, ci, condition.op, condition.threshold, point=True)
         why = (
-            f'no CI (fewer than {MIN_FRAMES} measured frames here or in the baseline): not judged '
-            f'(the point estimate is {past} {condition.describe()}; strict mode judges it)'
+            f'strict: the point estimate is {past_text} {threshold}'
+            if strict
+            else f'accuracy has no CI: the point estimate is {past_text} {threshold}'
         )
     else:
-        edge = ci[0] if condition.op in {'>', '>='} else ci[1]
-        failed = _past(edge, condition.op, condition.threshold)
-        side = 'above' if condition.op in {'>', '>='} else 'below'
-        if failed:
-            why = f'the whole CI is {side} {condition.describe()}'
-        elif point_past:
+        verdict = decide(est, ci, condition.op, condition.threshold)
+        if ci is None:
             why = (
-                f'the point estimate is past {condition.describe()} but the CI is not entirely '
-                f'{side} it: within noise (strict mode would fail)'
+                f'{_no_interval(m, row, baseline)}: undecided (the point estimate is '
+                f'{past_text} {threshold}; strict mode judges it)'
             )
+        elif verdict == 'failed':
+            why = f'the whole CI is {_SIDE[condition.op]} {threshold}'
+        elif verdict == 'passed':
+            why = f'the whole CI is {_OTHER_SIDE[condition.op]} {threshold}'
         else:
-            why = f'not past {condition.describe()}'
-    verdict = 'FAIL' if failed else 'pass'
+            why = (
+                f'the CI straddles {threshold}: the data cannot tell whether the change is past '
+                f'it (the point estimate is {past_text}; strict mode judges it)'
+            )
+    shown = _change_text(est, condition)
+    typical = _typical(m, condition)
+    unit = 'block' if m.blocks is not None else 'frame'
+    detail = f'typical {unit} {_change_text(typical, condition)}, ' if typical is not None else ''
+    if ci:
+        ci_text = (
+            f' ({detail}{level}% CI {_change_text(ci[0], condition)} … '
+            f'{_change_text(ci[1], condition)})'
+        )
+    elif accuracy:
+        ci_text = ' (no CI)'
+    else:
+        ci_text = f' ({detail}no CI)' if detail else ' (no CI)'
     text = (
-        f'{verdict} {condition.text}: {where}: {name} {_value(condition.metric, m.value)} vs '
-        f'{_value(condition.metric, m.baseline)} baseline ({row.baseline_backend}) = '
+        f'{_WORD[verdict]} {condition.text}: {where}: {name} {_value(condition.metric, m.value)} '
+        f'vs {_value(condition.metric, m.baseline)} baseline ({row.baseline_backend}) = '
         f'{shown}{ci_text}; {why}'
     )
     return GateResult(
@@ -220,9 +277,11 @@ def _judge(row: Row, condition: Condition, strict: bool, level: int) -> GateResu
         est,
         ci[0] if ci else None,
         ci[1] if ci else None,
-        failed,
+        verdict == 'failed',
         text,
         row.run_label,
+        verdict,
+        method,
     )
 
 
@@ -231,10 +290,10 @@ def evaluate_gate(
 ) -> list[GateResult]:
     """Judge each condition on every candidate row (condition order, then row order).
 
-    By default a condition fails only when the whole CI lies past the threshold; ``strict``
-    judges the point estimate. Accuracy metrics have no CI and are judged on the point estimate;
-    a timing metric without a CI (too few frames) does not fail unless ``strict``. UsageError
-    on a bad condition (all are parsed before any is judged).
+    A timing condition fails when its whole CI lies past the threshold, passes when none of it
+    does, and is inconclusive otherwise or without a CI (``verdict.decide``); ``strict``
+    judges the point estimate instead. Accuracy metrics have no CI and are judged on the point
+    estimate. UsageError on a bad condition (all are parsed before any is judged).
     """
     parsed = [parse_condition(c) for c in conditions]
     results: list[GateResult] = []
@@ -242,10 +301,61 @@ def evaluate_gate(
     level = round(comparison.confidence * 100)
     for condition in parsed:
         for row in candidates:
-            results.append(_judge(row, condition, strict, level))
+            results.append(_judge(row, comparison.baseline_row(row), condition, strict, level))
     return results
 
 
 def gate_failed(results: Sequence[GateResult]) -> bool:
     """True when any condition failed."""
     return any(r.failed for r in results)
+
+
+def gate_verdict(results: Sequence[GateResult]) -> Verdict:
+    """The gate's verdict over all its results (``verdict.overall``)."""
+    return overall(r.verdict for r in results)
+
+
+def judge_series(
+    baseline_ms: npt.ArrayLike,
+    candidate_ms: npt.ArrayLike,
+    condition: str | Condition,
+    *,
+    baseline_intervals_s: npt.ArrayLike | None = None,
+    candidate_intervals_s: npt.ArrayLike | None = None,
+    confidence: float = CONFIDENCE,
+    strict: bool = False,
+) -> Judgement:
+    """Judge a timing condition on two latency series (ms, replay order) as the gate does.
+
+    ``*_intervals_s`` are completion-to-completion times (s), needed for ``fps``. The change is
+    that of the whole series (as in summary.csv); the interval and the verdict are those of
+    ``blocks.change_interval`` and ``verdict.decide``. UsageError for a bad condition or one on
+    an accuracy metric.
+    """
+    parsed = condition if isinstance(condition, Condition) else parse_condition(condition)
+    if parsed.metric not in TIMING_METRICS:
+        msg = f'{parsed.text!r}: judge_series judges timing metrics ({", ".join(TIMING_METRICS)})'
+        raise UsageError(msg)
+    change = change_interval(
+        parsed.metric,
+        baseline_ms,
+        candidate_ms,
+        baseline_intervals_s=baseline_intervals_s,
+        candidate_intervals_s=candidate_intervals_s,
+        confidence=confidence,
+    )
+    base = point_value(parsed.metric, baseline_ms, baseline_intervals_s)
+    cand = point_value(parsed.metric, candidate_ms, candidate_intervals_s)
+    estimate: float | None = None
+    interval: tuple[float, float] | None = None
+    if parsed.relative:
+        if base is not None and cand is not None and base > 0:
+            estimate = (cand / base - 1.0) * 100.0
+            if change.ratio_ci is not None:
+                lo, hi = change.ratio_ci
+                interval = ((lo - 1.0) * 100.0, (hi - 1.0) * 100.0)
+    elif base is not None and cand is not None:
+        estimate = cand - base
+        interval = change.diff_ci
+    verdict = decide(estimate, interval, parsed.op, parsed.threshold, point=strict)
+    return Judgement(verdict, estimate, interval, change.method)

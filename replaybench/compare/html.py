@@ -6,10 +6,13 @@ import math
 from html import escape
 from typing import TYPE_CHECKING, NamedTuple
 
+from replaybench.compare.blocks import BLOCK_FRAMES, MAX_BLOCKS, MIN_BLOCKS
 from replaybench.compare.bootstrap import MIN_FRAMES
 from replaybench.compare.core import ACCURACY_METRICS, TIMING_METRICS
+from replaybench.compare.gate import gate_verdict, method_text
 from replaybench.compare.runs import CV_LIMIT, engine_text, inputs_match
 from replaybench.report.svg import colour, nice_ticks, step_cdf
+from replaybench.textsafe import visible
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -33,6 +36,7 @@ h3{font-size:15px;margin:18px 0 8px}
 color:#fff;background:#777;white-space:nowrap}
 .badge.pass,.badge.match{background:#2e7d32}.badge.fail,.badge.mismatch{background:#c62828}
 .badge.ns{background:#9e9e9e}.badge.sig{background:#1565c0}.badge.unknown{background:#e65100}
+.badge.inconclusive{background:#e65100}
 .banner{border:1px solid #e0b000;background:#fff8e1;border-radius:6px;padding:10px 14px;
 margin:12px 0}
 .banner.bad{border-color:#c62828;background:#ffebee}
@@ -72,7 +76,8 @@ _FONT = 'system-ui, -apple-system, Segoe UI, Roboto, sans-serif'
 
 
 def _e(value: object) -> str:
-    return escape(str(value), quote=True)
+    """HTML-escaped text, control characters shown as escapes (``replaybench.textsafe``)."""
+    return escape(visible(str(value)), quote=True)
 
 
 def _num(value: float | None, digits: int = 4) -> str:
@@ -139,26 +144,33 @@ def _banner(comparison: Comparison) -> str:
     return f'<div class="banner" role="alert"><strong>Warnings</strong><ul>{body}</ul></div>'
 
 
-def _gate(gate: Sequence[GateResult], conditions: Sequence[str], strict: bool) -> str:
+_BADGES = {
+    'failed': ('fail', 'FAIL', 'fail'),
+    'passed': ('pass', 'PASS', 'pass'),
+    'inconclusive': ('inconclusive', 'INCONCLUSIVE', 'inconclusive'),
+}
+
+
+def _gate(gate: Sequence[GateResult], conditions: Sequence[str], strict: bool, allow: bool) -> str:
     if not conditions:
         return ''
-    failed = any(r.failed for r in gate)
-    badge = (
-        '<span class="badge fail">FAIL</span>' if failed else '<span class="badge pass">PASS</span>'
-    )
+    css, word, _ = _BADGES[gate_verdict(gate)]
+    badge = f'<span class="badge {css}">{word}</span>'
+    if css == 'inconclusive' and allow:
+        badge += ' <span class="muted">(allowed: exit 0)</span>'
     mode = (
         'strict: the point estimate is judged'
         if strict
-        else 'a condition fails only when its whole CI lies past the threshold'
+        else 'a condition fails when its whole CI lies past the threshold, passes when none of '
+        'it does, and is inconclusive when the CI straddles the threshold or there is none'
     )
     listed = ', '.join(f'<code>{_e(c)}</code>' for c in conditions)
     rows = []
     for r in gate:
-        verdict = (
-            '<span class="badge fail">fail</span>'
-            if r.failed
-            else '<span class="badge pass">pass</span>'
-        )
+        css, _, word = _BADGES[r.verdict]
+        verdict = f'<span class="badge {css}">{word}</span>'
+        if r.method:
+            verdict += f'<span class="ci">{_e(r.method)}</span>'
         unit = '%' if r.condition.rstrip().endswith('%') else ''
         ci = (
             f'{_num(r.ci_low)}{unit} … {_num(r.ci_high)}{unit}'
@@ -237,8 +249,14 @@ def _timing_cell(m: MetricComparison, role: str) -> str:
     if m.ratio is None:
         return f'<td class="n">{value}<span class="ci">no ratio</span></td>'
     ratio = f'×{m.ratio:.3f} ({_pct(m.ratio)})'
+    how = method_text(m)
+    typical = (
+        f'<span class="ci">typical ×{m.typical_ratio:.3f} ({_e(how)})</span>'
+        if m.typical_ratio is not None
+        else ''
+    )
     if m.ratio_ci is None:
-        detail = '<span class="ci">no CI</span>'
+        detail = f'{typical}<span class="ci">no CI</span>'
     else:
         lo, hi = m.ratio_ci
         badge = (
@@ -246,7 +264,7 @@ def _timing_cell(m: MetricComparison, role: str) -> str:
             if m.significant
             else '<span class="badge ns">not significant</span>'
         )
-        detail = f'<span class="ci">CI ×{lo:.3f} … ×{hi:.3f}</span>{badge}'
+        detail = f'{typical}<span class="ci">CI ×{lo:.3f} … ×{hi:.3f}</span>{badge}'
     return f'<td class="n">{value}<span class="ci">{_e(ratio)}</span>{detail}</td>'
 
 
@@ -295,10 +313,11 @@ def _summary(comparison: Comparison) -> str:
         '<h2 id="summary">Summary</h2><div class="table-wrap"><table class="summary"><thead><tr>'
         f'{th}</tr></thead><tbody>{"".join(body)}</tbody></table></div>'
         '<p class="muted">Candidate rows: value, ratio to the baseline row (candidate / '
-        f'baseline) and its {round(comparison.confidence * 100)}% CI; "not significant" when the '
-        'CI contains 1. Baseline rows: value and the CI of the value itself. Accuracy: difference '
-        "of the run.json numbers, without CI. ⚑ flags: facts that make a row's timings doubtful "
-        'or not comparable.</p>'
+        'baseline, whole runs), the typical ratio between blocks of frames (frames below '
+        f'{MIN_FRAMES}) and its {round(comparison.confidence * 100)}% CI, which the gate '
+        'judges; "not significant" when the CI contains 1. Baseline rows: value and the CI of '
+        'the value itself. Accuracy: difference of the run.json numbers, without CI. ⚑ flags: '
+        "facts that make a row's timings doubtful or not comparable.</p>"
     )
 
 
@@ -433,10 +452,13 @@ def _footer(comparison: Comparison) -> str:
     level = round(comparison.confidence * 100)
     return (
         '<footer>Statistics: measured frames only (processed, after warm-up), in replay order. '
-        f'{level}% percentile intervals from {comparison.n_boot} circular block-bootstrap '
-        'resamples per series (block length max(ceil(n^(1/3)), Politis–White estimate) frames, '
-        'runs resampled '
-        f'independently, seed {comparison.seed}); no CI below {MIN_FRAMES} frames. '
+        f'Ratio CIs: {level}% exact Mann–Whitney (Moses) intervals of the Hodges–Lehmann ratio '
+        f'between blocks of consecutive frames (clamp(n / {BLOCK_FRAMES}, {MIN_BLOCKS}, '
+        f'{MAX_BLOCKS}) blocks per series, each summarised by the metric), between frames below '
+        f'{MIN_FRAMES} frames. '
+        f'Value CIs: {level}% percentile intervals from {comparison.n_boot} circular '
+        'block-bootstrap resamples per series (block length max(ceil(n^(1/3)), Politis–White '
+        f'estimate) frames, seed {comparison.seed}); none below {MIN_FRAMES} frames. '
         f'Unstable: latency coefficient of variation above {CV_LIMIT:g}. '
         'Self-contained: no external resources.</footer>'
     )
@@ -448,16 +470,17 @@ def render_comparison_html(
     gate: Sequence[GateResult] = (),
     conditions: Sequence[str] = (),
     strict: bool = False,
+    allow_inconclusive: bool = False,
 ) -> str:
     """The comparison page; every text taken from run folders is HTML-escaped."""
     verdict = ''
     if conditions:
-        verdict = ' · FAIL' if any(r.failed for r in gate) else ' · PASS'
+        verdict = ' · ' + _BADGES[gate_verdict(gate)][1]
     body = [
         _header(comparison),
         _inputs_status(comparison),
         _banner(comparison),
-        _gate(gate, conditions, strict),
+        _gate(gate, conditions, strict, allow_inconclusive),
         _summary(comparison),
         _charts(comparison),
         _runs(comparison),

@@ -7,8 +7,9 @@ from typing import TYPE_CHECKING
 
 from replaybench.compare.bootstrap import DEFAULT_RESAMPLES
 from replaybench.compare.core import compare_runs
-from replaybench.compare.gate import evaluate_gate, parse_condition
+from replaybench.compare.gate import evaluate_gate, gate_verdict, parse_condition
 from replaybench.compare.output import write_comparison
+from replaybench.compare.verdict import EXIT_STATUS
 from replaybench.errors import ReplaybenchError
 
 if TYPE_CHECKING:
@@ -18,10 +19,13 @@ if TYPE_CHECKING:
     from replaybench.compare.core import Comparison, MetricComparison
     from replaybench.compare.gate import GateResult
 
-__all__ = ['EXIT_GATE_FAILED', 'format_summary', 'main_compare']
+__all__ = ['EXIT_GATE_FAILED', 'EXIT_INCONCLUSIVE', 'format_summary', 'main_compare']
 
 #: Exit status when a gate condition fails (bad input is ReplaybenchError.exit_code, 2).
-EXIT_GATE_FAILED = 1
+EXIT_GATE_FAILED = EXIT_STATUS['failed']
+#: Exit status when no condition failed but one could not be decided (0 with
+#: ``allow_inconclusive``).
+EXIT_INCONCLUSIVE = EXIT_STATUS['inconclusive']
 
 _SHORT: dict[str, str] = {'median_ms': 'median', 'p99_ms': 'p99', 'mean_ms': 'mean', 'fps': 'fps'}
 
@@ -41,13 +45,18 @@ def _ratio(m: MetricComparison) -> str:
     return f'{text} [{lo:.3f}, {hi:.3f}]{mark}'
 
 
-def format_summary(comparison: Comparison, gate: Sequence[GateResult] = ()) -> list[str]:
-    """The human summary: one line per candidate row, then the failed conditions."""
+def format_summary(
+    comparison: Comparison, gate: Sequence[GateResult] = (), *, allow_inconclusive: bool = False
+) -> list[str]:
+    """The human summary: one line per candidate row, then the gate's verdict."""
     level = round(comparison.confidence * 100)
     lines = [
         f'baseline: {comparison.baseline_run.label}'
         + (f' (backend {comparison.baseline_backend})' if comparison.baseline_backend else ''),
-        f'ratios candidate/baseline with {level}% block-bootstrap CIs (n.s. = not significant):',
+        (
+            f'ratios candidate/baseline; {level}% CIs of the typical change, exact rank '
+            'intervals between blocks of frames (n.s. = not significant):'
+        ),
     ]
     for row in comparison.rows:
         if row.role != 'candidate':
@@ -60,13 +69,19 @@ def format_summary(comparison: Comparison, gate: Sequence[GateResult] = ()) -> l
         lines.append(f'  {row.name}{versus}: ' + ', '.join(parts))
     if not any(r.role == 'candidate' for r in comparison.rows):
         lines.append('  (no row to compare with the baseline)')
-    failed = [r for r in gate if r.failed]
     if gate:
-        lines.append(
-            f'gate: FAILED ({len(failed)} of {len(gate)} checks)'
-            if failed
-            else f'gate: passed ({len(gate)} checks)'
-        )
+        failed = sum(r.verdict == 'failed' for r in gate)
+        undecided = sum(r.verdict == 'inconclusive' for r in gate)
+        verdict = gate_verdict(gate)
+        if verdict == 'failed':
+            extra = f', {undecided} inconclusive' if undecided else ''
+            lines.append(f'gate: FAILED ({failed} of {len(gate)} checks{extra})')
+        elif verdict == 'inconclusive':
+            word = 'inconclusive' if allow_inconclusive else 'INCONCLUSIVE'
+            allowed = '; allowed by --allow-inconclusive' if allow_inconclusive else ''
+            lines.append(f'gate: {word} ({undecided} of {len(gate)} checks undecided{allowed})')
+        else:
+            lines.append(f'gate: passed ({len(gate)} checks)')
     return lines
 
 
@@ -80,14 +95,16 @@ def main_compare(
     baseline_backend: str | None = None,
     seed: int = 0,
     n_boot: int = DEFAULT_RESAMPLES,
+    allow_inconclusive: bool = False,
     echo: Callable[[str], None] = print,
     echo_err: Callable[[str], None] = _stderr,
 ) -> int:
     """Compare ``run_dirs``, judge ``fail_if`` and write the files into ``out``.
 
-    Prints the summary through ``echo`` and warnings, failed conditions and errors through
-    ``echo_err``. Returns the exit status: 0, 1 when a condition failed, 2 on bad input
-    (unreadable run folder, bad condition, unwritable ``out``).
+    Prints the summary through ``echo`` and warnings, failed and inconclusive conditions and
+    errors through ``echo_err``. Returns the exit status: 0 when every condition passed, 1 when
+    one failed, 3 when none failed but one was inconclusive (0 with ``allow_inconclusive``),
+    2 on bad input (unreadable run folder, bad condition, unwritable ``out``).
     """
     try:
         for condition in fail_if:
@@ -107,16 +124,24 @@ def main_compare(
         echo_err(f'replaybench: warning: {warning}')
     try:
         csv_path, html_path = write_comparison(
-            comparison, out, gate=gate, conditions=fail_if, strict=strict
+            comparison,
+            out,
+            gate=gate,
+            conditions=fail_if,
+            strict=strict,
+            allow_inconclusive=allow_inconclusive,
         )
     except OSError as err:
         echo_err(f'replaybench: error: cannot write into {out}: {err.strerror or err}')
         return 2
-    for line in format_summary(comparison, gate):
+    for line in format_summary(comparison, gate, allow_inconclusive=allow_inconclusive):
         echo(line)
     for result in gate:
-        if result.failed:
+        if result.verdict != 'passed':
             echo_err(f'replaybench: gate: {result.explanation}')
     echo(f'Comparison: {html_path}')
     echo(f'CSV: {csv_path}')
-    return EXIT_GATE_FAILED if any(r.failed for r in gate) else 0
+    verdict = gate_verdict(gate)
+    if verdict == 'inconclusive' and allow_inconclusive:
+        return 0
+    return EXIT_STATUS[verdict]

@@ -8,11 +8,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from replaybench import __version__
+from replaybench.compare.blocks import BLOCK_FRAMES, MAX_BLOCKS, MIN_BLOCKS
 from replaybench.compare.bootstrap import MIN_FRAMES
 from replaybench.compare.core import ACCURACY_METRICS, TIMING_METRICS
+from replaybench.compare.gate import gate_verdict, method_text
 from replaybench.compare.runs import CV_LIMIT, engine_text
+from replaybench.compare.verdict import EXIT_STATUS
 from replaybench.results.records import csv_writer
 from replaybench.results.runfile import write_json_atomic, write_text_atomic
+from replaybench.textsafe import csv_text
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -29,9 +33,17 @@ __all__ = [
 ]
 
 #: Version of the comparison.json layout.
-COMPARISON_SCHEMA_VERSION = 1
+COMPARISON_SCHEMA_VERSION = 2
 
-_TIMING_SUFFIXES = ('', '_baseline', '_ratio', '_ci_low', '_ci_high', '_significant')
+_TIMING_SUFFIXES = (
+    '',
+    '_baseline',
+    '_ratio',
+    '_typical_ratio',
+    '_ci_low',
+    '_ci_high',
+    '_significant',
+)
 _ACCURACY_SUFFIXES = ('', '_baseline', '_delta')
 
 #: Columns of comparison.csv, in order.
@@ -48,8 +60,11 @@ CSV_COLUMNS: tuple[str, ...] = (
     'block_length',
     'latency_cv',
     'inputs_match',
+    'ci_method',
     *(m + s for m in TIMING_METRICS for s in _TIMING_SUFFIXES),
     *(m + s for m in ACCURACY_METRICS for s in _ACCURACY_SUFFIXES),
+    'gate',
+    'gate_conditions',
     'flags',
 )
 
@@ -58,11 +73,22 @@ def _yes_no(value: bool | None) -> str | None:
     return None if value is None else ('yes' if value else 'no')
 
 
-def csv_rows(comparison: Comparison) -> list[dict[str, Any]]:
+def _row_gate(row: Row, gate: Sequence[GateResult]) -> tuple[str | None, str | None]:
+    """The row's verdict over the conditions judged on it, and ``condition: verdict`` each."""
+    mine = [
+        r for r in gate if (r.run, r.backend, r.topic) == (row.run_label, row.backend, row.topic)
+    ]
+    if not mine:
+        return None, None
+    return gate_verdict(mine), '; '.join(f'{r.condition}: {r.verdict}' for r in mine)
+
+
+def csv_rows(comparison: Comparison, gate: Sequence[GateResult] = ()) -> list[dict[str, Any]]:
     """One dict per row with the ``CSV_COLUMNS`` keys (None = empty cell)."""
     base = comparison.baseline_run
     out = []
     for row in comparison.rows:
+        verdict, detail = _row_gate(row, gate)
         record: dict[str, Any] = {
             'run': row.run_label,
             'run_index': row.run,
@@ -76,6 +102,9 @@ def csv_rows(comparison: Comparison) -> list[dict[str, Any]]:
             'block_length': row.block_length,
             'latency_cv': row.latency_cv,
             'inputs_match': _yes_no(row.inputs_match),
+            'ci_method': method_text(row.metrics['median_ms']) or None,
+            'gate': verdict,
+            'gate_conditions': detail,
             'flags': '; '.join(row.flags),
         }
         for metric in TIMING_METRICS:
@@ -84,6 +113,7 @@ def csv_rows(comparison: Comparison) -> list[dict[str, Any]]:
             record[metric] = m.value
             record[f'{metric}_baseline'] = m.baseline
             record[f'{metric}_ratio'] = m.ratio
+            record[f'{metric}_typical_ratio'] = m.typical_ratio
             record[f'{metric}_ci_low'] = ci[0] if ci else None
             record[f'{metric}_ci_high'] = ci[1] if ci else None
             record[f'{metric}_significant'] = _yes_no(m.significant)
@@ -103,14 +133,14 @@ def _cell(value: Any) -> str:
         return 'yes' if value else 'no'
     if isinstance(value, float):
         return format(value, '.6g') if math.isfinite(value) else ''
-    return str(value)
+    return csv_text(value) if isinstance(value, str) else str(value)
 
 
-def _csv_text(comparison: Comparison) -> str:
+def _csv_text(comparison: Comparison, gate: Sequence[GateResult]) -> str:
     buffer = io.StringIO()
     writer = csv_writer(buffer)
     writer.writerow(CSV_COLUMNS)
-    for record in csv_rows(comparison):
+    for record in csv_rows(comparison, gate):
         writer.writerow([_cell(record[name]) for name in CSV_COLUMNS])
     return buffer.getvalue()
 
@@ -128,6 +158,10 @@ def _metric_json(m: MetricComparison) -> dict[str, Any]:
         'ratio_ci': _interval(m.ratio_ci),
         'diff': m.diff,
         'diff_ci': _interval(m.diff_ci),
+        'typical_ratio': m.typical_ratio,
+        'typical_diff': m.typical_diff,
+        'method': m.method,
+        'blocks': list(m.blocks) if m.blocks is not None else None,
         'significant': m.significant,
     }
 
@@ -155,6 +189,7 @@ def comparison_json(
     gate: Sequence[GateResult] = (),
     conditions: Sequence[str] = (),
     strict: bool = False,
+    allow_inconclusive: bool = False,
 ) -> dict[str, Any]:
     """The comparison.json document."""
     runs = []
@@ -191,14 +226,27 @@ def comparison_json(
         },
         'inputs_match': comparison.inputs_match,
         'statistics': {
-            'bootstrap': 'circular block bootstrap over measured frames in replay order',
+            'ratio': 'candidate / baseline of the whole runs (summary.csv values)',
+            'ratio_ci': (
+                'exact Mann-Whitney (Moses) interval of the Hodges-Lehmann ratio between '
+                'blocks of consecutive frames, each block summarised by the metric; '
+                f'per frame below {MIN_FRAMES} measured frames'
+            ),
+            'blocks': (
+                f'clamp(n // {BLOCK_FRAMES}, {MIN_BLOCKS}, {MAX_BLOCKS}) blocks per series, '
+                'in replay order'
+            ),
+            'significant': 'ratio CI excludes 1.0',
+            'verdicts': (
+                'failed: the whole CI past the threshold; passed: none of it; '
+                'inconclusive: it straddles the threshold or there is no CI'
+            ),
+            'value_ci': 'circular block bootstrap over measured frames in replay order',
             'block_length': 'max(ceil(n ** (1/3)), Politis-White estimate) frames, per series',
             'resamples': comparison.n_boot,
             'seed': comparison.seed,
             'confidence': comparison.confidence,
             'interval': 'percentile',
-            'ratio': 'candidate / baseline, runs resampled independently',
-            'significant': 'ratio CI excludes 1.0',
             'min_frames': MIN_FRAMES,
             'cv_limit': CV_LIMIT,
             'accuracy': 'point estimates from run.json, no CI',
@@ -206,14 +254,28 @@ def comparison_json(
         'warnings': list(comparison.warnings),
         'runs': runs,
         'rows': [_row_json(r) for r in comparison.rows],
-        'gate': {
-            'conditions': list(conditions),
-            'strict': strict,
-            'passed': not any(r.failed for r in gate),
-            'results': [r._asdict() for r in gate],
-        }
-        if conditions
-        else None,
+        'gate': _gate_json(gate, conditions, strict, allow_inconclusive) if conditions else None,
+    }
+
+
+def _gate_json(
+    gate: Sequence[GateResult],
+    conditions: Sequence[str],
+    strict: bool,
+    allow_inconclusive: bool,
+) -> dict[str, Any]:
+    verdict = gate_verdict(gate)
+    code = EXIT_STATUS[verdict]
+    if verdict == 'inconclusive' and allow_inconclusive:
+        code = 0
+    return {
+        'conditions': list(conditions),
+        'strict': strict,
+        'allow_inconclusive': allow_inconclusive,
+        'verdict': verdict,
+        'passed': verdict == 'passed',
+        'exit_status': code,
+        'results': [r._asdict() for r in gate],
     }
 
 
@@ -224,6 +286,7 @@ def write_comparison(
     gate: Sequence[GateResult] = (),
     conditions: Sequence[str] = (),
     strict: bool = False,
+    allow_inconclusive: bool = False,
 ) -> tuple[Path, Path]:
     """Write comparison.csv, comparison.html and comparison.json into ``out_dir``.
 
@@ -235,13 +298,25 @@ def write_comparison(
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / 'comparison.csv'
     html_path = out / 'comparison.html'
-    write_text_atomic(csv_path, _csv_text(comparison))
+    write_text_atomic(csv_path, _csv_text(comparison, gate))
     write_json_atomic(
         out / 'comparison.json',
-        comparison_json(comparison, gate=gate, conditions=conditions, strict=strict),
+        comparison_json(
+            comparison,
+            gate=gate,
+            conditions=conditions,
+            strict=strict,
+            allow_inconclusive=allow_inconclusive,
+        ),
     )
     write_text_atomic(
         html_path,
-        render_comparison_html(comparison, gate=gate, conditions=conditions, strict=strict),
+        render_comparison_html(
+            comparison,
+            gate=gate,
+            conditions=conditions,
+            strict=strict,
+            allow_inconclusive=allow_inconclusive,
+        ),
     )
     return csv_path, html_path

@@ -95,7 +95,7 @@ def entry_points(monkeypatch: pytest.MonkeyPatch, **targets: str) -> None:
     monkeypatch.setattr(registry, '_entry_points', lambda: sorted(eps, key=lambda e: e.name))
 
 
-BUILTINS = ['null', 'hsv', 'onnx-cpu', 'recorded', 'cuda', 'tensorrt', 'hsv-cuda']
+BUILTINS = ['null', 'hsv', 'onnx-cpu', 'recorded', 'busy', 'cuda', 'tensorrt', 'hsv-cuda']
 
 
 def test_builtin_backends_are_listed_in_registry_order() -> None:

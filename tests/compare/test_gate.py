@@ -25,10 +25,18 @@ class Echo:
         self.out: list[str] = []
         self.err: list[str] = []
 
-    def run(self, dirs: list[Path], out: Path, fail_if: list[str], strict: bool = False) -> int:
+    def run(
+        self,
+        dirs: list[Path],
+        out: Path,
+        fail_if: list[str],
+        strict: bool = False,
+        allow_inconclusive: bool = False,
+    ) -> int:
         return main_compare(
-            dirs, out, fail_if, strict, n_boot=500, echo=self.out.append, echo_err=self.err.append
-        )
+            dirs, out, fail_if, strict, n_boot=500, allow_inconclusive=allow_inconclusive,
+            echo=self.out.append, echo_err=self.err.append,
+        )  # fmt: skip
 
 
 @pytest.mark.parametrize(
@@ -88,7 +96,9 @@ def test_a_planted_regression_fails_the_gate_and_names_what_failed(tmp_path: Pat
     assert 'p99_ms > +10%' in failed[0]
     assert 'hsv' in failed[0] and TOPIC in failed[0] and 'p99 latency' in failed[0]
     assert 'the whole CI is above +10%' in failed[0]
-    assert any(line.startswith('gate: FAILED (1 of 2 checks)') for line in echo.out)
+    # neither run has ground truth: the map50 condition cannot be judged
+    assert 'gate: FAILED (1 of 2 checks, 1 inconclusive)' in echo.out
+    assert any(line.startswith('replaybench: gate: INCONCLUSIVE map50') for line in echo.err)
 
 
 def test_an_improvement_does_not_fail_a_regression_gate(tmp_path: Path) -> None:
@@ -100,7 +110,9 @@ def test_an_improvement_does_not_fail_a_regression_gate(tmp_path: Path) -> None:
     assert results[2].estimate is not None and results[2].estimate == pytest.approx(-50, abs=3)
 
 
-def test_a_borderline_change_passes_by_default_and_fails_when_strict(tmp_path: Path) -> None:
+def test_a_borderline_change_is_inconclusive_by_default_and_fails_when_strict(
+    tmp_path: Path,
+) -> None:
     base = latencies(100, 10.0, seed=1, cv=0.3, rho=0.0)
     cand = np.random.default_rng(9).permutation(base) * 1.06  # median exactly +6 %
     a = write_run(tmp_path / 'a', {('hsv', TOPIC): base})
@@ -109,14 +121,18 @@ def test_a_borderline_change_passes_by_default_and_fails_when_strict(tmp_path: P
     (result,) = evaluate_gate(comparison, ['median_ms > +5%'])
     assert result.estimate is not None and result.ci_low is not None
     assert result.estimate > 5.0 > result.ci_low  # past the threshold, its CI is not
-    assert not result.failed
-    assert 'within noise' in result.explanation
+    assert result.ci_high is not None and result.ci_high > 5.0
+    assert result.verdict == 'inconclusive' and not result.failed
+    assert 'the CI straddles +5%' in result.explanation
     (strict,) = evaluate_gate(comparison, ['median_ms > +5%'], strict=True)
-    assert strict.failed
+    assert strict.failed and strict.verdict == 'failed'
     assert (strict.estimate, strict.ci_low) == (result.estimate, result.ci_low)
     echo = Echo()
-    assert echo.run([a, b], tmp_path / 'o1', ['median_ms > +5%']) == 0
+    assert echo.run([a, b], tmp_path / 'o1', ['median_ms > +5%']) == 3
+    assert 'gate: INCONCLUSIVE (1 of 1 checks undecided)' in echo.out
     assert echo.run([a, b], tmp_path / 'o2', ['median_ms > +5%'], strict=True) == 1
+    assert echo.run([a, b], tmp_path / 'o3', ['median_ms > +5%'], allow_inconclusive=True) == 0
+    assert echo.out[-3].startswith('gate: inconclusive (1 of 1 checks undecided; allowed')
 
 
 def test_absolute_thresholds_use_the_difference_in_the_metric_unit(tmp_path: Path) -> None:
@@ -155,13 +171,14 @@ def test_accuracy_conditions_are_judged_on_the_point_estimate(tmp_path: Path) ->
     assert 'the baseline has mAP@0.5 but this run does not' in by['map50 < -0.02', 'c'].explanation
 
 
-def test_timing_without_ci_does_not_fail_unless_strict(tmp_path: Path) -> None:
-    a = write_run(tmp_path / 'a', {('hsv', TOPIC): latencies(10, 10.0, seed=1)})
-    b = write_run(tmp_path / 'b', {('hsv', TOPIC): latencies(10, 10.0, seed=2) * 2})
+def test_timing_without_ci_is_inconclusive_unless_strict(tmp_path: Path) -> None:
+    a = write_run(tmp_path / 'a', {('hsv', TOPIC): latencies(3, 10.0, seed=1)})
+    b = write_run(tmp_path / 'b', {('hsv', TOPIC): latencies(3, 10.0, seed=2) * 2})
     comparison = compare_runs([a, b], n_boot=50)
     (loose,) = evaluate_gate(comparison, ['p99_ms > +10%'])
     (strict,) = evaluate_gate(comparison, ['p99_ms > +10%'], strict=True)
-    assert not loose.failed and 'no CI' in loose.explanation
+    assert loose.verdict == 'inconclusive' and not loose.failed
+    assert 'no CI: 3 baseline against 3 measured frames are too few' in loose.explanation
     assert strict.failed
     assert gate_failed([loose, strict])
 

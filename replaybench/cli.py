@@ -283,6 +283,14 @@ def run(
             help='Copy the replayed image messages into detections.mcap (docs/foxglove.md).',
         ),
     ] = False,
+    detections_format: Annotated[
+        str,
+        typer.Option(
+            '--format',
+            help='mcap, or rosbag2: also write metadata.yaml, so that the run folder opens as a '
+            'rosbag2 bag (docs/foxglove.md).',
+        ),
+    ] = 'mcap',
     no_report: Annotated[bool, typer.Option('--no-report', help='Skip report.html.')] = False,
 ) -> None:
     """Replay bags through backends and write detections, CSVs, run.json and a report.
@@ -326,6 +334,7 @@ def run(
             ground_truth_seq_offset=ground_truth_seq_offset,
             annotations=annotations,
             copy_images=copy_images,
+            detections_format=detections_format,
         )
         outcome = run_benchmark(run_config, progress=progress)
     except ReplaybenchError as err:

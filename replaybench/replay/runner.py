@@ -133,6 +133,7 @@ class RunConfig:
     ground_truth_seq_offset: int = 0
     annotations: bool = False
     copy_images: bool = False
+    detections_format: str = 'mcap'  # 'rosbag2': also a metadata.yaml, the run folder is a bag
 
 
 class RunOutcome(NamedTuple):
@@ -774,6 +775,9 @@ def run_benchmark(
     if len(set(config.backends)) != len(config.backends):
         msg = 'each --backend may be given once'
         raise UsageError(msg)
+    if config.detections_format not in {'mcap', 'rosbag2'}:
+        msg = f'unknown --format {config.detections_format!r}: use mcap or rosbag2'
+        raise UsageError(msg)
     for bag in config.inputs:
         if not Path(bag).exists():
             msg = f'{bag}: no such file or directory'
@@ -924,6 +928,10 @@ def _execute(
                 status = 'interrupted'
     finally:
         interrupts.restore(previous)
+    if config.detections_format == 'rosbag2':
+        from replaybench.sinks.rosbag2 import write_rosbag2_metadata
+
+        write_rosbag2_metadata(out / 'detections.mcap')
     for inp, meta in zip(inputs, input_meta, strict=True):
         meta['truncated'] = inp.source.truncated
         meta['warnings'] = list(inp.source.warnings)
@@ -1229,6 +1237,7 @@ def _write_run_json(
             else None,
             'annotations': config.annotations,
             'copy_images': config.copy_images,
+            'detections_format': config.detections_format,
         },
         'inputs': input_meta,
         'environment': run.environment,

@@ -61,7 +61,7 @@ def bag_information(
                 'message_count': count,
             }
         ],
-        'custom_data': None,
+        'custom_data': {},
         'ros_distro': '',
     }
 

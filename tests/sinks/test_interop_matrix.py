@@ -412,3 +412,10 @@ def test_the_rosbag2_record_and_metadata_yaml_describe_the_same_bag(tmp_path: Pa
     annotations = topics['/replaybench/hsv/camera/image_raw/compressed/annotations']
     assert annotations['topic_metadata']['type'] == msgs.IMAGE_ANNOTATIONS
     assert annotations['message_count'] == 10
+
+
+def test_metadata_yaml_is_refused_for_an_mcap_with_a_protobuf_channel(tmp_path: Path) -> None:
+    bag = _protobuf_bag(tmp_path / 'protobuf.mcap')
+    with pytest.raises(ValueError, match=r'channel /raw/camera/\S+ is protobuf, not cdr'):
+        write_rosbag2_metadata(bag)
+    assert not (tmp_path / 'metadata.yaml').exists()

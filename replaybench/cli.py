@@ -10,6 +10,7 @@ import typer
 
 from replaybench import __version__
 from replaybench.errors import ReplaybenchError, RunAborted
+from replaybench.textsafe import visible
 
 if TYPE_CHECKING:
     from replaybench.backends.base import BackendOptions
@@ -31,8 +32,14 @@ app = typer.Typer(
 )
 
 
+def _echo(text: str, *, err: bool = False) -> None:
+    """One line of output with control characters shown as escapes: names from a bag may
+    hold terminal control sequences (``replaybench.textsafe``)."""
+    typer.echo(visible(text), err=err)
+
+
 def _fail(err: ReplaybenchError) -> typer.Exit:
-    typer.echo(f'replaybench: error: {err}', err=True)
+    _echo(f'replaybench: error: {err}', err=True)
     return typer.Exit(err.exit_code)
 
 
@@ -103,8 +110,8 @@ def _print_summary(summaries: list[Summary]) -> None:
         acc = s.accuracy or {}
         rows.append(
             (
-                s.backend,
-                s.topic,
+                visible(s.backend),
+                visible(s.topic),
                 str(s.measured),
                 str(s.dropped),
                 str(s.skipped),
@@ -342,23 +349,23 @@ def run(
         raise _fail(err) from None
     _print_summary(outcome.summaries)
     for warning in (w for inp in outcome.run['inputs'] for w in inp['warnings']):
-        typer.echo(f'replaybench: warning: {warning}', err=True)
+        _echo(f'replaybench: warning: {warning}', err=True)
     skipped = outcome.run.get('skipped') or {}
     for reason, count in skipped.items():
-        typer.echo(f'replaybench: warning: skipped {count} message(s): {reason}', err=True)
+        _echo(f'replaybench: warning: skipped {count} message(s): {reason}', err=True)
     for entry in outcome.run.get('backends') or []:
         facts = entry.get('info') or {}
         if facts.get('nonfinite_dropped'):
-            typer.echo(
+            _echo(
                 f'replaybench: warning: {entry["name"]}: left out {facts["nonfinite_dropped"]} '
                 f'candidate(s) with NaN or inf model outputs in {facts["nonfinite_frames"]} '
                 'frame(s)',
                 err=True,
             )
     report = outcome.run_dir / 'report.html'
-    typer.echo(f'Run folder: {outcome.run_dir}')
+    _echo(f'Run folder: {outcome.run_dir}')
     if report.exists():
-        typer.echo(f'Report: {report}')
+        _echo(f'Report: {report}')
     if outcome.status == 'interrupted':
         typer.echo('replaybench: interrupted: outputs hold the frames done so far', err=True)
         raise typer.Exit(EXIT_INTERRUPTED)
@@ -388,7 +395,7 @@ def info(
     first = min((t.first_ns for t in topics), default=0)
     last = max((t.last_ns for t in topics), default=0)
     total = sum(t.count for t in topics) + sum(t.count for t in skipped)
-    typer.echo(f'path:       {bag}')
+    _echo(f'path:       {bag}')
     typer.echo(f'format:     {source.format}{" (truncated)" if truncated else ""}')
     typer.echo(f'duration:   {(last - first) / 1e9:.3f} s')
     typer.echo(f'messages:   {total}')
@@ -403,7 +410,7 @@ def info(
         extra = f'  camera_info: {cam.camera_info_topic}' if cam.camera_info_topic else ''
         problem = f'  error: {cam.error}' if cam.error else ''
         rate = f'{_fmt(hz, 1)} Hz'
-        typer.echo(
+        _echo(
             f'  {cam.name}  {cam.msgtype}  {cam.count} msgs  {rate}  {size}  '
             f'{cam.encoding}{flags}{extra}{problem}'
         )
@@ -415,11 +422,11 @@ def info(
     if others or skipped_others:
         typer.echo('other topics:')
         for t in others:
-            typer.echo(f'  {t.name}  {t.msgtype}  {t.count} msgs')
+            _echo(f'  {t.name}  {t.msgtype}  {t.count} msgs')
         for st in skipped_others:
             typer.echo(f'  {st.name}  {st.msgtype}  {st.count} msgs  skipped: {st.reason}')
     for warning in warnings:
-        typer.echo(f'replaybench: warning: {warning}', err=True)
+        _echo(f'replaybench: warning: {warning}', err=True)
 
 
 @app.command()
@@ -583,9 +590,9 @@ def peak(
         typer.echo(f'{backend}: no rate tried met the limits')
     else:
         typer.echo(f'{backend}: peak sustainable rate {result.peak_hz:.3f} Hz')
-    typer.echo(f'Peak folder: {folder}')
+    _echo(f'Peak folder: {folder}')
     if (folder / 'peak.html').exists():
-        typer.echo(f'Report: {folder / "peak.html"}')
+        _echo(f'Report: {folder / "peak.html"}')
     if result.status == 'interrupted':
         raise typer.Exit(EXIT_INTERRUPTED)
 
@@ -631,8 +638,8 @@ def compare(
         fail_if,
         strict,
         allow_inconclusive=allow_inconclusive,
-        echo=typer.echo,
-        echo_err=lambda text: typer.echo(text, err=True),
+        echo=_echo,
+        echo_err=lambda text: _echo(text, err=True),
     )
     raise typer.Exit(code)
 
@@ -653,7 +660,7 @@ def report(
         path = render_report(run_dir)
     except ReplaybenchError as err:
         raise _fail(err) from None
-    typer.echo(f'Report: {path}')
+    _echo(f'Report: {path}')
 
 
 def main() -> None:

@@ -26,6 +26,7 @@ from replaybench.report.svg import (
 )
 from replaybench.results.runfile import load_run, write_text_atomic
 from replaybench.results.stats import summarize, summary_json
+from replaybench.textsafe import visible, visible_lines
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
@@ -105,7 +106,13 @@ footer{margin-top:36px;color:var(--muted);font-size:12px}
 
 
 def _e(value: object) -> str:
-    return escape(str(value), quote=True)
+    """HTML-escaped text, control characters shown as escapes (``replaybench.textsafe``)."""
+    return escape(visible(str(value)), quote=True)
+
+
+def _pre(text: str) -> str:
+    """``_e`` for a ``<pre>`` block: its line feeds stay."""
+    return escape(visible_lines(text), quote=True)
 
 
 def _num(value: Any) -> float | None:
@@ -922,7 +929,7 @@ def _details(run: Mapping[str, Any]) -> str:
         info = json.dumps(entry.get('info', {}), indent=2, ensure_ascii=False, sort_keys=True)
         parts.append(
             f'<details><summary>Backend {_e(entry.get("label") or entry.get("name", "?"))}'
-            f'</summary><pre>{_e(info)}</pre></details>',
+            f'</summary><pre>{_pre(info)}</pre></details>',
         )
     for entry in _list(run.get('inputs')):
         entry = _dict(entry)
@@ -931,11 +938,11 @@ def _details(run: Mapping[str, Any]) -> str:
             f'<details><summary>Input {_e(entry.get("index", "?"))}: '
             f'<code>{_e(entry.get("path", "?"))}</code></summary>'
             f'<p>sha256 <code>{_e(entry.get("sha256", "?"))}</code></p>'
-            f'<pre>{_e(topics)}</pre></details>',
+            f'<pre>{_pre(topics)}</pre></details>',
         )
     parts.append(
         '<details><summary>Environment</summary>'
-        f'<pre>{_e(json.dumps(env, indent=2, ensure_ascii=False))}</pre></details>',
+        f'<pre>{_pre(json.dumps(env, indent=2, ensure_ascii=False))}</pre></details>',
     )
     return ''.join(parts)
 

@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from replaybench.textsafe import visible
+
 if TYPE_CHECKING:
     from collections.abc import Sequence
     from typing import TypeAlias
@@ -108,7 +110,8 @@ def _n(value: float) -> str:
 
 
 def _e(text: object) -> str:
-    return escape(str(text), quote=True)
+    """HTML-escaped text, control characters shown as escapes (``replaybench.textsafe``)."""
+    return escape(visible(str(text)), quote=True)
 
 
 def nice_ticks(lo: float, hi: float, max_ticks: int = 6) -> list[float]:

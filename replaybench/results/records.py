@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, NamedTuple, get_args
 
 from replaybench.errors import SourceError
+from replaybench.textsafe import csv_text, from_csv
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable
@@ -116,6 +117,10 @@ def _bool_cell(value: object) -> str:
     return '1' if value else '0'
 
 
+def _text_cell(value: object) -> str:
+    return csv_text(str(value))
+
+
 def _cell_formatter(name: str) -> Callable[[object], str]:
     if name in _BOOL_FIELDS:
         return _bool_cell
@@ -123,7 +128,7 @@ def _cell_formatter(name: str) -> Callable[[object], str]:
         return _float_cell(_FLOAT_FORMAT[name])
     if name in _INT_FIELDS:
         return _int_cell
-    return str
+    return _text_cell
 
 
 #: One formatter per frames.csv column, in column order (a row is written per frame); None is
@@ -145,11 +150,13 @@ _NO_STAGES = [None] * 5
 
 
 def _quote(text: str) -> str:
-    """A text cell as ``csv.writer`` writes it: quoted when it holds , " CR or LF."""
+    """A text cell (``csv_text``: bag text escaped) as ``csv.writer`` writes it: quoted when it
+    holds , or " (escaping leaves no CR or LF)."""
     cell = _QUOTED.get(text)
     if cell is None:
-        special = any(c in text for c in ',"\r\n')
-        cell = '"' + text.replace('"', '""') + '"' if special else text
+        safe = csv_text(text)
+        special = any(c in safe for c in ',"\r\n')
+        cell = '"' + safe.replace('"', '""') + '"' if special else safe
         if len(_QUOTED) < 4096:
             _QUOTED[text] = cell
     return cell
@@ -230,7 +237,7 @@ def _parser(name: str) -> Callable[[str], object]:
         return int
     if name in _FLOAT_FORMAT:
         return float
-    return str
+    return from_csv
 
 
 _PARSERS: tuple[tuple[str, Callable[[str], object]], ...] = tuple(

@@ -19,6 +19,7 @@ from replaybench import __version__
 from replaybench.errors import SourceError
 from replaybench.results.records import FrameRecord, csv_writer, read_frames_csv
 from replaybench.results.stats import SUMMARY_CSV_COLUMNS, summary_row
+from replaybench.textsafe import csv_text
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -233,7 +234,7 @@ def _summary_cell(value: Any) -> str:
         return '1' if value else '0'
     if isinstance(value, float):
         return format(value, '.4f') if math.isfinite(value) else ''
-    return str(value)
+    return csv_text(value) if isinstance(value, str) else str(value)
 
 
 def write_summary_csv(path: str | Path, summaries: Iterable[Summary]) -> None:

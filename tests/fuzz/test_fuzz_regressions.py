@@ -24,6 +24,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from replaybench.decode import decode_image
 from replaybench.errors import DecodeError
+from replaybench.results.records import read_frames_csv
 from replaybench.sources import open_source
 from replaybench.sources.mcap import mcap_payload
 from replaybench.sources.rosbag1 import ros1_payload
@@ -197,7 +198,8 @@ def test_image_topic_longer_than_a_file_name_replays(tmp_path):
 
 def test_image_topic_with_a_carriage_return_replays_and_reads_back(tmp_path):
     """Found by ``make fuzz``: a topic named ``'\\r'`` was written unquoted into frames.csv, so
-    the report could not read the file back and the run failed after run.json said complete."""
+    the report could not read the file back and the run failed after run.json said complete.
+    frames.csv now holds it escaped (``\\r``, no raw CR) and reads back as ``'\\r'``."""
 
     def channel(cid, name, encoding, schema_id):
         return ('\r' if cid == 2 else name), encoding, schema_id
@@ -206,5 +208,6 @@ def test_image_topic_with_a_carriage_return_replays_and_reads_back(tmp_path):
     case = write_case(tmp_path, {'cr.mcap': data})
     outcome = replay(case / 'cr.mcap', tmp_path, backends=('null', 'hsv'), report=True)
     assert outcome.code == 0, outcome.stderr
-    assert '\r' in {r['topic'] for r in outcome.rows}
+    assert '\\r' in {r['topic'] for r in outcome.rows}
+    assert '\r' in {r.topic for r in read_frames_csv(outcome.out / 'frames.csv')}
     cleanup(case, outcome.out)

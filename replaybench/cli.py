@@ -18,6 +18,7 @@ if TYPE_CHECKING:
 
 __all__ = ['app', 'main']
 
+EXIT_FAILURE = 1
 EXIT_INTERRUPTED = 130
 
 app = typer.Typer(
@@ -157,7 +158,10 @@ def run(
         ),
     ] = None,
     force: Annotated[
-        bool, typer.Option('--force', help='Write into a non-empty --out folder.')
+        bool,
+        typer.Option(
+            '--force', help='Replace the run folder --out, once the new run has finished.'
+        ),
     ] = False,
     rate: Annotated[
         str,
@@ -353,6 +357,8 @@ def run(
     skipped = outcome.run.get('skipped') or {}
     for reason, count in skipped.items():
         _echo(f'replaybench: warning: skipped {count} message(s): {reason}', err=True)
+    for warning in outcome.run.get('warnings') or []:
+        _echo(f'replaybench: warning: {warning}', err=True)
     for entry in outcome.run.get('backends') or []:
         facts = entry.get('info') or {}
         if facts.get('nonfinite_dropped'):
@@ -369,6 +375,19 @@ def run(
     if outcome.status == 'interrupted':
         typer.echo('replaybench: interrupted: outputs hold the frames done so far', err=True)
         raise typer.Exit(EXIT_INTERRUPTED)
+    if outcome.status == 'partial':
+        failed = '; '.join(
+            f'backend {b["name"]!r} raised on input {b["error"]["input"]} {b["error"]["topic"]} '
+            f'seq {b["error"]["seq"]}: {b["error"]["message"]}'
+            for b in outcome.run['backends']
+            if b.get('status') == 'failed'
+        )
+        _echo(
+            f'replaybench: error: {failed}; it was stopped there and the other backends '
+            'finished (run.json status partial)',
+            err=True,
+        )
+        raise typer.Exit(EXIT_FAILURE)
 
 
 @app.command()
@@ -505,7 +524,9 @@ def peak(
         Path | None,
         typer.Option('--out', '-o', help='Folder for peak.json, peak.html and the trial runs.'),
     ] = None,
-    force: Annotated[bool, typer.Option('--force', help='Write into a non-empty --out.')] = False,
+    force: Annotated[
+        bool, typer.Option('--force', help='Replace the peak folder --out, once the sweep ends.')
+    ] = False,
     max_drop: Annotated[
         float,
         typer.Option('--max-drop', min=0.0, max=1.0, help='Largest dropped fraction allowed.'),

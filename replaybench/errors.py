@@ -8,8 +8,10 @@ from __future__ import annotations
 
 __all__ = [
     'BackendError',
+    'BackendFailedError',
     'BackendUnavailableError',
     'DecodeError',
+    'OutputError',
     'ReplaybenchError',
     'RunAborted',
     'SourceError',
@@ -41,6 +43,18 @@ class BackendError(ReplaybenchError):
 
 class BackendUnavailableError(BackendError):
     """A backend whose hardware or libraries are missing on this machine."""
+
+
+class BackendFailedError(BackendError):
+    """A backend that raised while detecting, with no other backend left to finish the run."""
+
+    exit_code = 1
+
+
+class OutputError(ReplaybenchError):
+    """An output that cannot be written: disk full, file too large, an I/O error."""
+
+    exit_code = 1
 
 
 class RunAborted(BaseException):

@@ -81,7 +81,8 @@ def _start(tmp_path: Path, *args: str, backend: str = 'null') -> subprocess.Pope
         env={**os.environ, 'PYTHONWARNINGS': 'ignore'},
     )
     deadline = time.monotonic() + 60
-    while not (out / 'frames.csv.part').exists():
+    # the run is written beside --out and swapped in when it ends
+    while not list(tmp_path.glob('.run.tmp-*/frames.csv.part')):
         assert process.poll() is None, process.communicate()
         assert time.monotonic() < deadline, 'the run did not start'
         time.sleep(0.05)
@@ -118,6 +119,7 @@ def test_an_interrupt_ends_the_run_with_outputs_finalized_and_exit_130(tmp_path,
     assert len(messages) == len(rows)
     assert (out / 'report.html').is_file()
     assert not list(out.glob('*.part'))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['cam.mcap', 'run', 'slowclose.py']
 
 
 def test_a_second_ctrl_c_stops_at_once_without_waiting_for_the_outputs(tmp_path):
@@ -130,8 +132,5 @@ def test_a_second_ctrl_c_stops_at_once_without_waiting_for_the_outputs(tmp_path)
     assert code == 130
     assert 'Traceback' not in stderr
     assert 'interrupted again' in stderr
-    out = tmp_path / 'run'
-    # nothing claims to be complete: no run.json; what was written is whole
-    assert not (out / 'run.json').exists()
-    with (out / 'frames.csv').open(newline='') as f:
-        assert len(list(csv.DictReader(f))) > 0
+    # unfinished outputs are not kept: no run folder, nothing beside it
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['cam.mcap', 'slowclose.py']

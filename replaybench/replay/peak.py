@@ -11,21 +11,23 @@ its run folder under ``out_dir/trials/``. See docs/peak.md.
 from __future__ import annotations
 
 import datetime as dt
-import shutil
+import functools
+import inspect
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, ParamSpec, cast
 
 import numpy as np
 
 from replaybench import __version__
-from replaybench.errors import SourceError, UsageError
+from replaybench.errors import OutputError, SourceError, UsageError
 from replaybench.replay.rate import Rate
 from replaybench.replay.runner import RunConfig, default_warmup, run_benchmark
 from replaybench.report.render import PEAK_SCHEMA_VERSION
 from replaybench.results.records import read_frames_csv
 from replaybench.results.runfile import environment, write_json_atomic
+from replaybench.results.runfolder import RunFolder
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -146,17 +148,43 @@ def _start_rate(hz: float) -> float:
 
 
 def _prepare(out_dir: Path, force: bool) -> None:
-    if out_dir.exists() and not out_dir.is_dir():
-        msg = f'{out_dir} exists and is not a directory'
-        raise UsageError(msg)
-    if out_dir.is_dir() and any(out_dir.iterdir()):
-        if not force:
-            msg = f'output folder {out_dir} is not empty: choose another --out or pass --force'
-            raise UsageError(msg)
-        shutil.rmtree(out_dir / 'trials', ignore_errors=True)
-        for name in ('peak.json', 'peak.html'):
-            (out_dir / name).unlink(missing_ok=True)
+    """The sweep's folder. ``find_peak_rate`` runs inside a ``RunFolder`` (``_in_run_folder``):
+    ``out_dir`` is its new temporary folder, and ``force`` was applied when it was made."""
     out_dir.mkdir(parents=True, exist_ok=True)
+
+
+_P = ParamSpec('_P')
+
+
+def _in_run_folder(sweep: Callable[_P, PeakResult]) -> Callable[_P, PeakResult]:
+    """``sweep`` writing into a temporary folder beside its ``out_dir``, swapped in when the
+    sweep has ended (complete or interrupted): a failed sweep leaves ``out_dir`` as it was and
+    nothing else. ``out_dir`` gets the checks and the lock of a run folder (``RunFolder``;
+    ``force`` replaces a peak folder only, one holding peak.json)."""
+    signature = inspect.signature(sweep)
+
+    @functools.wraps(sweep)
+    def staged(*args: _P.args, **kwargs: _P.kwargs) -> PeakResult:
+        bound = signature.bind(*args, **kwargs)
+        bound.apply_defaults()
+        folder = RunFolder(
+            Path(bound.arguments['out_dir']),
+            force=bool(bound.arguments['force']),
+            marker='peak.json',
+            kind='peak',
+        )
+        try:
+            with folder:
+                bound.arguments['out_dir'] = folder.path
+                result = cast('Callable[..., PeakResult]', sweep)(*bound.args, **bound.kwargs)
+                folder.commit()
+        except OSError as err:
+            raise folder.output_error(err) from None
+        except OutputError as err:  # a trial's: its file named inside the temporary folder
+            raise OutputError(str(err).replace(str(folder.path), str(folder.out))) from None
+        return result
+
+    return staged
 
 
 def _check(
@@ -316,6 +344,7 @@ def _search(
             state.failing = mid
 
 
+@_in_run_folder
 def find_peak_rate(
     bag: Path,
     backend: str,

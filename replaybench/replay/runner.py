@@ -10,9 +10,9 @@ from __future__ import annotations
 import contextlib
 import datetime as dt
 import hashlib
+import json
 import math
 import os
-import shutil
 import signal
 import sys
 import time
@@ -34,8 +34,11 @@ from replaybench.decode import (
 from replaybench.decode.camera_info import CameraInfoIndex
 from replaybench.decode.probe import CameraTopic, probe_topics, unreadable_image_topics
 from replaybench.errors import (
+    BackendError,
+    BackendFailedError,
     BackendUnavailableError,
     DecodeError,
+    ReplaybenchError,
     RunAborted,
     SourceError,
     UsageError,
@@ -46,13 +49,17 @@ from replaybench.replay.rate import Rate
 from replaybench.replay.resources import ResourceSampler
 from replaybench.replay.scheduler import replay_timed
 from replaybench.results.agreement import Agreement, agreement_table
-from replaybench.results.records import FrameRecord, FramesCsvWriter
+from replaybench.results.records import FrameRecord, FramesCsvWriter, read_frames_csv
 from replaybench.results.runfile import (
     SCHEMA_VERSION,
+    RunData,
     environment,
+    json_text,
     write_json_atomic,
     write_summary_csv,
+    write_text_atomic,
 )
+from replaybench.results.runfolder import RunFolder, check_out_dir, with_filename
 from replaybench.results.stats import Summary, summarize, summary_row
 from replaybench.sources import Source, open_source
 from replaybench.types import BackendResult, Detection, Frame, StageTimes, TopicInfo
@@ -180,20 +187,6 @@ def _sha256(paths: Sequence[Path]) -> str:
             while chunk := f.read(1 << 20):
                 digest.update(chunk)
     return digest.hexdigest()
-
-
-def _prepare_out_dir(out: Path, force: bool) -> None:
-    if out.exists() and not out.is_dir():
-        msg = f'{out} exists and is not a directory'
-        raise UsageError(msg)
-    if out.is_dir() and any(out.iterdir()):
-        if not force:
-            msg = f'output folder {out} is not empty: choose another --out or pass --force'
-            raise UsageError(msg)
-        for name in ('detections.mcap', 'frames.csv', 'summary.csv', 'run.json', 'report.html'):
-            (out / name).unlink(missing_ok=True)
-        shutil.rmtree(out / 'samples', ignore_errors=True)
-    out.mkdir(parents=True, exist_ok=True)
 
 
 def _select_topics(
@@ -374,6 +367,19 @@ def _decoder(inp: _Input) -> Callable[[RawMessage], Frame]:
     return decode
 
 
+class _DetectError(Exception):
+    """A backend's ``detect`` raised: the pass stops there, and the backend with it."""
+
+    def __init__(self, number: int, topic: str, seq: int, error: Exception) -> None:
+        super().__init__(number, topic, seq, error)
+        self.where = {
+            'input': number,
+            'topic': topic,
+            'seq': seq,
+            'message': f'{type(error).__name__}: {error}'.splitlines()[0],
+        }
+
+
 class _Pass:
     """One backend over one input: fetch, decode, detect; then record and write.
 
@@ -474,7 +480,10 @@ class _Pass:
                 append((_raw_key(raw), err, release, release, 0.0, done - release, done, done))
                 continue
             t_detect = now()
-            result = detect(frame)
+            try:
+                result = detect(frame)
+            except Exception as err:
+                raise _DetectError(self.inp.number, frame.topic, frame.seq, err) from err
             done = now()
             append((frame[:5], result, release, release, 0.0, t_detect - release, t_detect, done))
             if done > until:
@@ -495,7 +504,11 @@ class _Pass:
             if isinstance(decoded, DecodeError):
                 append((_raw_key(raw), decoded, release, start, 0.0, read_decode_s, start, start))
             else:
-                result = detect(decoded)
+                try:
+                    result = detect(decoded)
+                except Exception as err:
+                    number = self.inp.number
+                    raise _DetectError(number, decoded.topic, decoded.seq, err) from err
                 done = now()
                 append((decoded[:5], result, release, start, 0.0, read_decode_s, start, done))
             advance(1)
@@ -512,7 +525,10 @@ class _Pass:
             )
         else:
             t_detect = now()
-            result = self.backend.detect(frame)
+            try:
+                result = self.backend.detect(frame)
+            except Exception as err:
+                raise _DetectError(self.inp.number, frame.topic, frame.seq, err) from err
             done = now()
             self.log.append(
                 (
@@ -733,8 +749,29 @@ class _Run:
         self.total = 0
         self.frames_csv: FramesCsvWriter
         self.detections_out: Any
+        self.warnings: list[str] = []
+        self.warmups: dict[str, int] = {}
+
+    def set_warmups(self) -> None:
+        """Warm-up frames per topic, from ``topic_frames``: the default, or --warmup clamped
+        so that at least one frame of each topic is measured (with a warning)."""
+        wanted = self.config.warmup
+        for topic, frames in self.topic_frames.items():
+            if wanted is None:
+                self.warmups[topic] = default_warmup(frames)
+            elif frames >= 1 and wanted > frames - 1:
+                self.warmups[topic] = frames - 1
+                self.warnings.append(
+                    f'--warmup {wanted} leaves no frame of {topic} to measure ({frames} '
+                    f'frame(s) per backend): {frames - 1} warm-up frame(s) used'
+                )
+            else:
+                self.warmups[topic] = wanted
 
     def warmup_for(self, topic: str) -> int:
+        found = self.warmups.get(topic)
+        if found is not None:
+            return found
         if self.config.warmup is not None:
             return self.config.warmup
         return default_warmup(self.topic_frames.get(topic, 0))
@@ -765,9 +802,18 @@ def run_benchmark(
 ) -> RunOutcome:
     """Replay every input through every backend and write the run folder.
 
-    Raises ``ReplaybenchError`` subclasses for bad inputs and options before anything is written.
-    A ``KeyboardInterrupt`` (Ctrl-C, or SIGTERM while this runs) finalises every output with the
-    frames done so far and returns with status ``interrupted``.
+    Order of work: the options and ``config.out_dir`` are checked (nothing read or created
+    yet); the folder is locked (``RunFolder``); the inputs are opened and probed; every
+    backend is opened (models loaded); only then are the inputs hashed and replayed. The run is
+    written into a temporary folder beside ``out_dir`` and swapped in when it has ended, with
+    run.json as its last file: whatever fails leaves ``out_dir`` as it was and nothing else.
+
+    Raises ``ReplaybenchError`` subclasses: bad inputs and options, and a run that measured no
+    frame (exit code 2); ``BackendFailedError`` when every backend raised in ``detect`` and
+    ``OutputError`` when an output cannot be written (1). A backend that raises while others
+    finish gives status ``partial``. A ``KeyboardInterrupt`` (Ctrl-C, or SIGTERM while this
+    runs) finalises every output with the frames done so far and returns with status
+    ``interrupted``.
     """
     if not config.backends:
         msg = 'no backend given: add --backend NAME (see `replaybench backends`)'
@@ -789,31 +835,43 @@ def run_benchmark(
             if not status.ok:
                 msg = f'backend {name!r} is not available here: {status.reason}'
                 raise BackendUnavailableError(msg)
+    check_out_dir(config.out_dir, force=config.force)
     if config.threads is not None:
         _set_threads(config.threads)
 
     external = _load_external(config)
     started = dt.datetime.now(dt.UTC)
     t_start = time.perf_counter()
+    folder = RunFolder(config.out_dir, force=config.force)
     inputs: list[_Input] = []
+    opened: list[_OpenBackend] = []
     try:
-        for index, path in enumerate(config.inputs):
-            inputs.append(_open_input(index, Path(path), config, external))
-        input_meta = [_input_meta(inp) for inp in inputs]
-        _prepare_out_dir(config.out_dir, config.force)
-        return _execute(
-            config,
-            clock or MonotonicClock(),
-            progress,
-            factory,
-            inputs,
-            input_meta,
-            started,
-            t_start,
-        )
+        with folder:
+            for index, path in enumerate(config.inputs):
+                inputs.append(_open_input(index, Path(path), config, external))
+            # models are loaded before the inputs are hashed: a bad --model costs no reading
+            opened = _open_backends(config, factory, inputs)
+            input_meta = [_input_meta(inp) for inp in inputs]
+            outcome = _execute(
+                config,
+                clock or MonotonicClock(),
+                progress,
+                opened,
+                inputs,
+                input_meta,
+                started,
+                t_start,
+                folder.path,
+            )
+            folder.commit()
+    except OSError as err:
+        raise folder.output_error(err) from None
     finally:
+        for entry in opened:
+            entry.close()  # those a failure left open
         for inp in inputs:
             inp.source.close()
+    return outcome._replace(run_dir=config.out_dir)
 
 
 def _load_external(config: RunConfig) -> ExternalGroundTruth | None:
@@ -878,19 +936,80 @@ def _copy_images(inputs: list[_Input], config: RunConfig, writer: Any) -> dict[i
     return problems
 
 
+class _OpenBackend:
+    """A backend made and opened before the replay; closed once, after its pass."""
+
+    def __init__(self, name: str, backend: Backend) -> None:
+        self.name = name
+        self.backend = backend
+        self.closed = False
+
+    def close(self) -> str | None:
+        """Close it (the first call only); what ``close()`` raised, as one line, or None."""
+        if self.closed:
+            return None
+        self.closed = True
+        try:
+            self.backend.close()
+        except Exception as err:  # a plugin's close() must not lose the run
+            return f'{type(err).__name__}: {err}'.splitlines()[0]
+        return None
+
+
+def _open_backends(
+    config: RunConfig,
+    factory: Callable[[str, BackendOptions], Backend],
+    inputs: list[_Input],
+) -> list[_OpenBackend]:
+    """Every backend made and opened (models loaded) before anything is measured or hashed;
+    on failure those already opened are closed again."""
+    opened: list[_OpenBackend] = []
+    try:
+        for name in config.backends:
+            try:
+                backend = factory(name, config.options)
+                if isinstance(backend, RecordedBackend):
+                    backend.bind(
+                        ', '.join(sorted({i.recorded_topic or '' for i in inputs})),
+                        {
+                            (inp.number, *key): dets
+                            for inp in inputs
+                            for key, dets in inp.recorded.items()
+                        },
+                    )
+                backend.open()
+            except ReplaybenchError:
+                raise
+            except Exception as err:  # a plugin's own exception: one line, not a traceback
+                first = f'{type(err).__name__}: {err}'.splitlines()[0]
+                msg = f'backend {name!r} could not be opened: {first}'
+                raise BackendError(msg) from None
+            opened.append(_OpenBackend(name, backend))
+    except BaseException:
+        for entry in opened:
+            entry.close()
+        raise
+    return opened
+
+
 def _execute(
     config: RunConfig,
     clock: Clock,
     progress: Callable[[int, int], None] | None,
-    factory: Callable[[str, BackendOptions], Backend],
+    opened: list[_OpenBackend],
     inputs: list[_Input],
     input_meta: list[dict[str, Any]],
     started: dt.datetime,
     t_start: float,
+    out: Path,
 ) -> RunOutcome:
+    """Replay into the (temporary) folder ``out``; run.json is its last file.
+
+    Raises ``BackendFailedError`` when every backend raised, and a ``ReplaybenchError`` saying
+    why when no frame was measured (``_nothing_measured``).
+    """
     from replaybench.sinks.mcap_writer import DetectionsWriter
 
-    out = config.out_dir
     run = _Run(config, clock, progress)
     for inp in inputs:
         for (frame_id, stamp), dets in inp.ground_truth.items():
@@ -899,6 +1018,7 @@ def _execute(
             run.topic_frames[topic.name] = run.topic_frames.get(topic.name, 0) + _expected_frames(
                 inp, topic, config
             )
+    run.set_warmups()
     run.total = sum(run.topic_frames.values()) * len(config.backends)
     backend_meta: list[dict[str, Any]] = []
     copy_problems: dict[int, str] = {}
@@ -918,14 +1038,17 @@ def _execute(
             run.detections_out = detections_out
             _copy_camera_infos(inputs, detections_out)
             try:
-                for name in config.backends:
-                    label = name.replace('-', '_')
-                    with ResourceSampler(gpu_index=_gpu_index(name, config)) as sampler:
-                        _run_backend(run, name, label, factory, inputs, sampler, backend_meta)
+                for entry in opened:
+                    label = entry.name.replace('-', '_')
+                    with ResourceSampler(gpu_index=_gpu_index(entry.name, config)) as sampler:
+                        _run_backend(run, entry, label, inputs, sampler, backend_meta)
                 if config.copy_images:
                     copy_problems = _copy_images(inputs, config, detections_out)
             except KeyboardInterrupt:
                 status = 'interrupted'
+    except OSError as err:
+        # frames.csv names its own errors: one that names no file is detections.mcap's
+        raise with_filename(err, out / 'detections.mcap') from None
     finally:
         interrupts.restore(previous)
     if config.detections_format == 'rosbag2':
@@ -947,25 +1070,83 @@ def _execute(
                     f'(matched by {inp.external.match}); see docs/ground-truth.md'
                 )
 
-    if run.done and not any(r.status == 'ok' for r in run.records) and status == 'complete':
-        reasons = '; '.join(f'{k} ({v})' for k, v in run.skipped.items())
-        msg = f'not one frame of the selected topics could be decoded: {reasons}'
-        _write_run_json(config, run, 'failed', input_meta, backend_meta, [], started, t_start)
-        raise DecodeError(msg)
+    failed = [meta for meta in backend_meta if meta['status'] == 'failed']
+    if status == 'complete' and failed:
+        if len(failed) == len(config.backends):
+            msg = f'{_failures(failed)}; no other backend to finish the run, nothing was written'
+            raise BackendFailedError(msg)
+        status = 'partial'
+    # frames pushed out of their queue are a measurement (of drops); nothing else is
+    measured = any((r.status == 'ok' and not r.warmup) or r.dropped for r in run.records)
+    if status != 'interrupted' and not measured:
+        raise _nothing_measured(run, inputs, config)
 
     summaries = _summaries(run)
     if len(config.backends) > 1:
         run.agreements = agreement_table(run.detections)
     write_summary_csv(out / 'summary.csv', summaries)
     sample_paths = _write_samples(out, run, inputs)
-    record = _write_run_json(
+    record = _run_record(
         config, run, status, input_meta, backend_meta, summaries, started, t_start, sample_paths
     )
     if config.report:
-        from replaybench.report import render_report
-
-        render_report(out)
+        _write_report(out, record)
+    # last: a run.json never points at a file that is not there yet
+    write_json_atomic(out / 'run.json', record)
     return RunOutcome(out, status, summaries, record)
+
+
+def _failures(failed: Sequence[dict[str, Any]]) -> str:
+    """One line for the backends that raised: where and what."""
+    parts = []
+    for meta in failed:
+        where = meta['error']
+        parts.append(
+            f'backend {meta["name"]!r} raised on input {where["input"]} {where["topic"]} '
+            f'seq {where["seq"]}: {where["message"]}'
+        )
+    return '; '.join(parts)
+
+
+def _nothing_measured(run: _Run, inputs: Sequence[_Input], config: RunConfig) -> ReplaybenchError:
+    """Why a run measured no frame, as the error that refuses it (exit 2)."""
+    head = 'no frame was measured'
+    if not run.records:
+        if config.start_s is None and config.duration_s is None:
+            return UsageError(f'{head}: the selected topics hold no image message')
+        window = ' '.join(
+            f'--{name} {value:g} s'
+            for name, value in (('start', config.start_s), ('duration', config.duration_s))
+            if value is not None
+        )
+        spans = []
+        for inp in inputs:
+            first = min((t.first_ns for t in inp.source.topics()), default=0)
+            lo = min((t.first_ns for t in inp.topics), default=first) - first
+            hi = max((t.last_ns for t in inp.topics), default=first) - first
+            spans.append(f'{inp.path.name}: images from {lo / _NS:.3f} s to {hi / _NS:.3f} s')
+        return UsageError(
+            f'{head}: the time window {window} holds no image message of the selected topics '
+            f'({"; ".join(spans)})'
+        )
+    if not any(r.status == 'ok' for r in run.records):
+        reasons = '; '.join(f'{k} ({v})' for k, v in run.skipped.items())
+        return DecodeError(
+            f'{head}: not one frame of the selected topics could be decoded: {reasons}'
+        )
+    processed = sum(1 for r in run.records if r.status == 'ok')
+    return UsageError(
+        f'{head}: every processed frame ({processed} in all) was a warm-up frame: lower --warmup'
+    )
+
+
+def _write_report(out: Path, record: dict[str, Any]) -> None:
+    """report.html from the record about to become run.json and the frames.csv written."""
+    from replaybench.report import render_html
+
+    run = json.loads(json_text(record))  # exactly what run.json will hold
+    data = RunData(run=run, frames=read_frames_csv(out / 'frames.csv'), dir=out)
+    write_text_atomic(out / 'report.html', render_html(data))
 
 
 def _gpu_index(name: str, config: RunConfig) -> int | None:
@@ -978,23 +1159,19 @@ _GPU_BACKENDS = frozenset({'cuda', 'tensorrt', 'hsv-cuda'})
 
 def _run_backend(
     run: _Run,
-    name: str,
+    entry: _OpenBackend,
     label: str,
-    factory: Callable[[str, BackendOptions], Backend],
     inputs: list[_Input],
     sampler: ResourceSampler,
     backend_meta: list[dict[str, Any]],
 ) -> None:
-    """One backend over every input, sampled for resource use; meta recorded even if cut short."""
+    """One opened backend over every input, sampled for resource use, then closed; its meta
+    recorded even if cut short. A ``detect`` that raises stops the backend: the frames before
+    it are kept and the error recorded (``status`` 'failed', ``error``)."""
     config = run.config
-    backend = factory(name, config.options)
-    if isinstance(backend, RecordedBackend):
-        backend.bind(
-            ', '.join(sorted({i.recorded_topic or '' for i in inputs})),
-            {(inp.number, *key): dets for inp in inputs for key, dets in inp.recorded.items()},
-        )
-    backend.open()
+    backend = entry.backend
     passes: list[_Pass] = []
+    error: dict[str, Any] | None = None
     try:
         for inp in inputs:
             p = _Pass(run, label, backend, inp)
@@ -1006,17 +1183,28 @@ def _run_backend(
                     p.run_max()
             finally:
                 p.finalize()
+    except _DetectError as failure:
+        error = failure.where
     finally:
         # after the passes: what the backend actually used and counted
         sampler.stop()
         summary = sampler.summary()
         resources = {'summary': summary, 'series': sampler.series()}
         run.resources[label] = summary
+        try:
+            info = backend.info()
+        except Exception as err:  # a plugin's info() must not lose the run
+            info = {'error': f'{type(err).__name__}: {err}'.splitlines()[0]}
+        closing = entry.close()
+        if closing is not None:
+            run.warnings.append(f'backend {entry.name!r}: close() raised {closing}')
         backend_meta.append(
             {
-                'name': name,
+                'name': entry.name,
                 'label': label,
-                'info': backend.info(),
+                'status': 'ok' if error is None else 'failed',
+                'error': error,
+                'info': info,
                 'resources': resources,
                 'read_ahead': [
                     {'input': p.inp.number, **p.read_ahead}
@@ -1027,7 +1215,6 @@ def _run_backend(
                 'record_s': sum(p.record_s for p in passes),
             }
         )
-        backend.close()
 
 
 class _Interrupts:
@@ -1157,7 +1344,10 @@ def _write_samples(out: Path, run: _Run, inputs: Sequence[_Input]) -> list[str]:
         if image is None:
             continue
         rel = sample_relpath(index, topic)
-        write_sample(out / rel, image, sample.detections, sample.title)
+        try:
+            write_sample(out / rel, image, sample.detections, sample.title)
+        except OSError as err:
+            raise with_filename(err, out / rel) from None
         paths.append(rel)
     return paths
 
@@ -1185,7 +1375,7 @@ def _clean(value: Any) -> Any:
     return value
 
 
-def _write_run_json(
+def _run_record(
     config: RunConfig,
     run: _Run,
     status: str,
@@ -1196,6 +1386,7 @@ def _write_run_json(
     t_start: float,
     samples: list[str] | None = None,
 ) -> dict[str, Any]:
+    """What run.json holds (written by the caller, last)."""
     rows = []
     for s in summaries:
         row = summary_row(s)
@@ -1246,6 +1437,7 @@ def _write_run_json(
         'agreement': [a._asdict() for a in run.agreements],
         'counts': counts,
         'skipped': dict(run.skipped),
+        'warnings': list(run.warnings),
         'outputs': {
             'detections_mcap': 'detections.mcap',
             'frames_csv': 'frames.csv',
@@ -1254,6 +1446,4 @@ def _write_run_json(
             'samples': samples or [],
         },
     }
-    record = _clean(record)
-    write_json_atomic(config.out_dir / 'run.json', record)
-    return record
+    return cast('dict[str, Any]', _clean(record))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import os
@@ -9,6 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, NamedTuple, get_args
 
 from replaybench.errors import SourceError
+from replaybench.results.runfolder import with_filename
 from replaybench.textsafe import csv_text, from_csv
 
 if TYPE_CHECKING:
@@ -273,8 +275,10 @@ class FramesCsvWriter:
 
     Rows go to ``<path>.part`` (flushed every ``flush_every`` rows, so a killed process leaves
     the rows done so far); ``close()`` renames it to ``path``. Used as a context manager it
-    closes on exit also when an exception is raised, so an interrupted run still leaves a
-    complete CSV holding the rows written before the interruption.
+    closes on exit also when the run is interrupted (``KeyboardInterrupt``), so an interrupted
+    run still leaves a complete CSV holding the rows written before the interruption; on any
+    other exception, and when a write fails, nothing is left: no ``path``, no ``.part``. A
+    failed write raises ``OSError`` naming ``path``.
     """
 
     def __init__(self, path: str | Path, *, flush_every: int = 100) -> None:
@@ -297,12 +301,16 @@ class FramesCsvWriter:
         if self._file is None:
             msg = f'{self.path}: writer is closed'
             raise ValueError(msg)
-        self._file.write(_line(record))
-        self.rows += 1
-        self._pending += 1
-        if self._pending >= self._flush_every:
-            self._file.flush()
-            self._pending = 0
+        try:
+            self._file.write(_line(record))
+            self.rows += 1
+            self._pending += 1
+            if self._pending >= self._flush_every:
+                self._file.flush()
+                self._pending = 0
+        except OSError as err:
+            self.discard()
+            raise with_filename(err, self.path) from None
 
     def write_many(self, records: Iterable[FrameRecord]) -> None:
         """Append several rows."""
@@ -313,13 +321,25 @@ class FramesCsvWriter:
         """Flush, sync and move the file into place; a second call does nothing."""
         if self._file is None:
             return
-        file, self._file = self._file, None
+        file = self._file
         try:
             file.flush()
             os.fsync(file.fileno())
-        finally:
+            self._file = None
             file.close()
-        self.part_path.replace(self.path)
+            self.part_path.replace(self.path)
+        except OSError as err:
+            self.discard()
+            raise with_filename(err, self.path) from None
+
+    def discard(self) -> None:
+        """Close without keeping anything: the ``.part`` file is removed."""
+        file, self._file = self._file, None
+        if file is not None:
+            with contextlib.suppress(OSError):
+                file.close()
+        with contextlib.suppress(OSError):
+            self.part_path.unlink(missing_ok=True)
 
     def __enter__(self) -> Self:
         return self
@@ -330,7 +350,10 @@ class FramesCsvWriter:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        self.close()
+        if isinstance(exc, Exception):
+            self.discard()
+        else:
+            self.close()
 
 
 def read_frames_csv(path: str | Path) -> list[FrameRecord]:

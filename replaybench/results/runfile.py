@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 from replaybench import __version__
 from replaybench.errors import SourceError
 from replaybench.results.records import FrameRecord, csv_writer, read_frames_csv
+from replaybench.results.runfolder import with_filename
 from replaybench.results.stats import SUMMARY_CSV_COLUMNS, summary_row
 from replaybench.textsafe import csv_text
 
@@ -30,6 +31,7 @@ __all__ = [
     'SCHEMA_VERSION',
     'RunData',
     'environment',
+    'json_text',
     'load_run',
     'write_json_atomic',
     'write_run_json',
@@ -195,7 +197,10 @@ def _jsonable(obj: Any) -> Any:
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:
-    """Write UTF-8 text via a temporary file in the same folder and ``os.replace``."""
+    """Write UTF-8 text via a temporary file in the same folder and ``os.replace``.
+
+    A failed write leaves nothing behind and raises ``OSError`` naming ``path``.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
@@ -206,9 +211,18 @@ def write_text_atomic(path: str | Path, text: str) -> None:
             os.fsync(file.fileno())
         Path(tmp).chmod(0o644)
         Path(tmp).replace(path)
+    except OSError as err:
+        Path(tmp).unlink(missing_ok=True)
+        raise with_filename(err, path) from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def json_text(obj: Any) -> str:
+    """``obj`` as the indented JSON text ``write_json_atomic`` writes (NaN and infinities
+    as null, key order kept)."""
+    return json.dumps(_jsonable(obj), indent=2, sort_keys=False, allow_nan=False) + '\n'
 
 
 def write_json_atomic(path: str | Path, obj: Any) -> None:
@@ -216,8 +230,7 @@ def write_json_atomic(path: str | Path, obj: Any) -> None:
 
     NaN and infinite floats are written as null; key order is kept.
     """
-    text = json.dumps(_jsonable(obj), indent=2, sort_keys=False, allow_nan=False)
-    write_text_atomic(path, text + '\n')
+    write_text_atomic(path, json_text(obj))
 
 
 def write_run_json(path: str | Path, run: dict[str, Any]) -> None:

@@ -225,9 +225,13 @@ def test_a_non_empty_output_folder_is_refused_without_force(tmp_path):
     (out / 'keep.txt').write_text('mine')
     with pytest.raises(UsageError, match='--force'):
         run_benchmark(RunConfig(inputs=[bag], backends=['null'], out_dir=out, report=False))
-    run_benchmark(RunConfig(inputs=[bag], backends=['null'], out_dir=out, force=True, report=False))
+    # --force replaces a run folder only, and this one holds no run.json
+    with pytest.raises(UsageError, match='not a run folder'):
+        run_benchmark(
+            RunConfig(inputs=[bag], backends=['null'], out_dir=out, force=True, report=False)
+        )
+    assert [p.name for p in out.iterdir()] == ['keep.txt']
     assert (out / 'keep.txt').read_text() == 'mine'
-    assert (out / 'run.json').exists()
 
 
 def test_an_interrupted_run_leaves_valid_finalized_outputs_marked_interrupted(tmp_path):

@@ -240,7 +240,8 @@ def run(
         str, typer.Option('--engine', help='GPU engine for the cuda backend: auto, ort or torch.')
     ] = 'auto',
     precision: Annotated[
-        str, typer.Option('--precision', help='fp32 or fp16 (GPU backends).')
+        str,
+        typer.Option('--precision', help='fp32 (TF32 off), tf32 or fp16 (GPU backends).'),
     ] = 'fp32',
     recorded_topic: Annotated[
         str | None,
@@ -308,6 +309,7 @@ def run(
 
     Example: replaybench run fixtures/bags/rgb8_raw.mcap --backend hsv --backend null --out runs/a
     """
+    from replaybench.backends.gpu import engine_lines
     from replaybench.replay.rate import parse_rate
     from replaybench.replay.runner import (
         DEFAULT_GROUND_TRUTH_TOPIC,
@@ -368,6 +370,8 @@ def run(
                 'frame(s)',
                 err=True,
             )
+    for line in engine_lines(outcome.run):
+        _echo(line)
     report = outcome.run_dir / 'report.html'
     _echo(f'Run folder: {outcome.run_dir}')
     if report.exists():
@@ -461,6 +465,24 @@ def backends() -> None:
     for r in rows:
         state = 'available' if r.availability.ok else f'unavailable: {r.availability.reason}'
         typer.echo(f'{r.name.ljust(width)}  {state}  - {r.description} [{r.origin}]')
+
+
+@app.command()
+def doctor() -> None:
+    """Check this machine for the GPU backends: NVIDIA driver, the CUDA, cuDNN and TensorRT
+    libraries, onnxruntime / torch / CuPy builds, and what each GPU backend needs.
+
+    Exit status 0 when every GPU backend can run here, 1 when one cannot.
+
+    Example: replaybench doctor
+    """
+    from replaybench.backends.gpu.doctor import gpu_report
+
+    found = gpu_report()
+    for line in found.lines():
+        _echo(line)
+    if not found.ok:
+        raise typer.Exit(1)
 
 
 @app.command()
@@ -559,7 +581,9 @@ def peak(
     iou: Annotated[float | None, typer.Option('--iou', min=0.0, max=1.0)] = None,
     device: Annotated[int, typer.Option('--device', min=0, help='GPU index.')] = 0,
     engine: Annotated[str, typer.Option('--engine', help='auto, ort or torch.')] = 'auto',
-    precision: Annotated[str, typer.Option('--precision', help='fp32 or fp16.')] = 'fp32',
+    precision: Annotated[
+        str, typer.Option('--precision', help='fp32 (TF32 off), tf32 or fp16.')
+    ] = 'fp32',
     no_report: Annotated[bool, typer.Option('--no-report', help='Skip peak.html.')] = False,
 ) -> None:
     """Find the highest replay rate a backend sustains without dropping frames.

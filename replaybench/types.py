@@ -144,13 +144,23 @@ class Detection(NamedTuple):
 
 
 class StageTimes(NamedTuple):
-    """A backend's own stage timings in nanoseconds; None where a stage does not apply."""
+    """A backend's own stage timings in nanoseconds; None where a stage does not apply.
+
+    The first five are host wall-clock times (a GPU backend synchronises its stream before
+    reading the clock); the ``*_device_ns`` ones are the GPU's own time for the same stages,
+    from CUDA events on the backend's stream (None for CPU backends).
+    """
 
     preprocess_ns: int | None = None
     infer_ns: int | None = None
     postprocess_ns: int | None = None
     h2d_ns: int | None = None
     d2h_ns: int | None = None
+    preprocess_device_ns: int | None = None
+    infer_device_ns: int | None = None
+    postprocess_device_ns: int | None = None
+    h2d_device_ns: int | None = None
+    d2h_device_ns: int | None = None
 
 
 @dataclass(frozen=True, slots=True)

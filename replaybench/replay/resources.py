@@ -6,8 +6,9 @@ the process, nanosecond resolution; ``/proc/self/stat`` counts in 10 ms ticks, t
 process keeping two cores busy shows 200. RSS is read from ``/proc/self/statm``; where there is
 no ``/proc``, ``resource.getrusage`` gives the peak RSS so far instead. GPU numbers come from
 NVML when ``pynvml`` (the ``nvidia-ml-py`` or ``pynvml`` distribution) imports and reports a
-device; they describe the whole device (every process on it), not only this one. Without NVML
-the GPU fields are None.
+device; they describe the whole device (every process on it), not only this one. The NVML
+device is matched to the CUDA device the backend uses by UUID / PCI bus id (see ``_Nvml``).
+Without NVML the GPU fields are None.
 
 Memory sizes are in MiB (2**20 bytes). The sampler measures its own cost: the wall time of one
 sample, and the CPU time of its thread as a percentage of one core.
@@ -24,9 +25,17 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
+from replaybench.backends.gpu._cuda import (
+    device_identity,
+    load_libcuda,
+    normalise_pci_bus_id,
+)
+
 if TYPE_CHECKING:
     from types import TracebackType
     from typing import Self
+
+    from replaybench.backends.gpu._cuda import DeviceIdentity
 
 __all__ = ['DEFAULT_INTERVAL_S', 'DEFAULT_MAX_SAMPLES', 'ResourceSampler']
 
@@ -84,13 +93,25 @@ def _reduce(points: list[_Point], limit: int) -> list[_Point]:
 
 
 class _Nvml:
-    """One NVML device; every query returns None when it fails."""
+    """One NVML device; every query returns None when it fails.
 
-    def __init__(self, module: Any, handle: Any, index: int, name: str) -> None:
+    The device is the one CUDA calls ``index`` in this process: NVML numbers devices by PCI
+    order and ignores ``CUDA_VISIBLE_DEVICES`` / ``CUDA_DEVICE_ORDER``, so the CUDA device's
+    UUID (else its PCI bus id), read from the CUDA driver, picks the NVML device (``match``).
+    Only where no CUDA driver library loads at all is ``index`` taken as NVML's own
+    (``match`` = ``index``); with no index given, NVML's device 0.
+    """
+
+    def __init__(
+        self, module: Any, handle: Any, index: int, name: str, match: str, identity: Any
+    ) -> None:
         self.module = module
         self.handle = handle
         self.index = index
         self.name = name
+        self.match = match
+        self.uuid = identity.uuid if identity is not None else None
+        self.pci_bus_id = identity.pci_bus_id if identity is not None else None
         self.power_ok = True
 
     @classmethod
@@ -105,17 +126,26 @@ class _Nvml:
             return None
         try:
             wanted = 0 if index is None else index
-            if not 0 <= wanted < int(module.nvmlDeviceGetCount()):
+            count = int(module.nvmlDeviceGetCount())
+            identity = None
+            handle, match = None, ''
+            if index is not None and load_libcuda() is not None:
+                identity = device_identity(index)
+                found = None if identity is None else _by_identity(module, count, identity)
+                if found is not None:
+                    handle, match = found
+            elif 0 <= wanted < count:
+                handle, match = module.nvmlDeviceGetHandleByIndex(wanted), 'index'
+            if handle is None:
                 module.nvmlShutdown()
                 return None
-            handle = module.nvmlDeviceGetHandleByIndex(wanted)
             name = module.nvmlDeviceGetName(handle)
         except Exception:
             _quiet(module.nvmlShutdown)
             return None
         if isinstance(name, bytes):
             name = name.decode('utf-8', 'replace')
-        return cls(module, handle, wanted, str(name))
+        return cls(module, handle, wanted, str(name), match, identity)
 
     def read(self) -> tuple[float | None, float | None, float | None]:
         nvml, handle = self.module, self.handle
@@ -129,6 +159,24 @@ class _Nvml:
 
     def close(self) -> None:
         _quiet(self.module.nvmlShutdown)
+
+
+def _text(value: Any) -> str:
+    return value.decode('utf-8', 'replace') if isinstance(value, bytes) else str(value)
+
+
+def _by_identity(module: Any, count: int, identity: DeviceIdentity) -> tuple[Any, str] | None:
+    """The NVML device with the CUDA device's UUID, else its PCI bus id; (handle, how)."""
+    found = None
+    for nvml_index in range(count):
+        handle = module.nvmlDeviceGetHandleByIndex(nvml_index)
+        uuid = _quiet(lambda h=handle: _text(module.nvmlDeviceGetUUID(h)))
+        if uuid is not None and uuid.lower() == identity.uuid.lower():
+            return handle, 'uuid'
+        bus = _quiet(lambda h=handle: _text(module.nvmlDeviceGetPciInfo(h).busId))
+        if found is None and bus is not None and normalise_pci_bus_id(bus) == identity.pci_bus_id:
+            found = (handle, 'pci_bus_id')
+    return found
 
 
 def _quiet(call: Any) -> Any:
@@ -361,6 +409,9 @@ class ResourceSampler:
                 'rss_source': self._rss.source if self._rss is not None else None,
                 'gpu_index': self._gpu.index if self._gpu is not None else None,
                 'gpu_name': self._gpu.name if self._gpu is not None else None,
+                'gpu_uuid': self._gpu.uuid if self._gpu is not None else None,
+                'gpu_pci_bus_id': self._gpu.pci_bus_id if self._gpu is not None else None,
+                'gpu_match': self._gpu.match if self._gpu is not None else None,
             }
 
     def series(self) -> list[dict[str, float | None]]:

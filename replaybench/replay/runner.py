@@ -696,6 +696,11 @@ class _Pass:
                 _ms(stages.d2h_ns),
                 (queue_wait_s + read_decode_s + done - t_detect) * 1e3 if timed else None,
                 len(detections),
+                _ms(stages.preprocess_device_ns),
+                _ms(stages.infer_device_ns),
+                _ms(stages.postprocess_device_ns),
+                _ms(stages.h2d_device_ns),
+                _ms(stages.d2h_device_ns),
             )
         )
 

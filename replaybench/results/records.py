@@ -37,7 +37,8 @@ class FrameRecord(NamedTuple):
 
     Times ending in ``_s`` are seconds since the backend's replay start; ``_ms`` are durations.
     ``None`` means the value does not apply (a stage the backend does not have, or a frame that
-    was dropped or skipped) and is written as an empty cell.
+    was dropped or skipped) and is written as an empty cell. The stage times are the host's
+    (wall clock); the ``*_device_ms`` ones, at the end, the GPU's own for the same stages.
     """
 
     input: int
@@ -62,6 +63,11 @@ class FrameRecord(NamedTuple):
     d2h_ms: float | None = None
     latency_ms: float | None = None
     detections: int | None = None
+    preprocess_device_ms: float | None = None
+    infer_device_ms: float | None = None
+    postprocess_device_ms: float | None = None
+    h2d_device_ms: float | None = None
+    d2h_device_ms: float | None = None
 
 
 FRAMES_CSV_COLUMNS: tuple[str, ...] = FrameRecord._fields
@@ -83,8 +89,15 @@ _OPTIONAL_FIELDS = frozenset(
         'd2h_ms',
         'latency_ms',
         'detections',
+        'preprocess_device_ms',
+        'infer_device_ms',
+        'postprocess_device_ms',
+        'h2d_device_ms',
+        'd2h_device_ms',
     },
 )
+#: The columns of frames.csv files written before the ``*_device_ms`` columns were added.
+_COLUMNS_BEFORE_DEVICE_TIMES = FRAMES_CSV_COLUMNS[:22]
 
 
 def _float_format(name: str) -> str:
@@ -147,6 +160,7 @@ def _row(record: FrameRecord) -> list[str]:
 #: The cells from release_s to d2h_ms (with latency_ms) of a row whose times are all present.
 _TIMES = '%.6f,%.6f,%.6f,%.4f,%.4f'
 _STAGE_CELLS = _CELLS[15:20]
+_DEVICE_CELLS = _CELLS[22:27]
 _QUOTED: dict[str, str] = {}
 _NO_STAGES = [None] * 5
 
@@ -186,10 +200,16 @@ def _line(record: FrameRecord) -> str:
         done_s,
         queue_wait_ms,
         read_decode_ms,
-        *stages,
+        preprocess_ms,
+        infer_ms,
+        postprocess_ms,
+        h2d_ms,
+        d2h_ms,
         latency_ms,
         detections,
+        *device,
     ) = record
+    stages = [preprocess_ms, infer_ms, postprocess_ms, h2d_ms, d2h_ms]
     if (
         latency_ms is not None
         and detections is not None
@@ -207,6 +227,15 @@ def _line(record: FrameRecord) -> str:
                         for cell, v in zip(_STAGE_CELLS, stages, strict=True)
                     ]
                 )
+            if device == _NO_STAGES:
+                on_device = ',,,,'
+            else:
+                on_device = ','.join(
+                    [
+                        '' if v is None else cell(v)
+                        for cell, v in zip(_DEVICE_CELLS, device, strict=True)
+                    ]
+                )
             quoted = _QUOTED
             try:
                 return (
@@ -214,7 +243,7 @@ def _line(record: FrameRecord) -> str:
                     f'{quoted.get(topic) or _quote(topic)},{seq:d},{log_time_ns:d},{stamp_ns:d},'
                     f'{quoted.get(status) or _quote(status)},{quoted.get(note) or _quote(note)},'
                     f'{"1" if warmup else "0"},{"1" if dropped else "0"},{times},{staged},'
-                    f'{latency},{detections:d}\r\n'
+                    f'{latency},{detections:d},{on_device}\r\n'
                 )
             except ValueError:  # an int cell holding something else
                 pass
@@ -357,21 +386,29 @@ class FramesCsvWriter:
 
 
 def read_frames_csv(path: str | Path) -> list[FrameRecord]:
-    """Read a frames.csv written by ``FramesCsvWriter``; SourceError when it is not one."""
+    """Read a frames.csv written by ``FramesCsvWriter``; SourceError when it is not one.
+
+    A frames.csv from before the ``*_device_ms`` columns reads with them empty (None).
+    """
     path = Path(path)
     try:
         with path.open(newline='', encoding='utf-8') as file:
             reader = csv.reader(file)
             header = next(reader, None)
-            if header is None or tuple(header) != FRAMES_CSV_COLUMNS:
+            columns = tuple(header) if header is not None else ()
+            if columns not in (FRAMES_CSV_COLUMNS, _COLUMNS_BEFORE_DEVICE_TIMES):
                 msg = f'{path}: not a frames.csv (header does not match the expected columns)'
                 raise SourceError(msg) from None
+            missing = [''] * (len(FRAMES_CSV_COLUMNS) - len(columns))
             records = []
             for cells in reader:
                 if not cells:
                     continue
                 try:
-                    records.append(_parse_row(cells))
+                    if len(cells) != len(columns):
+                        msg = f'{len(cells)} cells, the header has {len(columns)}'
+                        raise ValueError(msg)
+                    records.append(_parse_row(cells + missing))
                 except ValueError as err:
                     msg = f'{path}:{reader.line_num}: bad row: {err}'
                     raise SourceError(msg) from None

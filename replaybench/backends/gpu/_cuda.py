@@ -14,7 +14,7 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from replaybench.errors import BackendUnavailableError
 
@@ -22,14 +22,27 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
 __all__ = [
+    'MIN_DRIVER_RELEASE',
     'DeviceFacts',
+    'DeviceIdentity',
+    'EventTimer',
     'StageClock',
     'cache_dir',
+    'device_count',
     'device_facts',
+    'device_identity',
+    'driver_api_version',
     'driver_problem',
     'load_libcuda',
+    'normalise_pci_bus_id',
     'nvidia_driver_release',
 ]
+
+#: The oldest NVIDIA driver branch that runs CUDA 13 (the CUDA major of the ``gpu`` extra).
+MIN_DRIVER_RELEASE = 580
+#: ``CUdevice_attribute`` values (cuda.h).
+_CC_MAJOR = 75
+_CC_MINOR = 76
 
 #: CUresult codes worth naming in a message (cuda.h).
 _CU_ERRORS = {
@@ -89,6 +102,11 @@ def _device_count() -> tuple[int, str]:
     return count.value, ''
 
 
+def device_count() -> int:
+    """The number of GPUs this process sees (0 without a driver or a visible GPU)."""
+    return _device_count()[0]
+
+
 def driver_problem(device: int | None = None) -> str | None:
     """Why no GPU can be used (one line), or None when the driver reports ``device`` (any: None)."""
     count, problem = _device_count()
@@ -100,13 +118,92 @@ def driver_problem(device: int | None = None) -> str | None:
 
 
 class DeviceFacts(NamedTuple):
-    """What run.json records about the GPU a backend ran on."""
+    """What run.json records about the GPU a backend ran on.
+
+    ``compute_capability`` is ``major.minor`` (``8.6``); ``pci_bus_id`` and ``uuid`` identify
+    the device whatever ``CUDA_VISIBLE_DEVICES`` does to the index (NVML's ``GPU-...`` form).
+    """
 
     device: int
     name: str
     total_memory_bytes: int
     driver: str
     cuda_driver_api: str
+    compute_capability: str = ''
+    pci_bus_id: str = ''
+    uuid: str = ''
+
+
+class DeviceIdentity(NamedTuple):
+    """The PCI bus id (``0000:65:00.0``) and UUID (``GPU-...``) of one CUDA device."""
+
+    pci_bus_id: str
+    uuid: str
+
+
+def normalise_pci_bus_id(text: str) -> str:
+    """``domain:bus:device.function`` as ``0000:65:00.0``, however many domain digits it has.
+
+    CUDA writes 4 domain digits, NVML 8 (``00000000:65:00.0``); both name the same device.
+    Text that is not a PCI address comes back lower-cased and stripped.
+    """
+    cleaned = text.strip().lower()
+    try:
+        domain, bus, rest = cleaned.split(':')
+        device, function = rest.split('.')
+        parts = (int(domain, 16), int(bus, 16), int(device, 16), int(function, 16))
+    except ValueError:
+        return cleaned
+    return '{:04x}:{:02x}:{:02x}.{:x}'.format(*parts)
+
+
+def _uuid_text(raw: bytes) -> str:
+    """16 UUID bytes as NVML writes them: ``GPU-xxxxxxxx-xxxx-xxxx-xxxx-xxxxxxxxxxxx``."""
+    h = raw.hex()
+    return f'GPU-{h[0:8]}-{h[8:12]}-{h[12:16]}-{h[16:20]}-{h[20:32]}'
+
+
+def _identity(lib: ctypes.CDLL, dev: ctypes.c_int) -> tuple[DeviceIdentity, str, int]:
+    """(identity, compute capability, first failing CUresult or 0) of a ``CUdevice``."""
+    bus = ctypes.create_string_buffer(64)
+    uuid = ctypes.create_string_buffer(16)
+    major = ctypes.c_int(0)
+    minor = ctypes.c_int(0)
+    codes = (
+        lib.cuDeviceGetPCIBusId(bus, len(bus), dev),
+        lib.cuDeviceGetUuid(uuid, dev),
+        lib.cuDeviceGetAttribute(ctypes.byref(major), _CC_MAJOR, dev),
+        lib.cuDeviceGetAttribute(ctypes.byref(minor), _CC_MINOR, dev),
+    )
+    failed = next((code for code in codes if code != 0), 0)
+    identity = DeviceIdentity(
+        normalise_pci_bus_id(bus.value.decode(errors='replace')), _uuid_text(uuid.raw)
+    )
+    return identity, f'{major.value}.{minor.value}', failed
+
+
+def device_identity(index: int) -> DeviceIdentity | None:
+    """PCI bus id and UUID of CUDA device ``index`` (as this process numbers devices, after
+    ``CUDA_VISIBLE_DEVICES`` and ``CUDA_DEVICE_ORDER``); None without a driver or device."""
+    lib = load_libcuda()
+    if driver_problem(index) is not None or lib is None:
+        return None
+    dev = ctypes.c_int(0)
+    if lib.cuDeviceGet(ctypes.byref(dev), index) != 0:
+        return None
+    identity, _, failed = _identity(lib, dev)
+    return None if failed else identity
+
+
+def driver_api_version() -> int | None:
+    """``cuDriverGetVersion``: the newest CUDA the driver supports (13000 = 13.0), or None."""
+    lib = load_libcuda()
+    if lib is None:
+        return None
+    version = ctypes.c_int(0)
+    if lib.cuDriverGetVersion(ctypes.byref(version)) != 0:
+        return None
+    return int(version.value)
 
 
 def nvidia_driver_release() -> str | None:
@@ -135,12 +232,14 @@ def device_facts(index: int) -> DeviceFacts:
     name = ctypes.create_string_buffer(256)
     memory = ctypes.c_size_t(0)
     version = ctypes.c_int(0)
-    checks = (
+    checks = [
         lib.cuDeviceGet(ctypes.byref(dev), index),
         lib.cuDeviceGetName(name, len(name), dev),
         lib.cuDeviceTotalMem_v2(ctypes.byref(memory), dev),
         lib.cuDriverGetVersion(ctypes.byref(version)),
-    )
+    ]
+    identity, capability, failed_identity = _identity(lib, dev)
+    checks.append(failed_identity)
     failed = [code for code in checks if code != 0]
     if failed:
         msg = f'GPU {index}: the CUDA driver refused a device query ({_cu_error(failed[0])})'
@@ -152,6 +251,9 @@ def device_facts(index: int) -> DeviceFacts:
         total_memory_bytes=int(memory.value),
         driver=nvidia_driver_release() or f'CUDA driver API {api}',
         cuda_driver_api=api,
+        compute_capability=capability,
+        pci_bus_id=identity.pci_bus_id,
+        uuid=identity.uuid,
     )
 
 
@@ -165,25 +267,68 @@ def cache_dir(*parts: str) -> Path:
     return base.joinpath('replaybench', *parts)
 
 
-class StageClock:
-    """Stage durations of device work: each lap synchronises the device, then reads the clock.
+class EventTimer:
+    """Timing events on one device stream, reused frame after frame (``slots`` of them).
 
-    ``synchronize`` blocks until all work queued on the backend's stream is done, so a lap
-    measures when the device finished the stage, not when the host finished queueing it.
+    ``record(event)`` queues an event on the backend's stream; ``elapsed_ms(a, b)`` is the
+    device time between two completed events (``torch.cuda.Event.elapsed_time``,
+    ``cupy.cuda.get_elapsed_time``). Built by the backends from their own library's events.
     """
 
-    def __init__(self, synchronize: Callable[[], object]) -> None:
+    def __init__(
+        self,
+        events: list[Any],
+        record: Callable[[Any], object],
+        elapsed_ms: Callable[[Any, Any], float],
+    ) -> None:
+        self.events = events
+        self._record = record
+        self._elapsed_ms = elapsed_ms
+
+    def record(self, slot: int) -> None:
+        self._record(self.events[slot])
+
+    def elapsed_ns(self, start: int, end: int) -> int:
+        return round(float(self._elapsed_ms(self.events[start], self.events[end])) * 1e6)
+
+
+class StageClock:
+    """Stage durations of device work, on the host's clock and on the device's.
+
+    Host: each lap synchronises the device, then reads ``perf_counter_ns``, so a lap is when
+    the host saw the stage finished (queueing, launch and synchronisation included).
+    Device: with an ``EventTimer``, each boundary also records an event on the backend's stream
+    just before that synchronisation; ``device_laps()`` (after the last lap, when every event
+    has completed) gives the GPU's own time between consecutive boundaries.
+    """
+
+    def __init__(self, synchronize: Callable[[], object], events: EventTimer | None = None) -> None:
         self._synchronize = synchronize
+        self._events = events
         self._last = 0
+        self._slot = 0
 
     def start(self) -> None:
+        self._slot = 0
+        if self._events is not None:
+            self._events.record(0)
         self._synchronize()
         self._last = time.perf_counter_ns()
 
     def lap(self) -> int:
         """Nanoseconds since ``start`` or the previous lap, device work included."""
+        self._slot += 1
+        if self._events is not None:
+            self._events.record(self._slot)
         self._synchronize()
         now = time.perf_counter_ns()
         elapsed = now - self._last
         self._last = now
         return elapsed
+
+    def device_laps(self) -> list[int | None]:
+        """Device nanoseconds of each lap so far (None each without events)."""
+        events = self._events
+        if events is None:
+            return [None] * self._slot
+        return [events.elapsed_ns(i - 1, i) for i in range(1, self._slot + 1)]

@@ -9,7 +9,8 @@
 * ``blob_stats``: the outer blobs of every class mask (8-connected components with their
   holes filled, as ``findContours(RETR_EXTERNAL)`` + a filled ``drawContours`` give them) in
   one labelling pass, and per blob its class, box, mask pixels, filled area, boundary pixels
-  and saturation sum.
+  and saturation sum: boxes by one scatter-min / scatter-max over the labelled pixels
+  (``label_extents``), sums by ``bincount``, so the work does not grow with a loop per blob.
 
 Contour tracing is replaced by labelling. OpenCV's ``contourArea`` of a blob's outer contour
 is estimated with Pick's theorem as ``filled - boundary / 2 - 1``: exact where the contour
@@ -39,6 +40,7 @@ __all__ = [
     'contour_area_estimate',
     'fill_holes',
     'hsv_tables',
+    'label_extents',
     'read_stats',
     'to_hsv',
 ]
@@ -180,29 +182,49 @@ def blob_stats(xp: Any, ndi: Any, masks: Any, saturation: Any) -> Any:
     interior = ndi.binary_erosion(filled, structure=four, border_value=0)
     zs, ys, xs = xp.nonzero(labels)
     lab = labels[zs, ys, xs]
-    index = xp.arange(1, n + 1)
     in_mask = masks[zs, ys, xs].astype(xp.float64)
     boundary = (~interior[zs, ys, xs]).astype(xp.float64)
     sat = saturation[ys, xs].astype(xp.float64) * in_mask
-
-    def per_label(fn: Any, values: Any) -> Any:
-        return xp.asarray(fn(values, lab, index), dtype=xp.float64)
+    low, high = label_extents(xp, lab, (zs, xs, ys), n)
 
     def total(weights: Any = None) -> Any:
         return xp.bincount(lab, weights=weights, minlength=n + 1)[1:].astype(xp.float64)
 
     columns = [
-        per_label(ndi.minimum, zs),
-        per_label(ndi.minimum, xs),
-        per_label(ndi.minimum, ys),
-        per_label(ndi.maximum, xs) + 1,
-        per_label(ndi.maximum, ys) + 1,
+        low[0],
+        low[1],
+        low[2],
+        high[1] + 1,
+        high[2] + 1,
         total(in_mask),
         total(),
         total(boundary),
         total(sat),
     ]
     return xp.stack(columns, axis=1)
+
+
+def label_extents(xp: Any, labels: Any, coordinates: Sequence[Any], count: int) -> tuple[Any, Any]:
+    """Per label 1..count, the smallest and largest of each coordinate: two ``[len(coordinates),
+    count]`` float64 arrays.
+
+    One scatter-min and one scatter-max over all pixels (``ufunc.at``: ``numpy.minimum.at``,
+    CuPy's ``cupy.minimum.at`` = ``cupyx.scatter_min``), whatever the number of labels: no
+    loop over blobs. Coordinates are int32 (CuPy's atomics take it; images are far smaller).
+    Labels without pixels keep int32's max / -1.
+    """
+    rows = len(coordinates)
+    width = count + 1
+    offsets = xp.arange(rows, dtype=xp.int64)[:, None] * width
+    index = (offsets + labels.astype(xp.int64)[None, :]).ravel()
+    values = xp.stack([xp.asarray(c).astype(xp.int32) for c in coordinates]).ravel()
+    low = xp.full(rows * width, np.iinfo(np.int32).max, dtype=xp.int32)
+    high = xp.full(rows * width, -1, dtype=xp.int32)
+    xp.minimum.at(low, index, values)
+    xp.maximum.at(high, index, values)
+    low = low.reshape(rows, width)[:, 1:].astype(xp.float64)
+    high = high.reshape(rows, width)[:, 1:].astype(xp.float64)
+    return low, high
 
 
 def contour_area_estimate(filled: float, boundary: float) -> float:

@@ -10,16 +10,23 @@ tells everything that is missing.
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import functools
 import importlib.util
-import sys
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from replaybench.backends.base import Availability
 from replaybench.backends.gpu._cuda import driver_problem
+from replaybench.backends.gpu._libs import (
+    CUDA_MAJOR,
+    ORT_CUDA_LIBRARIES,
+    TENSORRT_INSTALL,
+    TENSORRT_LIBRARIES,
+    TENSORRT_MAJOR,
+    find_library,
+    load_libraries,
+    other_tensorrt,
+    version_of,
+)
 from replaybench.errors import BackendUnavailableError
 
 if TYPE_CHECKING:
@@ -27,13 +34,17 @@ if TYPE_CHECKING:
 
 __all__ = [
     'GPU_EXTRA',
+    'check_placement',
     'check_session_providers',
     'cuda_availability',
     'cupy_problem',
+    'ep_node_counts',
     'hsv_cuda_availability',
     'module_missing',
+    'ort_cuda_library_problem',
     'ort_provider_problem',
     'tensorrt_availability',
+    'tensorrt_library_version',
     'tensorrt_problem',
     'torch_problem',
 ]
@@ -106,45 +117,58 @@ def cupy_problem(device: int | None = None) -> str | None:
     return None
 
 
-def _tensorrt_candidates() -> list[str]:
-    if sys.platform == 'win32':
-        return ['nvinfer_10.dll', 'nvinfer.dll']
-    names = ['libnvinfer.so.10', 'libnvinfer.so']
-    found = ctypes.util.find_library('nvinfer')
-    if found and found not in names:
-        names.append(found)
-    return names
-
-
-def _wheel_folder(module: str) -> str | None:
-    """The folder of an installed package, found without importing it."""
-    if module_missing(module):
-        return None
-    spec = importlib.util.find_spec(module)
-    locations = list(spec.submodule_search_locations or []) if spec is not None else []
-    return str(locations[0]) if locations else None
-
-
 @functools.cache
 def tensorrt_problem() -> str | None:
-    """Why TensorRT's ``libnvinfer`` cannot be loaded, or None when the loader finds it.
+    """Why onnxruntime's TensorRT provider cannot load TensorRT, or None when it can.
 
-    onnxruntime's TensorRT provider loads it by name, so it must be on the loader's path;
-    the ``tensorrt`` wheels put it in ``tensorrt_libs``, which is not there by itself.
+    The provider links exactly ``libnvinfer.so.10`` and ``libnvonnxparser.so.10`` (TensorRT
+    10.x): both must load, by name or from the ``tensorrt-cu13`` wheels (``_libs``), and
+    libnvinfer must report a 10.x version. A TensorRT of another major is named, not taken.
     """
-    for name in _tensorrt_candidates():
-        try:
-            ctypes.CDLL(name)
-        except OSError:
-            continue
-        return None
-    folder = _wheel_folder('tensorrt_libs')
-    if folder is not None and any(Path(folder).glob('*nvinfer*')):
+    libraries, missing = load_libraries(TENSORRT_LIBRARIES)
+    if missing:
+        found = [lib.name for lib in libraries if lib.found]
+        others = [
+            f'{name} (TensorRT {version or "?"})'
+            for name, version in other_tensorrt()
+            if version is None or not version.startswith(f'{TENSORRT_MAJOR}.')
+        ]
+        have = f'; found {", ".join(found)}' if found else ''
+        if others:
+            have += f'; found {", ".join(others)}, which the provider does not load'
         return (
-            f'TensorRT is installed in {folder} but not on the library path: '
-            f'export LD_LIBRARY_PATH={folder}:$LD_LIBRARY_PATH ({_DOCS})'
+            f'TensorRT {TENSORRT_MAJOR} libraries not found: {", ".join(missing)} (onnxruntime-gpu'
+            f"'s TensorRT provider links {' and '.join(TENSORRT_LIBRARIES)}){have}: "
+            f'{TENSORRT_INSTALL} ({_DOCS})'
         )
-    return f'TensorRT libraries (libnvinfer) not found: pip install tensorrt-cu12 ({_DOCS})'
+    version = version_of(libraries[0])
+    if version is not None and not version.startswith(f'{TENSORRT_MAJOR}.'):
+        return (
+            f'{libraries[0].name} reports TensorRT {version}; the provider needs '
+            f'{TENSORRT_MAJOR}.x: {TENSORRT_INSTALL} ({_DOCS})'
+        )
+    return None
+
+
+def tensorrt_library_version() -> str | None:
+    """TensorRT's version as libnvinfer reports it, None when it does not load."""
+    library = find_library(TENSORRT_LIBRARIES[0])
+    return version_of(library) if library.found else None
+
+
+def ort_cuda_library_problem() -> str | None:
+    """Why onnxruntime-gpu's CUDA provider would miss a library it links, or None.
+
+    Loading them here (by name, else from the ``nvidia`` wheels) also makes them available to
+    the provider, which then loads from the process what it would not find on the path.
+    """
+    _, missing = load_libraries(ORT_CUDA_LIBRARIES)
+    if not missing:
+        return None
+    return (
+        f"onnxruntime-gpu's CUDA provider links {', '.join(missing)}, not found (CUDA "
+        f"{CUDA_MAJOR} / cuDNN 9): pip install 'onnxruntime-gpu[cuda,cudnn]' ({_DOCS})"
+    )
 
 
 def _join(problems: Sequence[str | None]) -> Availability:
@@ -209,3 +233,52 @@ def check_session_providers(session: Any, wanted: str) -> list[str]:
         )
         raise BackendUnavailableError(msg)
     return providers
+
+
+def ep_node_counts(session: Any) -> dict[str, int] | None:
+    """Nodes per execution provider, as onnxruntime assigned them (None where the build cannot
+    tell: ``get_provider_graph_assignment_info`` came with onnxruntime 1.24).
+
+    The session must have been created with ``session.record_ep_graph_assignment_info`` = 1.
+    A compiling provider (TensorRT) reports each fused subgraph with the nodes inside it.
+    """
+    get_info = getattr(session, 'get_provider_graph_assignment_info', None)
+    if get_info is None:
+        return None
+    try:
+        subgraphs = get_info()
+    except Exception:  # recording not enabled, or a build without it
+        return None
+    counts: dict[str, int] = {}
+    for subgraph in subgraphs:
+        name = str(subgraph.ep_name)
+        counts[name] = counts.get(name, 0) + len(subgraph.get_nodes())
+    return dict(sorted(counts.items()))
+
+
+def check_placement(counts: dict[str, int] | None, wanted: str) -> None:
+    """Refuse a session that places nodes on the CPU, or (TensorRT) gives TensorRT none.
+
+    ``session.disable_cpu_ep_fallback`` already makes onnxruntime refuse CPU nodes when it
+    creates the session; this reads what it actually did, and gives the reason in one line.
+    """
+    if counts is None:
+        return
+    total = sum(counts.values())
+    on_cpu = counts.get('CPUExecutionProvider', 0)
+    if on_cpu:
+        msg = (
+            f'onnxruntime placed {on_cpu} of {total} nodes on CPUExecutionProvider '
+            f'(placement: {_placement_text(counts)}); refusing to run part of the model on the CPU'
+        )
+        raise BackendUnavailableError(msg)
+    if wanted == 'TensorrtExecutionProvider' and not counts.get(wanted):
+        msg = (
+            f'TensorRT took none of the {total} nodes (placement: {_placement_text(counts)}): '
+            'the run would measure the CUDA provider, not TensorRT; use --backend cuda for that'
+        )
+        raise BackendUnavailableError(msg)
+
+
+def _placement_text(counts: dict[str, int]) -> str:
+    return ', '.join(f'{name} {n}' for name, n in counts.items()) or 'none'

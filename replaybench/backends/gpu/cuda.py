@@ -21,20 +21,33 @@ refused with ``BackendUnavailableError``.
 
 from __future__ import annotations
 
+import gc
 import importlib
 import time
+import warnings
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from replaybench.backends.base import Availability, BackendOptions
 from replaybench.backends.gpu import _torch_ops as ops
-from replaybench.backends.gpu._cuda import StageClock, device_facts, driver_problem
+from replaybench.backends.gpu._cuda import (
+    DeviceFacts,
+    EventTimer,
+    StageClock,
+    device_facts,
+    driver_problem,
+)
+from replaybench.backends.gpu._fold import fold_shapes, pin_host_arguments
+from replaybench.backends.gpu._libs import ORT_CUDA_LIBRARIES, load_libraries
 from replaybench.backends.gpu.availability import (
     GPU_EXTRA,
+    check_placement,
     check_session_providers,
     cuda_availability,
+    ep_node_counts,
     module_missing,
+    ort_cuda_library_problem,
     ort_provider_problem,
     torch_problem,
 )
@@ -50,7 +63,7 @@ from replaybench.errors import BackendError, BackendUnavailableError
 from replaybench.types import BackendResult, Detection, StageTimes
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Callable, Mapping, Sequence
     from pathlib import Path
 
     import numpy.typing as npt
@@ -62,17 +75,22 @@ if TYPE_CHECKING:
 __all__ = [
     'ENGINES',
     'EXTRA_KEYS',
+    'PRECISIONS',
     'CudaBackend',
     'DnnPipeline',
     'OrtEngine',
     'TorchEngine',
+    'count_syncs',
     'frame_input',
     'ortvalue_to_torch',
+    'set_tf32',
     'to_detections',
+    'torch_events',
 ]
 
 ENGINES = ('auto', 'ort', 'torch')
-PRECISIONS = ('fp32', 'fp16')
+#: ``fp32``: TF32 off; ``tf32``: TF32 allowed (Ampere and newer); ``fp16``.
+PRECISIONS = ('fp32', 'tf32', 'fp16')
 #: Preprocessing overrides (as ``onnx-cpu``), ``size``, ``max_det``, and ``cuda_graph``
 #: (``on`` / ``off``; engine torch only) for ``options.extra``.
 EXTRA_KEYS = (*SPEC_KEYS, 'max_det', 'cuda_graph')
@@ -233,6 +251,23 @@ def _import_onnx2torch() -> tuple[Any, Any]:
         del sys.modules['torchvision'], sys.modules['torchvision.ops']
 
 
+def count_syncs(torch: Any, call: Callable[[], object]) -> int | None:
+    """Device -> host synchronisations ``call`` makes, counted by torch's sync debug mode
+    (each one a warning); None where this torch has no such mode."""
+    mode = getattr(torch.cuda, 'set_sync_debug_mode', None)
+    if mode is None:
+        return None
+    previous = torch.cuda.get_sync_debug_mode()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        mode('warn')
+        try:
+            call()
+        finally:
+            mode(previous)
+    return sum('synchroniz' in str(w.message).lower() for w in caught)
+
+
 class TorchEngine:
     """A torch module (the ONNX graph converted by onnx2torch) on the input tensor.
 
@@ -251,8 +286,12 @@ class TorchEngine:
         self.graph: Any = None
         self.static: list[Tensor] = []
         self.graph_note = 'off'
-        if cuda_graph and input_tensor.device.type == 'cuda':
-            self._capture()
+        #: Device -> host synchronisations of one eager forward (CUDA only), as torch counts them.
+        self.syncs: int | None = None
+        if input_tensor.device.type == 'cuda':
+            self.syncs = count_syncs(torch, self._forward)
+            if cuda_graph:
+                self._capture()
 
     def _forward(self) -> list[Tensor]:
         with self.torch.inference_mode():
@@ -398,12 +437,49 @@ def _unit(backend: str, name: str, value: float | None) -> None:
         raise BackendError(msg)
 
 
+def set_tf32(torch: Any, allow: bool) -> Callable[[], None]:
+    """Allow or forbid TF32 in torch's fp32 matmuls and cuDNN convolutions; returns the undo.
+
+    Both default to TF32 on Ampere and newer for convolutions (cuDNN), so an "fp32" model
+    would silently run with a 10-bit mantissa. torch >= 2.9 has ``fp32_precision``
+    (``ieee`` / ``tf32``); older ones the ``allow_tf32`` flags.
+    """
+    backends = torch.backends
+    matmul = backends.cuda.matmul
+    conv = backends.cudnn.conv if hasattr(backends.cudnn, 'conv') else None
+    if conv is not None and hasattr(matmul, 'fp32_precision'):
+        saved = (matmul.fp32_precision, conv.fp32_precision)
+        mode = 'tf32' if allow else 'ieee'
+        matmul.fp32_precision = mode
+        conv.fp32_precision = mode
+
+        def restore_new() -> None:
+            matmul.fp32_precision, conv.fp32_precision = saved
+
+        return restore_new
+    legacy = (matmul.allow_tf32, backends.cudnn.allow_tf32)
+    matmul.allow_tf32 = allow
+    backends.cudnn.allow_tf32 = allow
+
+    def restore_legacy() -> None:
+        matmul.allow_tf32, backends.cudnn.allow_tf32 = legacy
+
+    return restore_legacy
+
+
+def torch_events(torch: Any, stream: Any, slots: int = 6) -> EventTimer:
+    """Timing events on ``stream`` (torch's CUDA events), reused every frame."""
+    events = [torch.cuda.Event(enable_timing=True) for _ in range(slots)]
+    return EventTimer(events, lambda e: e.record(stream), lambda a, b: a.elapsed_time(b))
+
+
 class CudaBackend:
     """ONNX detection models on an NVIDIA GPU; ``options.engine`` picks onnxruntime or torch.
 
     Options as ``onnx-cpu`` (model, family, labels, conf, iou, preprocessing keys in ``extra``)
-    plus ``device`` (GPU index), ``engine`` (``auto`` | ``ort`` | ``torch``; auto takes the
-    first usable in that order), ``precision`` (``fp32`` | ``fp16``) and ``extra['cuda_graph']``.
+    plus ``device`` (GPU index), ``engine`` (``auto`` | ``ort`` | ``torch``; auto picks one
+    before opening, from what is installed, and never switches after a failure), ``precision``
+    (``fp32`` with TF32 off | ``tf32`` | ``fp16``) and ``extra['cuda_graph']``.
     """
 
     name: ClassVar[str] = 'cuda'
@@ -412,6 +488,8 @@ class CudaBackend:
     )
     #: Engines this backend may use, in ``auto`` order.
     engines: ClassVar[tuple[str, ...]] = ('ort', 'torch')
+    #: The onnxruntime provider the ``ort`` engine must run every node on.
+    provider: ClassVar[str] = 'CUDAExecutionProvider'
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()
@@ -430,7 +508,8 @@ class CudaBackend:
             msg = f'{self.name}: --engine {opts.engine} is not offered (only: {offered})'
             raise BackendError(msg)
         if opts.precision not in PRECISIONS:
-            msg = f'{self.name}: unknown --precision {opts.precision!r}; known: fp32, fp16'
+            known = ', '.join(PRECISIONS)
+            msg = f'{self.name}: unknown --precision {opts.precision!r}; known: {known}'
             raise BackendError(msg)
         if opts.device < 0:
             msg = f'{self.name}: --device must be >= 0, got {opts.device}'
@@ -456,12 +535,15 @@ class CudaBackend:
         self.iou = opts.iou if opts.iou is not None else DEFAULT_IOU
         self.spec: ModelSpec | None = None
         self.engine_name = ''
+        self.engine_choice = ''
         self.precision = ''
         self._torch: Any = None
         self._device: Any = None
         self._stream: Any = None
+        self._events: EventTimer | None = None
         self._pipeline: DnnPipeline | None = None
         self._engine: OrtEngine | TorchEngine | None = None
+        self._restore_tf32: Callable[[], None] | None = None
         self._facts: dict[str, Any] = {}
 
     @classmethod
@@ -474,40 +556,161 @@ class CudaBackend:
 
     # -- engines -------------------------------------------------------------------------
 
-    def _providers(self) -> list[Any]:
-        return [
-            ('CUDAExecutionProvider', {'device_id': self.options.device}),
-            'CPUExecutionProvider',
-        ]
+    def choose_engine(self) -> tuple[str, str]:
+        """The engine ``open()`` will use and why, decided before anything is opened.
 
-    def _open_ort_session(self) -> tuple[Any, list[str], str]:
-        """A session on the GPU provider, its providers and onnxruntime's version."""
-        wanted = self._providers()[0][0]
-        problem = ort_provider_problem(wanted)
-        if problem is not None:
-            raise BackendUnavailableError(problem)
-        if not module_missing('torch'):
-            # torch's CUDA wheels bring the cuDNN / cuBLAS libraries onnxruntime-gpu loads.
-            importlib.import_module('torch')
+        ``auto`` takes ``ort`` when onnxruntime's build has the provider, else ``torch`` when
+        onnx2torch is installed. Whatever fails afterwards is reported, never retried with the
+        other engine: a run measures the engine it says it measured.
+        """
+        requested = self.options.engine
+        if requested != 'auto':
+            return requested, f'--engine {requested}'
+        ort = ort_provider_problem(self.provider)
+        if ort is None:
+            return 'ort', f'auto: onnxruntime has {self.provider}'
+        if 'torch' in self.engines and not module_missing('onnx2torch'):
+            return 'torch', f'auto: {ort}; onnx2torch is installed'
+        torch = ''
+        if 'torch' in self.engines:
+            torch = f'; engine torch: onnx2torch is not installed: {GPU_EXTRA}'
+        msg = f'{self.name}: no usable GPU engine: engine ort: {ort}{torch}'
+        raise BackendUnavailableError(msg)
+
+    def _tf32_allowed(self) -> bool:
+        return self.options.precision == 'tf32'
+
+    def _cuda_options(self, stream: Any) -> dict[str, Any]:
+        """CUDA provider options: the GPU, TF32 as ``--precision`` says, the backend's stream."""
+        options: dict[str, Any] = {
+            'device_id': self.options.device,
+            'use_tf32': 1 if self._tf32_allowed() else 0,
+        }
+        handle = getattr(stream, 'cuda_stream', None)
+        if handle:
+            options['has_user_compute_stream'] = 1
+            options['user_compute_stream'] = str(int(handle))
+        return options
+
+    def _providers(self, stream: Any = None) -> list[Any]:
+        """The session's providers: the GPU ones only (no CPU fallback to fall to)."""
+        return [('CUDAExecutionProvider', self._cuda_options(stream))]
+
+    def _create_session(self, stream: Any) -> Any:
+        """An onnxruntime session on the GPU providers only, with node placement recorded."""
         import onnxruntime as ort
 
         so = ort.SessionOptions()
         so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         so.log_severity_level = 3
-        # CPU threads only run nodes the GPU providers leave over: keep them from spinning.
+        # Every node on the GPU: session creation fails rather than placing one on the CPU.
+        so.add_session_config_entry('session.disable_cpu_ep_fallback', '1')
+        so.add_session_config_entry('session.record_ep_graph_assignment_info', '1')
         so.add_session_config_entry('session.intra_op.allow_spinning', '0')
         if self.options.threads is not None:
             so.intra_op_num_threads = self.options.threads
         try:
-            session = ort.InferenceSession(str(self.model_path), so, providers=self._providers())
+            return ort.InferenceSession(str(self.model_path), so, providers=self._providers(stream))
         except Exception as exc:  # onnxruntime raises several types
             problem = driver_problem(self.options.device)
             if problem is not None:  # e.g. a GPU index beyond the machine
                 raise BackendUnavailableError(problem) from None
-            msg = f'cannot load {self.model_path}: {type(exc).__name__}: {exc}'
+            text = f'{type(exc).__name__}: {exc}'
+            if 'CPU EP' in str(exc):
+                msg = (
+                    f'onnxruntime would run part of {self.model_path.name} on the CPU, which '
+                    f'this backend refuses ({text})'
+                )
+                raise BackendUnavailableError(msg) from None
+            msg = f'cannot load {self.model_path}: {text}'
             raise BackendError(msg) from None
-        providers = check_session_providers(session, wanted)
-        return session, providers, str(ort.__version__)
+
+    def _check_session(self, session: Any) -> tuple[list[str], dict[str, int] | None]:
+        """The session's providers and nodes per provider; refused unless all is on the GPU."""
+        try:
+            providers = check_session_providers(session, self.provider)
+        except BackendUnavailableError as exc:
+            libraries = ort_cuda_library_problem()
+            if libraries is None:
+                raise
+            msg = f'{exc}; {libraries}'
+            raise BackendUnavailableError(msg) from None
+        placement = ep_node_counts(session)
+        check_placement(placement, self.provider)
+        return providers, placement
+
+    def _open_ort(self, torch: Any, stream: Any) -> tuple[ModelSpec, Any, dict[str, Any]]:
+        """The session on the GPU provider (checked), the model's spec and the facts."""
+        problem = ort_provider_problem(self.provider)
+        if problem is not None:
+            raise BackendUnavailableError(problem)
+        # The libraries the CUDA provider links, from the loader's path or the nvidia wheels
+        # (importing torch has loaded them already where its CUDA major is the same).
+        load_libraries(ORT_CUDA_LIBRARIES)
+        import onnxruntime as ort
+
+        session = self._create_session(stream)
+        providers, placement = self._check_session(session)
+        spec = self._load_spec(session)
+        fp16 = self.options.precision == 'fp16'
+        if self._fp16_needs_fp16_model and fp16 and spec.precision != 'fp16':
+            msg = (
+                f'{self.name}: --precision fp16 needs an fp16 model with engine ort '
+                '(this one takes fp32); use --engine torch, or the tensorrt backend'
+            )
+            raise BackendError(msg)
+        facts = {
+            'onnxruntime': str(ort.__version__),
+            'providers': providers,
+            'ep_nodes': placement,
+            'ort_stream': 'user_compute_stream'
+            if getattr(stream, 'cuda_stream', None)
+            else 'onnxruntime default',
+        }
+        return spec, session, facts
+
+    #: Engine ``ort`` runs the model in its own precision: fp16 needs an fp16 model.
+    _fp16_needs_fp16_model: ClassVar[bool] = True
+
+    def _open_torch(self, torch: Any) -> tuple[ModelSpec, Any, dict[str, Any]]:
+        missing = [m for m in ('onnx2torch', 'onnx') if module_missing(m)]
+        if missing:
+            msg = f'{" and ".join(missing)} not installed: {GPU_EXTRA}'
+            raise BackendUnavailableError(msg)
+        spec = self._load_spec(None)
+        onnx = importlib.import_module('onnx')
+        proto = onnx.load(str(self.model_path))
+        onnx2torch, torchvision = _import_onnx2torch()
+        needs = sorted({n.op_type for n in proto.graph.node} & _TORCHVISION_OPS)
+        if needs and torchvision is None:
+            msg = (
+                f'{self.name}: {self.model_path.name} has {", ".join(needs)} nodes, which '
+                'onnx2torch runs with torchvision; torchvision is not installed'
+            )
+            raise BackendUnavailableError(msg)
+        width, height = spec.preprocess.size
+        try:
+            proto, report = fold_shapes(onnx, proto, (1, 3, height, width))
+        except BackendError as exc:
+            msg = f'{self.name}: cannot fold the shapes of {self.model_path.name}: {exc}'
+            raise BackendError(msg) from None
+        try:
+            module = onnx2torch.convert(proto)
+        except Exception as exc:  # unsupported ops and the like
+            what = f'{type(exc).__name__}: {exc}'
+            msg = f'{self.name}: onnx2torch cannot convert {self.model_path}: {what}'
+            raise BackendError(msg) from None
+        facts = {
+            'torch': str(torch.__version__),
+            'onnx2torch': _version('onnx2torch'),
+            'torchvision': _version('torchvision') if torchvision is not None else None,
+            'shape_folding': {
+                'input_shape': [1, 3, height, width],
+                'folded_nodes': report.folded,
+                'shape_ops_left': report.shape_ops_left,
+            },
+        }
+        return spec, module, facts
 
     def _torch_device(self) -> tuple[Any, Any]:
         problem = torch_problem(self.options.device)
@@ -528,52 +731,16 @@ class CudaBackend:
             overrides=overrides,
         )
 
-    def _open_ort(self) -> tuple[ModelSpec, Any, Any, Any, dict[str, Any]]:
-        session, providers, version = self._open_ort_session()
-        spec = self._load_spec(session)
-        if self.options.precision == 'fp16' and spec.precision != 'fp16':
-            msg = (
-                f'{self.name}: --precision fp16 needs an fp16 model with engine ort '
-                '(this one takes fp32); use --engine torch, or the tensorrt backend'
-            )
-            raise BackendError(msg)
-        torch, device = self._torch_device()
-        facts = {'onnxruntime': version, 'providers': providers}
-        return spec, torch, device, session, facts
-
-    def _open_torch(self) -> tuple[ModelSpec, Any, Any, Any, dict[str, Any]]:
-        missing = [m for m in ('onnx2torch', 'onnx') if module_missing(m)]
-        if missing:
-            msg = f'{" and ".join(missing)} not installed: {GPU_EXTRA}'
-            raise BackendUnavailableError(msg)
-        torch, device = self._torch_device()
-        spec = self._load_spec(None)
-        onnx = importlib.import_module('onnx')
-        proto = onnx.load(str(self.model_path))
-        onnx2torch, torchvision = _import_onnx2torch()
-        needs = sorted({n.op_type for n in proto.graph.node} & _TORCHVISION_OPS)
-        if needs and torchvision is None:
-            msg = (
-                f'{self.name}: {self.model_path.name} has {", ".join(needs)} nodes, which '
-                'onnx2torch runs with torchvision; torchvision is not installed'
-            )
-            raise BackendUnavailableError(msg)
-        try:
-            module = onnx2torch.convert(proto)
-        except Exception as exc:  # unsupported ops and the like
-            what = f'{type(exc).__name__}: {exc}'
-            msg = f'{self.name}: onnx2torch cannot convert {self.model_path}: {what}'
-            raise BackendError(msg) from None
-        facts = {
-            'torch': str(torch.__version__),
-            'onnx2torch': _version('onnx2torch'),
-            'torchvision': _version('torchvision') if torchvision is not None else None,
-        }
-        return spec, torch, device, module, facts
+    def _precision_name(self, half: bool) -> str:
+        """The precision the model runs in: fp16, tf32 (allowed on request) or strict fp32."""
+        if half:
+            return 'fp16'
+        return 'tf32' if self._tf32_allowed() else 'fp32'
 
     # -- lifecycle -----------------------------------------------------------------------
 
     def open(self) -> None:
+        """Open the chosen engine and run one whole frame through it (the warm-up)."""
         if self._engine is not None:
             return
         if not self.model_path.is_file():
@@ -582,65 +749,118 @@ class CudaBackend:
             )
             msg = f'{self.name}: model {self.model_path} {what}; pass --model PATH.onnx'
             raise BackendError(msg)
-        wanted = self.engines if self.options.engine == 'auto' else (self.options.engine,)
-        problems: list[str] = []
-        for engine in wanted:
-            try:
-                self._open_engine(engine)
-            except BackendUnavailableError as exc:
-                problems.append(f'engine {engine}: {exc}')
-                continue
-            return
-        msg = f'{self.name}: no usable GPU engine: ' + '; '.join(problems)
-        raise BackendUnavailableError(msg)
+        engine, why = self.choose_engine()
+        self.engine_choice = why
+        try:
+            self._open_engine(engine)
+        except BackendError as exc:
+            self._release()
+            text = str(exc).removeprefix(f'{self.name}: ')
+            hint = ''
+            others = [e for e in self.engines if e != engine]
+            if self.options.engine == 'auto' and others:
+                hint = f' (not switching engines: pass --engine {others[0]} to try it)'
+            msg = f'{self.name}: engine {engine} ({why}): {text}{hint}'
+            raise type(exc)(msg) from None
 
     def _open_engine(self, engine: str) -> None:
-        opened = self._open_ort() if engine == 'ort' else self._open_torch()
-        spec, torch, device, runner, facts = opened
-        half = spec.precision == 'fp16' or (engine == 'torch' and self.options.precision == 'fp16')
-        conf = self.options.conf if self.options.conf is not None else DEFAULT_CONF[spec.family]
+        torch, device = self._torch_device()
+        self._torch, self._device = torch, device
+        self._restore_tf32 = set_tf32(torch, self._tf32_allowed())
         with torch.cuda.device(device):
             self._stream = torch.cuda.Stream(device=device)
-            with torch.cuda.stream(self._stream):
-                pipeline = DnnPipeline(torch, spec, device, half, conf, self.iou, self.max_det)
-                if engine == 'ort':
-                    self._engine = OrtEngine(runner, spec, pipeline.input, torch)
-                else:
-                    module = runner.to(device).eval()
-                    module = module.half() if half else module.float()
-                    self._engine = TorchEngine(
-                        torch, module, pipeline.input, _graph_output_names(spec), self.cuda_graph
-                    )
-                    facts['cuda_graph'] = self._engine.graph_note
-        self._torch, self._device, self._pipeline, self.spec = torch, device, pipeline, spec
+        if engine == 'ort':
+            spec, runner, facts = self._open_ort(torch, self._stream)
+        else:
+            spec, runner, facts = self._open_torch(torch)
+        half = spec.precision == 'fp16' or (engine == 'torch' and self.options.precision == 'fp16')
+        conf = self.options.conf if self.options.conf is not None else DEFAULT_CONF[spec.family]
+        with torch.cuda.device(device), torch.cuda.stream(self._stream):
+            pipeline = DnnPipeline(torch, spec, device, half, conf, self.iou, self.max_det)
+            if engine == 'ort':
+                self._engine = OrtEngine(runner, spec, pipeline.input, torch)
+            else:
+                module = runner.to(device).eval()
+                module = module.half() if half else module.float()
+                pinned = pin_host_arguments(module)
+                facts['shape_folding']['host_constants'] = len(pinned.pinned)
+                facts['shape_folding']['device_shape_reads'] = pinned.dynamic
+                self._engine = TorchEngine(
+                    torch, module, pipeline.input, _graph_output_names(spec), self.cuda_graph
+                )
+                facts['cuda_graph'] = self._engine.graph_note
+                facts['syncs_per_forward'] = self._engine.syncs
+        self._pipeline, self.spec = pipeline, spec
+        if device.type == 'cuda':
+            self._events = torch_events(torch, self._stream)
         self.engine_name = engine
-        self.precision = 'fp16' if half else 'fp32'
+        self.precision = self._precision_name(half)
         gpu = device_facts(self.options.device)
         self._facts = {
             'device': self.options.device,
             'device_name': gpu.name,
+            'device_uuid': gpu.uuid,
+            'device_pci_bus_id': gpu.pci_bus_id,
+            'compute_capability': gpu.compute_capability,
             'driver': gpu.driver,
             'cuda_version': str(torch.version.cuda),
             'device_memory_bytes': gpu.total_memory_bytes,
             **facts,
         }
+        self._facts.update(self._precision_facts(gpu))
+        self._warm_up()
+        if engine == 'ort':
+            # what the session runs on, once more after a real inference
+            self._facts['providers'] = check_session_providers(runner, self.provider)
 
-    def close(self) -> None:
+    def _precision_facts(self, gpu: DeviceFacts) -> dict[str, Any]:
+        return {'precision_requested': self.options.precision, 'tf32': self.precision == 'tf32'}
+
+    def _warm_up(self) -> None:
+        """One whole frame (a grey image of the model's input size) through every stage:
+        kernels load, engines build, allocators fill before the first frame is timed."""
+        assert self.spec is not None
+        width, height = self.spec.preprocess.size
+        pixels = np.full((height, width, 3), 114, dtype=np.uint8)
+        began = time.perf_counter_ns()
+        self._run(pixels, 'bgr', 'warm-up')
+        self._facts['warmup_ms'] = (time.perf_counter_ns() - began) / 1e6
+
+    def _release(self) -> None:
+        """Drop the engine and the device buffers, return cached GPU memory, restore TF32."""
+        torch, device = self._torch, self._device
         self._engine = None
         self._pipeline = None
+        self._events = None
+        if torch is not None:
+            if device is not None and device.type == 'cuda' and self._stream is not None:
+                self._stream.synchronize()
+            self._stream = None
+            gc.collect()  # the session / module may sit in a reference cycle
+            # torch's caching allocator keeps freed blocks: return them, so that the next
+            # backend's GPU memory figure is its own
+            torch.cuda.empty_cache()
         self._stream = None
+        if self._restore_tf32 is not None:
+            self._restore_tf32()
+            self._restore_tf32 = None
+
+    def close(self) -> None:
+        self._release()
 
     def info(self) -> dict[str, Any]:
         facts: dict[str, Any] = {
             'model': str(self.model_path),
             'engine_requested': self.options.engine,
             'engine': self.engine_name or None,
+            'engine_choice': self.engine_choice or None,
             'precision': self.precision or self.options.precision,
             'conf': self._pipeline.conf if self._pipeline is not None else self.options.conf,
             'iou': self.iou,
             'max_det': self.max_det,
             'providers': [],
-            'timing': 'device synchronised at every stage boundary',
+            'timing': 'host: device synchronised at every stage boundary; device: CUDA events '
+            'on the backend stream (frames.csv *_device_ms)',
             **(self._pipeline.nonfinite if self._pipeline else NonfiniteTally()).info(),
         }
         spec = self.spec
@@ -662,10 +882,14 @@ class CudaBackend:
     def detect(self, frame: Frame) -> BackendResult:
         if self._engine is None:
             self.open()
+        pixels, layout = frame_input(frame, self.name)
+        return self._run(pixels, layout, f'{frame.topic}#{frame.seq}')
+
+    def _run(self, pixels: npt.NDArray[np.uint8], layout: str, where: str) -> BackendResult:
+        """One frame's pixels through upload, preprocessing, engine and postprocessing."""
         torch, pipeline, engine = self._torch, self._pipeline, self._engine
         assert pipeline is not None and engine is not None
-        pixels, layout = frame_input(frame, self.name)
-        clock = StageClock(self._stream.synchronize)
+        clock = StageClock(self._stream.synchronize, self._events)
         with torch.cuda.device(self._device), torch.cuda.stream(self._stream):
             clock.start()
             image = pipeline.upload(pixels)
@@ -673,7 +897,7 @@ class CudaBackend:
             try:
                 transform = pipeline.preprocess(image, layout)
             except BackendError as exc:
-                msg = f'{self.name}: frame {frame.topic}#{frame.seq}: {exc}'
+                msg = f'{self.name}: frame {where}: {exc}'
                 raise BackendError(msg) from None
             pre = clock.lap()
             outputs = engine()
@@ -682,6 +906,7 @@ class CudaBackend:
             post_device = clock.lap()
             arrays = pipeline.download(tensors)
             d2h = clock.lap()
+        on_device = clock.device_laps()
         t0 = time.perf_counter_ns()
         detections = pipeline.detections(arrays, transform)
         post_host = time.perf_counter_ns() - t0
@@ -691,6 +916,11 @@ class CudaBackend:
             postprocess_ns=post_device + post_host,
             h2d_ns=h2d,
             d2h_ns=d2h,
+            preprocess_device_ns=on_device[1],
+            infer_device_ns=on_device[2],
+            postprocess_device_ns=on_device[3],
+            h2d_device_ns=on_device[0],
+            d2h_device_ns=on_device[4],
         )
         return BackendResult(detections, stages)
 

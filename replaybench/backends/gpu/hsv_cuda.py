@@ -17,7 +17,7 @@ import numpy as np
 
 from replaybench.backends.base import Availability, BackendOptions
 from replaybench.backends.gpu import _hsv_ops
-from replaybench.backends.gpu._cuda import StageClock, device_facts, driver_problem
+from replaybench.backends.gpu._cuda import EventTimer, StageClock, device_facts, driver_problem
 from replaybench.backends.gpu.availability import hsv_cuda_availability
 from replaybench.backends.hsv import HsvBackend, blob_score
 from replaybench.decode import to_bgr8
@@ -27,10 +27,16 @@ from replaybench.types import BackendResult, Detection, StageTimes
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-    from replaybench.backends.hsv import HsvConfig
+    from replaybench.backends.hsv import ColorClass, HsvConfig
     from replaybench.types import Frame
 
-__all__ = ['HsvCudaBackend', 'detections_from_stats', 'frame_pixels', 'morphology_kernel']
+__all__ = [
+    'HsvCudaBackend',
+    'detections_from_stats',
+    'frame_pixels',
+    'morphology_kernel',
+    'warmup_image',
+]
 
 #: Encodings uploaded as they are, and the channel index of blue in each.
 _BLUE = {'bgr8': 0, 'bgra8': 0, 'rgb8': 2, 'rgba8': 2}
@@ -63,6 +69,47 @@ def frame_pixels(frame: Frame) -> tuple[npt.NDArray[np.uint8], int]:
         )
         raise BackendError(msg)
     return np.asarray(image, dtype=np.uint8), blue
+
+
+def _class_colour(cls: ColorClass) -> tuple[int, int, int]:
+    """A BGR colour whose HSV (OpenCV's, as ``to_hsv`` computes it) lies inside ``cls``."""
+    import cv2
+
+    tables = _hsv_ops.hsv_tables()
+    for lo, hi in cls.ranges:
+        mid = [(a + b) // 2 for a, b in zip(lo, hi, strict=True)]
+        for h, s, v in ((mid[0], mid[1], mid[2]), (mid[0], hi[1], hi[2]), tuple(lo)):
+            hsv = np.array([[[min(h, 179), s, v]]], dtype=np.uint8)
+            bgr = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)
+            back = [int(p[0, 0]) for p in _hsv_ops.to_hsv(np, bgr, 0, tables)]
+            if any(
+                all(a <= x <= b for a, x, b in zip(l2, back, h2, strict=True))
+                for l2, h2 in cls.ranges
+            ):
+                b, g, r = (int(c) for c in bgr[0, 0])
+                return b, g, r
+    msg = f'hsv-cuda: no 8-bit colour falls inside class {cls.name!r}'
+    raise BackendError(msg)
+
+
+def warmup_image(config: HsvConfig) -> npt.NDArray[np.uint8]:
+    """A BGR image with one square blob per class that survives the morphology and the minimum
+    area: a warm-up frame on it runs every kernel, labelling and statistics included.
+
+    A square of side ``s`` keeps its full size through an open with a ``k`` x ``k`` kernel
+    (``s >= k``) and the close; ``s`` is also made larger than ``sqrt(min_area)`` plus a
+    margin for the contour-area estimate.
+    """
+    params = config.detector
+    reach = max(params.kernel, 1) * (params.open_iterations + params.close_iterations + 1)
+    side = max(16, 2 * reach, int(np.ceil(np.sqrt(max(params.min_area, 0.0)))) + 8)
+    gap = side + 2 * reach
+    classes = config.classes
+    image = np.zeros((side + 2 * gap, gap + len(classes) * (side + gap), 3), dtype=np.uint8)
+    for index, cls in enumerate(classes):
+        x0 = gap + index * (side + gap)
+        image[gap : gap + side, x0 : x0 + side] = _class_colour(cls)
+    return image
 
 
 def _sort_key(det: Detection) -> tuple[int, float, float, float, float, float]:
@@ -116,6 +163,7 @@ class HsvCudaBackend:
         self._tables: Any = None  # (sdiv, hdiv) on the device
         self._gpu_kernel: Any = None
         self._pinned: Any = None
+        self._events: EventTimer | None = None
         self._facts: dict[str, Any] = {}
 
     @classmethod
@@ -123,6 +171,7 @@ class HsvCudaBackend:
         return hsv_cuda_availability()
 
     def open(self) -> None:
+        """Import CuPy, put the tables on the GPU and run one whole frame (the warm-up)."""
         index = self.options.device
         problem = driver_problem(index)
         if problem is not None:
@@ -136,32 +185,48 @@ class HsvCudaBackend:
             raise BackendUnavailableError(msg) from None
         self._cp, self._ndi = cupy, ndimage
         self._device = cupy.cuda.Device(index)
-        try:
-            with self._device:
-                self._stream = cupy.cuda.Stream(non_blocking=True)
-                sdiv, hdiv = _hsv_ops.hsv_tables()
-                self._tables = (cupy.asarray(sdiv), cupy.asarray(hdiv))
-                self._gpu_kernel = None if self._kernel is None else cupy.asarray(self._kernel)
-                self._warm_up()
-        except Exception as exc:  # missing CUDA runtime parts (NVRTC, ...) show up here
-            self.close()
-            msg = f'hsv-cuda: CuPy cannot run its kernels: {type(exc).__name__}: {exc}'
-            raise BackendUnavailableError(msg) from None
         facts = device_facts(index)
         self._facts = {
             'device': index,
             'device_name': facts.name,
+            'device_uuid': facts.uuid,
+            'device_pci_bus_id': facts.pci_bus_id,
+            'compute_capability': facts.compute_capability,
             'driver': facts.driver,
             'cuda_version': _cupy_cuda_version(cupy),
             'device_memory_bytes': facts.total_memory_bytes,
             'cupy': str(cupy.__version__),
         }
+        try:
+            with self._device:
+                stream = self._stream = cupy.cuda.Stream(non_blocking=True)
+                sdiv, hdiv = _hsv_ops.hsv_tables()
+                self._tables = (cupy.asarray(sdiv), cupy.asarray(hdiv))
+                self._gpu_kernel = None if self._kernel is None else cupy.asarray(self._kernel)
+                events = [cupy.cuda.Event() for _ in range(6)]
+                self._events = EventTimer(
+                    events, lambda e: e.record(stream), cupy.cuda.get_elapsed_time
+                )
+                self._warm_up()
+        except Exception as exc:  # missing CUDA runtime parts (NVRTC, ...) show up here
+            self.close()
+            msg = f'hsv-cuda: CuPy cannot run its kernels: {type(exc).__name__}: {exc}'
+            raise BackendUnavailableError(msg) from None
 
     def close(self) -> None:
+        """Drop the device buffers and return CuPy's cached blocks (device and pinned), so that
+        the next backend's GPU memory figure is its own."""
+        if self._stream is not None:
+            self._stream.synchronize()
         self._pinned = None
         self._stream = None
         self._tables = None
         self._gpu_kernel = None
+        self._events = None
+        cupy = self._cp
+        if cupy is not None:
+            cupy.get_default_memory_pool().free_all_blocks()
+            cupy.get_default_pinned_memory_pool().free_all_blocks()
 
     def info(self) -> dict[str, Any]:
         params = self.config.detector
@@ -183,18 +248,19 @@ class HsvCudaBackend:
             },
             'blobs': 'outer blobs: 8-connected components, holes filled; contour area estimated as '
             'filled - boundary/2 - 1',
-            'timing': 'stream synchronised at every stage boundary',
+            'timing': 'host: stream synchronised at every stage boundary; device: CUDA events on '
+            'the stream (frames.csv *_device_ms)',
             **self._facts,
         }
 
     def _warm_up(self) -> None:
-        """Every step once on a tiny frame: compiles CuPy's kernels before the first real one."""
-        pixels = np.zeros((8, 8, 3), dtype=np.uint8)
-        pixels[2:6, 2:6] = (0, 0, 220)
-        with self._stream:
-            planes = _hsv_ops.to_hsv(self._cp, self._upload(pixels), 0, self._tables)
-            _hsv_ops.blob_stats(self._cp, self._ndi, self._masks(planes), planes[1]).get()
-        self._stream.synchronize()
+        """One whole frame with a blob of every class (``warmup_image``) through every step:
+        CuPy compiles its kernels, labelling and statistics included, before the first real
+        frame. ``warmup_detections`` in ``info()`` says how many blobs it found."""
+        began = time.perf_counter_ns()
+        result = self._run(warmup_image(self.config), 0)
+        self._facts['warmup_ms'] = (time.perf_counter_ns() - began) / 1e6
+        self._facts['warmup_detections'] = len(result.detections)
 
     def _masks(self, planes: tuple[Any, Any, Any]) -> Any:
         params = self.config.detector
@@ -222,9 +288,12 @@ class HsvCudaBackend:
     def detect(self, frame: Frame) -> BackendResult:
         if self._stream is None or self._tables is None:
             self.open()
-        cp, ndi, tables = self._cp, self._ndi, self._tables
         pixels, blue = frame_pixels(frame)
-        clock = StageClock(self._stream.synchronize)
+        return self._run(pixels, blue)
+
+    def _run(self, pixels: npt.NDArray[np.uint8], blue: int) -> BackendResult:
+        cp, ndi, tables = self._cp, self._ndi, self._tables
+        clock = StageClock(self._stream.synchronize, self._events)
         with self._device, self._stream:
             clock.start()
             image = self._upload(pixels)
@@ -237,6 +306,7 @@ class HsvCudaBackend:
             post_device = clock.lap()
             rows = stats.get(stream=self._stream)
             d2h = clock.lap()
+        on_device = clock.device_laps()
         t0 = time.perf_counter_ns()
         detections = detections_from_stats(np.asarray(rows, dtype=np.float64), self.config)
         post_host = time.perf_counter_ns() - t0
@@ -246,6 +316,11 @@ class HsvCudaBackend:
             postprocess_ns=post_device + post_host,
             h2d_ns=h2d,
             d2h_ns=d2h,
+            preprocess_device_ns=on_device[1],
+            infer_device_ns=on_device[2],
+            postprocess_device_ns=on_device[3],
+            h2d_device_ns=on_device[0],
+            d2h_device_ns=on_device[4],
         )
         return BackendResult(detections, stages)
 

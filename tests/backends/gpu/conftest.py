@@ -1,4 +1,5 @@
-"""Fixtures of the GPU backend tests: the real YOLOX-Nano model and a tiny ONNX model."""
+"""Fixtures of the GPU backend tests: the real YOLOX-Nano model, a tiny ONNX model, and a
+fake CUDA driver (``driver``)."""
 
 from __future__ import annotations
 
@@ -6,10 +7,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
+from backends.gpu.gpufakes import FakeGpu, FakeLibcuda, install_libcuda
 from backends.gpu.gpuhelpers import YOLOX_NANO
 from detector.onnxgraph import Output, write_model
 
+from replaybench.backends.gpu import _cuda
+
 if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator
     from pathlib import Path
 
 
@@ -32,3 +37,22 @@ def tiny_model(tmp_path: Path) -> Path:
         input_shape=(1, 3, 32, 64),
         metadata={'names': 'a,b', 'replaybench.family': 'yolov8'},
     )
+
+
+@pytest.fixture
+def driver(monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[..., FakeLibcuda]]:
+    """``driver(gpus, visible=None, version=13000, release=None)`` answers the CUDA driver
+    queries with a ``FakeLibcuda`` for the rest of the test."""
+
+    def install(
+        gpus: list[FakeGpu],
+        visible: list[int] | None = None,
+        version: int = 13000,
+        release: str | None = None,
+    ) -> FakeLibcuda:
+        fake = FakeLibcuda(list(gpus), visible, version)
+        install_libcuda(monkeypatch, fake, release)
+        return fake
+
+    yield install
+    _cuda._device_count.cache_clear()

@@ -8,42 +8,22 @@ reports the CPU provider only.
 
 from __future__ import annotations
 
-from typing import Any
-
-import onnxruntime
 import pytest
+from backends.gpu.gpufakes import GPU_A, GPU_B, fake_gpu_build, fake_loader, torch_on_the_cpu
 from backends.gpu.gpuhelpers import has
 
 from replaybench.backends.base import BackendOptions
-from replaybench.backends.gpu import tensorrt as tensorrt_module
 from replaybench.backends.gpu.availability import check_session_providers
 from replaybench.backends.gpu.cuda import CudaBackend
 from replaybench.backends.gpu.tensorrt import TensorrtBackend, trt_cache_dir
 from replaybench.errors import BackendError, BackendUnavailableError
 
-GPU_PROVIDERS = ['TensorrtExecutionProvider', 'CUDAExecutionProvider', 'CPUExecutionProvider']
 
-
-def _fake_gpu_build(monkeypatch: pytest.MonkeyPatch, reported: list[str]) -> list[Any]:
-    """onnxruntime claims the GPU providers; every session it creates reports ``reported``."""
-    real = onnxruntime.InferenceSession
-    asked: list[Any] = []
-
-    class Session(real):  # type: ignore[misc, valid-type]
-        def __init__(self, path: str, options: Any = None, providers: Any = None) -> None:
-            asked.append(providers)
-            super().__init__(path, options, providers=['CPUExecutionProvider'])
-
-        def get_providers(self) -> list[str]:
-            return list(reported)
-
-    monkeypatch.setattr(onnxruntime, 'get_available_providers', lambda: list(GPU_PROVIDERS))
-    monkeypatch.setattr(onnxruntime, 'InferenceSession', Session)
-    return asked
-
-
-def test_cuda_refuses_a_session_that_fell_back_to_the_cpu(monkeypatch, tiny_model):
-    asked = _fake_gpu_build(monkeypatch, ['CPUExecutionProvider'])
+def test_cuda_refuses_a_session_that_fell_back_to_the_cpu(monkeypatch, tiny_model, driver):
+    torch = pytest.importorskip('torch')
+    driver([GPU_A, GPU_B])
+    torch_on_the_cpu(monkeypatch, torch)
+    seen = fake_gpu_build(monkeypatch, ['CPUExecutionProvider'], placement={})
     backend = CudaBackend(BackendOptions(model=tiny_model, engine='ort', device=1))
     with pytest.raises(BackendUnavailableError) as err:
         backend.open()
@@ -51,17 +31,27 @@ def test_cuda_refuses_a_session_that_fell_back_to_the_cpu(monkeypatch, tiny_mode
     assert 'CUDAExecutionProvider' in message
     assert 'CPUExecutionProvider' in message
     assert 'refusing to run on the CPU' in message
-    assert asked[0][0] == ('CUDAExecutionProvider', {'device_id': 1})
+    assert seen.providers[0] == [('CUDAExecutionProvider', {'device_id': 1, 'use_tf32': 0})]
 
 
-def test_cuda_auto_reports_why_each_engine_is_unusable(monkeypatch, tiny_model):
-    _fake_gpu_build(monkeypatch, ['CPUExecutionProvider'])
+def test_cuda_auto_picks_one_engine_and_never_switches_after_it_fails(
+    monkeypatch, tiny_model, driver
+):
+    torch = pytest.importorskip('torch')
+    driver([GPU_A])
+    torch_on_the_cpu(monkeypatch, torch)
+    seen = fake_gpu_build(monkeypatch, ['CPUExecutionProvider'], placement={})
     backend = CudaBackend(BackendOptions(model=tiny_model))
     with pytest.raises(BackendUnavailableError) as err:
         backend.open()
     message = str(err.value)
-    assert 'engine ort: onnxruntime did not enable CUDAExecutionProvider' in message
-    assert 'engine torch:' in message
+    assert message.startswith(
+        'cuda: engine ort (auto: onnxruntime has CUDAExecutionProvider): onnxruntime did not '
+        'enable CUDAExecutionProvider'
+    )
+    assert message.endswith('(not switching engines: pass --engine torch to try it)')
+    assert len(seen.providers) == 1
+    assert backend.engine_name == ''
 
 
 @pytest.mark.skipif(not has('torch'), reason='torch is not installed')
@@ -70,35 +60,45 @@ def test_a_gpu_session_without_a_cuda_torch_is_refused_too(monkeypatch, tiny_mod
 
     if torch.cuda.is_available():
         pytest.skip('torch can use CUDA here')
-    _fake_gpu_build(monkeypatch, ['CUDAExecutionProvider', 'CPUExecutionProvider'])
+    fake_gpu_build(monkeypatch, ['CUDAExecutionProvider', 'CPUExecutionProvider'])
     backend = CudaBackend(BackendOptions(model=tiny_model, engine='ort'))
     with pytest.raises(BackendUnavailableError, match='torch'):
         backend.open()
 
 
-def test_tensorrt_refuses_a_session_without_its_provider(monkeypatch, tiny_model, tmp_path):
-    asked = _fake_gpu_build(monkeypatch, ['CUDAExecutionProvider', 'CPUExecutionProvider'])
-    monkeypatch.setattr(tensorrt_module, 'tensorrt_problem', lambda: None)
+def test_tensorrt_refuses_a_session_without_its_provider(monkeypatch, tiny_model, tmp_path, driver):
+    torch = pytest.importorskip('torch')
+    driver([GPU_A])
+    torch_on_the_cpu(monkeypatch, torch)
+    fake_loader(monkeypatch, {'libnvinfer.so.10': 101300, 'libnvonnxparser.so.10': None})
+    seen = fake_gpu_build(monkeypatch, ['CUDAExecutionProvider', 'CPUExecutionProvider'])
     cache = tmp_path / 'engines'
     options = BackendOptions(model=tiny_model, precision='fp16', extra={'trt_cache': str(cache)})
+    backend = TensorrtBackend(options)
     with pytest.raises(BackendUnavailableError) as err:
-        TensorrtBackend(options).open()
+        backend.open()
     assert 'did not enable TensorrtExecutionProvider' in str(err.value)
     assert 'CUDAExecutionProvider' in str(err.value)
-    name, trt = asked[0][0]
-    assert name == 'TensorrtExecutionProvider'
+    (name, trt), (cuda, _) = seen.providers[-1]
+    assert (name, cuda) == ('TensorrtExecutionProvider', 'CUDAExecutionProvider')
     assert trt['trt_fp16_enable'] is True
     assert trt['trt_engine_cache_enable'] is True
-    assert trt['trt_engine_cache_path'] == str(cache)
-    assert cache.is_dir()
+    assert backend.engine_key is not None
+    assert trt['trt_engine_cache_path'] == str(cache / backend.engine_key.digest())
+    assert (cache / backend.engine_key.digest() / 'key.json').is_file()
 
 
-def test_tensorrt_without_libnvinfer_says_so_before_building_a_session(monkeypatch, tiny_model):
-    asked = _fake_gpu_build(monkeypatch, ['TensorrtExecutionProvider'])
-    monkeypatch.setattr(tensorrt_module, 'tensorrt_problem', lambda: 'TensorRT libraries missing')
-    with pytest.raises(BackendUnavailableError, match='TensorRT libraries missing'):
+def test_tensorrt_without_libnvinfer_says_so_before_building_a_session(
+    monkeypatch, tiny_model, driver
+):
+    torch = pytest.importorskip('torch')
+    driver([GPU_A])
+    torch_on_the_cpu(monkeypatch, torch)
+    fake_loader(monkeypatch, {})
+    seen = fake_gpu_build(monkeypatch, ['TensorrtExecutionProvider'])
+    with pytest.raises(BackendUnavailableError, match=r'libnvinfer\.so\.10, libnvonnxparser'):
         TensorrtBackend(BackendOptions(model=tiny_model)).open()
-    assert asked == []
+    assert seen.providers == []
 
 
 def test_the_session_check_wants_the_gpu_provider_first():

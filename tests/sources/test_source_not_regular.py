@@ -72,8 +72,8 @@ INPUTS = {
     'link-to-a-fifo': (_link_to_fifo, 'is a FIFO, not a regular file'),
     'dev-null': (lambda _: Path('/dev/null'), 'is a character device, not a regular file'),
     'dev-zero': (lambda _: Path('/dev/zero'), 'is a character device, not a regular file'),
-    'empty-folder': (_empty_folder, 'no metadata.yaml'),
-    'folder-without-a-bag': (_folder_of_notes, 'no metadata.yaml'),
+    'empty-folder': (_empty_folder, 'no bag in this folder'),
+    'folder-without-a-bag': (_folder_of_notes, 'no bag in this folder'),
 }
 
 

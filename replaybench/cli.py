@@ -635,6 +635,8 @@ def peak(
         typer.echo(f'{backend}: no rate tried met the limits')
     else:
         typer.echo(f'{backend}: peak sustainable rate {result.peak_hz:.3f} Hz')
+    for warning in result.warnings:
+        _echo(f'replaybench: warning: {warning}', err=True)
     _echo(f'Peak folder: {folder}')
     if (folder / 'peak.html').exists():
         _echo(f'Report: {folder / "peak.html"}')

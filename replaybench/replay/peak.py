@@ -2,10 +2,11 @@
 
 A sweep in the manner of ros2_benchmark: a max-rate probe run gives a start rate; a coarse
 search doubles (or halves) the rate until one trial passes and one fails; bisection between
-the highest passing and the lowest failing rate refines the answer. Every trial is an ordinary
-run (``run_benchmark``) at ``Rate('fixed', hz=r)`` with a subscriber queue of depth 1 over the
-first ``trial_frames`` frames of each selected topic, each frame once (no looping), and keeps
-its run folder under ``out_dir/trials/``. See docs/peak.md.
+the highest passing and the lowest failing rate refines the answer; confirmation trials then
+repeat the answer until it has passed ``confirm_trials`` trials, moving down when one fails.
+Every trial is an ordinary run (``run_benchmark``) at ``Rate('fixed', hz=r)`` with a subscriber
+queue of depth 1 over the first ``trial_frames`` frames of each selected topic, each frame once
+(no looping), and keeps its run folder under ``out_dir/trials/``. See docs/peak.md.
 """
 
 from __future__ import annotations
@@ -38,12 +39,15 @@ if TYPE_CHECKING:
     from replaybench.results.records import FrameRecord
 
 __all__ = [
+    'CONFIRM_TRIALS',
     'DEFAULT_TRIAL_FRAMES',
     'MAX_DOUBLINGS',
+    'MIN_TRIAL_FRAMES',
     'PEAK_SCHEMA_VERSION',
     'PeakResult',
     'Trial',
     'find_peak_rate',
+    'peak_rule',
     'trial_verdict',
 ]
 
@@ -51,6 +55,12 @@ __all__ = [
 DEFAULT_TRIAL_FRAMES = 300
 #: Without ``max_hz``, the coarse search stops after this many doublings of the start rate.
 MAX_DOUBLINGS = 12
+#: Trials a rate must pass, every one of them, to be reported as the peak (the search's trial
+#: counts as the first).
+CONFIRM_TRIALS = 2
+#: Trials over fewer frames than this get a warning: a backlog that grows by a fraction of a
+#: frame per frame can stay under one frame period to the end of a short trial.
+MIN_TRIAL_FRAMES = 100
 _PROBE_DIR = 'trials/max'
 
 
@@ -59,7 +69,8 @@ class Trial(NamedTuple):
 
     ``frames`` and ``dropped`` count the frames released from the end of the warm-up on (see
     ``trial_verdict``); ``p99_ms`` is over the measured frames of every topic together;
-    ``run_dir`` is the trial's run folder relative to the sweep's ``out_dir``.
+    ``run_dir`` is the trial's run folder relative to the sweep's ``out_dir``; ``attempt`` is
+    1 for the first trial at a rate, 2 and up for the trials that confirm it.
     """
 
     rate_hz: float
@@ -69,10 +80,15 @@ class Trial(NamedTuple):
     p99_ms: float | None
     ok: bool
     run_dir: str
+    attempt: int = 1
 
 
 class PeakResult(NamedTuple):
-    """The highest passing rate (None when even ``min_hz`` fails) and every trial, in run order."""
+    """The peak (``peak_rule``; None when no rate qualifies) and every trial, in run order.
+
+    ``confirmed``: the peak passed ``confirm_trials`` trials (False only when the sweep was
+    interrupted before it could be confirmed); ``warnings``: why the result may mislead.
+    """
 
     backend: str
     peak_hz: float | None
@@ -80,6 +96,8 @@ class PeakResult(NamedTuple):
     p99_bound_ms: float | None
     trials: tuple[Trial, ...]
     status: str = 'complete'  # 'interrupted' when Ctrl-C / SIGTERM stopped the sweep
+    confirmed: bool = True
+    warnings: tuple[str, ...] = ()
 
 
 def trial_verdict(
@@ -214,7 +232,7 @@ def _check(
 
 
 class _Sweep:
-    """The trials of one search, run once per rate."""
+    """The trials of one search: once per rate, and again to confirm one (``again``)."""
 
     def __init__(
         self,
@@ -235,8 +253,9 @@ class _Sweep:
         self.backend_factory = backend_factory
         self.progress = progress
         self.trials: list[Trial] = []
-        self.by_rate: dict[float, Trial] = {}
+        self.by_rate: dict[float, list[Trial]] = {}
         self.interrupted = False
+        self.cut: Trial | None = None  # the trial an interruption cut short
         self.input_meta: dict[str, Any] | None = None
 
     def run(self, rate: Rate, rel: str) -> RunOutcome:
@@ -259,11 +278,14 @@ class _Sweep:
         rates = [s.throughput_fps for s in outcome.summaries if s.throughput_fps]
         return min(rates) if rates else None
 
-    def trial(self, hz: float) -> Trial:
+    def trial(self, hz: float, *, again: bool = False) -> Trial:
+        """The first trial at ``hz`` (run when there is none), or with ``again`` a new one."""
         hz = _round_rate(hz)
-        if hz in self.by_rate:
-            return self.by_rate[hz]
-        rel = f'trials/{hz:.3f}hz'
+        done = self.by_rate.get(hz, [])
+        if done and not again:
+            return done[0]
+        attempt = len(done) + 1
+        rel = f'trials/{hz:.3f}hz' if attempt == 1 else f'trials/{hz:.3f}hz-{attempt}'
         outcome = self.run(Rate('fixed', hz=hz), rel)
         records = read_frames_csv(outcome.run_dir / 'frames.csv')
         frames, dropped, p99, ok = trial_verdict(
@@ -277,12 +299,14 @@ class _Sweep:
             p99_ms=p99,
             ok=ok and not self.interrupted,
             run_dir=rel,
+            attempt=attempt,
         )
         self.trials.append(trial)
-        self.by_rate[hz] = trial
+        self.by_rate.setdefault(hz, []).append(trial)
         if self.progress is not None:
             self.progress(trial)
         if self.interrupted:
+            self.cut = trial
             raise _InterruptedError
         return trial
 
@@ -344,6 +368,75 @@ def _search(
             state.failing = mid
 
 
+def peak_rule(trials: Sequence[Trial], confirm_trials: int) -> tuple[float | None, bool]:
+    """The peak the trials support, and whether it is confirmed.
+
+    The peak is the highest rate that passed every one of its trials and lies below every rate
+    that failed a trial; it is confirmed when it passed at least ``confirm_trials`` trials.
+    ``(None, False)`` when no rate qualifies.
+    """
+    failed = [t.rate_hz for t in trials if not t.ok]
+    lowest_failed = min(failed, default=None)
+    passed: dict[float, int] = {}
+    for t in trials:
+        if t.ok:
+            passed[t.rate_hz] = passed.get(t.rate_hz, 0) + 1
+    candidates = [
+        rate
+        for rate in passed
+        if rate not in failed and (lowest_failed is None or rate < lowest_failed)
+    ]
+    if not candidates:
+        return None, False
+    best = max(candidates)
+    return best, passed[best] >= confirm_trials
+
+
+def _confirm(sweep: _Sweep, state: _State, *, confirm_trials: int, min_hz: float) -> None:
+    """Trials until ``peak_rule`` gives a confirmed peak or none: the candidate is tried again
+    until it has passed ``confirm_trials`` trials; when one fails, that rate is failing and the
+    next candidate down is confirmed the same way; with none left below the lowest failing
+    rate, that rate is halved (down to ``min_hz``) as the coarse search does."""
+    while True:
+        best, confirmed = peak_rule(sweep.trials, confirm_trials)
+        failing = min((t.rate_hz for t in sweep.trials if not t.ok), default=None)
+        state.best, state.failing = best, failing
+        if failing is not None:
+            state.limit_reached = False
+        if best is not None and confirmed:
+            return
+        if best is not None:
+            sweep.trial(best, again=True)
+            continue
+        if failing is None or failing <= min_hz:
+            return
+        sweep.trial(max(failing / 2, min_hz))
+
+
+def _warnings(
+    trials: Sequence[Trial], peak: float | None, frames: int, interrupted: bool, confirmed: bool
+) -> list[str]:
+    found = []
+    if frames < MIN_TRIAL_FRAMES:
+        found.append(
+            f'trials of {frames} frames per topic are shorter than {MIN_TRIAL_FRAMES}: a backlog '
+            'that grows slowly may not reach one frame period before a trial ends, so the peak '
+            'may be too high (use a longer bag or --trial-frames)'
+        )
+    if interrupted and peak is not None and not confirmed:
+        found.append(f'interrupted before {peak:g} Hz was confirmed: it passed one trial only')
+    if peak is not None:
+        failed = [t.rate_hz for t in trials if not t.ok]
+        above = sorted({t.rate_hz for t in trials if t.ok and failed and t.rate_hz > min(failed)})
+        if above:
+            shown = ', '.join(f'{r:g}' for r in above)
+            found.append(
+                f'trials disagree: {shown} Hz passed above the failing {min(failed):g} Hz '
+                '(timing noise near the limit); the peak stays below every failing rate'
+            )
+    return found
+
+
 @_in_run_folder
 def find_peak_rate(
     bag: Path,
@@ -358,6 +451,7 @@ def find_peak_rate(
     min_hz: float = 1.0,
     max_hz: float | None = None,
     refine_steps: int = 4,
+    confirm_trials: int = CONFIRM_TRIALS,
     clock: Clock | None = None,
     backend_factory: Callable[[str, BackendOptions], Backend] | None = None,
     force: bool = False,
@@ -371,13 +465,18 @@ def find_peak_rate(
     The start rate is the max-rate probe's throughput (else the bag's recorded rate, else
     ``min_hz``), clamped to ``[min_hz, max_hz]``. The coarse search doubles a passing rate until
     a trial fails (at most ``MAX_DOUBLINGS`` times, or up to ``max_hz``) or halves a failing
-    one until a trial passes (down to ``min_hz``); ``refine_steps`` bisections follow. The
+    one until a trial passes (down to ``min_hz``); ``refine_steps`` bisections follow, then
+    confirmation trials (``peak_rule``: the peak passed ``confirm_trials`` trials, all it had,
+    and lies below every rate that failed one; a failed confirmation moves it down). The
     rate applies to each selected topic. ``out_dir`` gets peak.json, peak.html (``report``) and
     ``trials/``: the probe's run folder (``trials/max``) and one per tested rate.
     """
     bag = Path(bag)
     out_dir = Path(out_dir)
     _check(max_drop, p99_bound_ms, trial_frames, min_hz, max_hz, refine_steps)
+    if confirm_trials < 1:
+        msg = f'confirmation trials must be 1 or more, not {confirm_trials}'
+        raise UsageError(msg)
     if not bag.exists():
         msg = f'{bag}: no such file or directory'
         raise SourceError(msg)
@@ -426,9 +525,15 @@ def find_peak_rate(
         start = _start_rate(start)
         start = max(min_hz, start if max_hz is None else min(start, max_hz))
         _search(sweep, state, start, min_hz=min_hz, max_hz=max_hz, refine_steps=refine_steps)
+        _confirm(sweep, state, confirm_trials=confirm_trials, min_hz=min_hz)
     except (_InterruptedError, KeyboardInterrupt):
         sweep.interrupted = True
-    best, failing = state.best, state.failing
+    # the trial an interruption cut short neither passed nor failed
+    judged = [t for t in sweep.trials if t is not sweep.cut]
+    best, confirmed = peak_rule(judged, confirm_trials)
+    failing = min((t.rate_hz for t in judged if not t.ok), default=None)
+    limit_reached = state.limit_reached and failing is None
+    warnings = _warnings(judged, best, n, sweep.interrupted, confirmed)
 
     status = 'interrupted' if sweep.interrupted else 'complete'
     result = PeakResult(
@@ -438,6 +543,8 @@ def find_peak_rate(
         p99_bound_ms=p99_bound_ms,
         trials=tuple(sweep.trials),
         status=status,
+        confirmed=confirmed,
+        warnings=tuple(warnings),
     )
     record = {
         'schema_version': PEAK_SCHEMA_VERSION,
@@ -459,6 +566,7 @@ def find_peak_rate(
             'min_hz': min_hz,
             'max_hz': max_hz,
             'refine_steps': refine_steps,
+            'confirm_trials': confirm_trials,
             'topics': list(topics) if topics else None,
             'threads': threads,
         },
@@ -470,9 +578,11 @@ def find_peak_rate(
             'probe_run_dir': _PROBE_DIR,
         },
         'peak_hz': best,
+        'peak_confirmed': confirmed,
         'first_failing_hz': failing,
         'resolution_hz': failing - best if best is not None and failing is not None else None,
-        'limit_reached': state.limit_reached,
+        'limit_reached': limit_reached,
+        'warnings': warnings,
         'trials': [t._asdict() for t in sweep.trials],
         'environment': environment(),
     }

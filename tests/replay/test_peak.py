@@ -110,9 +110,11 @@ def test_without_drops_allowed_the_peak_is_just_under_the_service_rate(
 
 def test_the_sweep_starts_at_the_probe_rate_doubles_then_bisects(bag: Path, tmp_path: Path) -> None:
     result = _sweep(bag, tmp_path / 'peak', 0.02, max_drop=0.0, report=False)
-    # probe: 50 frames/s; 50 Hz passes, 100 fails, then 75, 62.5, 56.25, 53.125 all fail
-    assert [t.rate_hz for t in result.trials] == [50.0, 100.0, 75.0, 62.5, 56.25, 53.125]
-    assert [t.ok for t in result.trials] == [True] + [False] * 5
+    # probe: 50 frames/s; 50 Hz passes, 100 fails, then 75, 62.5, 56.25, 53.125 all fail;
+    # a second trial at 50 Hz confirms it
+    assert [t.rate_hz for t in result.trials] == [50.0, 100.0, 75.0, 62.5, 56.25, 53.125, 50.0]
+    assert [t.ok for t in result.trials] == [True] + [False] * 5 + [True]
+    assert result.trials[-1].attempt == 2 and result.confirmed
     assert result.peak_hz == 50.0
     assert result.status == 'complete'
 
@@ -151,7 +153,7 @@ def test_a_failing_start_rate_is_halved_until_a_trial_passes(bag: Path, tmp_path
         backend_factory=factory,
         report=False,
     )
-    assert [t.rate_hz for t in result.trials] == [100.0, 50.0, 75.0, 62.5, 56.25, 53.125]
+    assert [t.rate_hz for t in result.trials] == [100.0, 50.0, 75.0, 62.5, 56.25, 53.125, 50.0]
     assert result.peak_hz == 50.0
 
 
@@ -175,7 +177,7 @@ def test_a_p99_bound_above_the_service_time_does_not_change_the_peak(
 
 def test_the_highest_rate_caps_the_search(bag: Path, tmp_path: Path) -> None:
     result = _sweep(bag, tmp_path / 'peak', 0.001, max_hz=120.0, report=False)
-    assert [t.rate_hz for t in result.trials] == [120.0]
+    assert [t.rate_hz for t in result.trials] == [120.0, 120.0]
     assert result.peak_hz == 120.0
     peak = json.loads((tmp_path / 'peak' / 'peak.json').read_text())
     assert peak['limit_reached'] is True

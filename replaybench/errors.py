@@ -11,6 +11,7 @@ __all__ = [
     'BackendFailedError',
     'BackendUnavailableError',
     'DecodeError',
+    'EngineError',
     'OutputError',
     'ReplaybenchError',
     'RunAborted',
@@ -53,6 +54,12 @@ class BackendFailedError(BackendError):
 
 class OutputError(ReplaybenchError):
     """An output that cannot be written: disk full, file too large, an I/O error."""
+
+    exit_code = 1
+
+
+class EngineError(ReplaybenchError):
+    """The distributed engine (Ray) of a sweep cannot be started or joined."""
 
     exit_code = 1
 

@@ -1,0 +1,230 @@
+"""sweep.html: one self-contained page (inline CSS, no scripts) for a sweep.json record.
+
+The matrix has a row per input and a column per backend and parameter combination; each cell
+shows FPS, p50 and p99 latency with their 95 % intervals, mAP@0.5 and where it ran, links to
+the cell's report.html, and marks the best FPS (and the best mAP) of its row.
+"""
+
+from __future__ import annotations
+
+from html import escape
+from typing import TYPE_CHECKING, Any
+
+from replaybench.textsafe import visible
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+
+__all__ = ['render_sweep_html']
+
+_CSS = """
+:root{--fg:#1d1d1f;--muted:#666;--line:#ddd;--bg:#fff;--soft:#f6f7f9}
+*{box-sizing:border-box}
+body{margin:0;font:14px/1.45 system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;
+color:var(--fg);background:var(--bg)}
+main{max-width:1400px;margin:0 auto;padding:20px 24px 48px}
+h1{font-size:22px;margin:0 0 4px}
+h2{font-size:18px;margin:28px 0 10px;padding-bottom:4px;border-bottom:1px solid var(--line)}
+.meta{color:var(--muted);margin:0 0 12px}
+.badge{display:inline-block;padding:1px 8px;border-radius:10px;font-weight:600;font-size:12px;
+color:#fff;background:#777;white-space:nowrap}
+.badge.complete{background:#2e7d32}.badge.failed{background:#c62828}
+.badge.interrupted,.badge.running,.badge.pending{background:#e65100}
+.badge.best{background:#1565c0}
+.banner{border:1px solid #e0b000;background:#fff8e1;border-radius:6px;padding:10px 14px;
+margin:12px 0}
+.banner.bad{border-color:#c62828;background:#ffebee}
+.banner ul{margin:4px 0 0;padding-left:20px}
+table{border-collapse:collapse;width:100%;margin:6px 0 10px;font-variant-numeric:tabular-nums}
+th,td{border:1px solid var(--line);padding:5px 8px;text-align:left;vertical-align:top}
+th{background:var(--soft);font-weight:600}
+td.cell.best{background:#e8f1fb}
+td.cell.failed{background:#ffebee}
+td.cell.flagged{outline:2px dashed #e0b000;outline-offset:-3px}
+.n{white-space:nowrap}
+.ci{color:var(--muted);font-size:12px}
+.where{color:var(--muted);font-size:12px}
+.flags{color:#8a4b00;font-size:12px}
+.error{color:#c62828;font-size:12px}
+.table-wrap{overflow-x:auto}
+code{font:12px/1.4 ui-monospace,SFMono-Regular,Menlo,Consolas,monospace}
+footer{margin-top:36px;color:var(--muted);font-size:12px}
+"""
+
+
+def _e(value: object) -> str:
+    """HTML-escaped text, control characters shown as escapes (``replaybench.textsafe``)."""
+    return escape(visible(str(value)), quote=True)
+
+
+def _num(value: Any, digits: int = 2) -> str:
+    return '-' if value is None else f'{value:.{digits}f}'
+
+
+def _ci(interval: Sequence[float] | None, digits: int = 2) -> str:
+    if not interval:
+        return ''
+    return f' <span class="ci">[{interval[0]:.{digits}f}, {interval[1]:.{digits}f}]</span>'
+
+
+def _column(entry: Mapping[str, Any]) -> str:
+    params = ' '.join(f'{k}={v}' for k, v in entry['params'].items())
+    return f'{entry["backend"]} {params}'.strip()
+
+
+def _best(entries: Sequence[Mapping[str, Any]], metric: str) -> set[int]:
+    """Indices of the cells with the highest ``metric`` (of at least two with a value)."""
+    scored = [
+        (e['metrics'][metric], e['index'])
+        for e in entries
+        if e['status'] == 'complete' and e.get('metrics') and e['metrics'].get(metric) is not None
+    ]
+    if len(scored) < 2:
+        return set()
+    top = max(value for value, _ in scored)
+    return {index for value, index in scored if value == top}
+
+
+def _cell_html(entry: Mapping[str, Any], best_fps: bool, best_map: bool) -> str:
+    status = entry['status']
+    classes = ['cell']
+    if status == 'failed':
+        classes.append('failed')
+    if best_fps:
+        classes.append('best')
+    if entry.get('flags'):
+        classes.append('flagged')
+    parts = [f'<span class="badge {_e(status)}">{_e(status)}</span>']
+    if best_fps:
+        parts.append(' <span class="badge best">best FPS</span>')
+    if best_map:
+        parts.append(' <span class="badge best">best mAP</span>')
+    m = entry.get('metrics')
+    if m:
+        parts.append(
+            f'<div class="n">{_num(m.get("fps"), 1)} FPS{_ci(m.get("fps_ci"), 1)}</div>'
+            f'<div class="n">p50 {_num(m.get("p50_ms"))} ms{_ci(m.get("p50_ci"))}</div>'
+            f'<div class="n">p99 {_num(m.get("p99_ms"))} ms{_ci(m.get("p99_ci"))}</div>'
+            f'<div class="n">mAP@0.5 {_num(m.get("map50"), 3)} · {m.get("frames")} frames</div>'
+        )
+    if entry.get('hostname') or entry.get('node_id'):
+        node = entry.get('hostname') or str(entry.get('node_id'))[:12]
+        gpu = f' · GPU {",".join(entry["gpu_ids"])}' if entry.get('gpu_ids') else ''
+        concurrency = (entry.get('concurrency') or {}).get('max_cells_on_node')
+        shared = f' · {concurrency} cell(s) at once' if concurrency else ''
+        parts.append(f'<div class="where">{_e(node)}{_e(gpu)}{_e(shared)}</div>')
+    if entry.get('flags'):
+        parts.append(f'<div class="flags">{_e("; ".join(entry["flags"]))}</div>')
+    if entry.get('error'):
+        parts.append(f'<div class="error">{_e(entry["error"])}</div>')
+    if entry.get('run_dir') and entry.get('has_report'):
+        parts.append(f'<div><a href="{_e(entry["run_dir"])}/report.html">report</a></div>')
+    elif entry.get('run_dir'):
+        parts.append(f'<div><code>{_e(entry["run_dir"])}</code></div>')
+    return f'<td class="{" ".join(classes)}">{"".join(parts)}</td>'
+
+
+def _matrix(record: Mapping[str, Any]) -> str:
+    entries = record['cells']
+    report = bool(record.get('settings', {}).get('report', True))
+    columns = list(dict.fromkeys(_column(e) for e in entries))
+    inputs = {e['input_index']: e['input'] for e in entries}
+    head = ''.join(f'<th>{_e(c)}</th>' for c in columns)
+    rows = []
+    for number in sorted(inputs):
+        mine = [e for e in entries if e['input_index'] == number]
+        fps, maps = _best(mine, 'fps'), _best(mine, 'map50')
+        by_column = {_column(e): e for e in mine}
+        cells = []
+        for column in columns:
+            entry = by_column.get(column)
+            if entry is None:
+                cells.append('<td></td>')
+                continue
+            shown = {**entry, 'has_report': report}
+            cells.append(_cell_html(shown, entry['index'] in fps, entry['index'] in maps))
+        rows.append(f'<tr><th>{_e(inputs[number])}</th>{"".join(cells)}</tr>')
+    return (
+        '<h2>Matrix</h2><div class="table-wrap"><table>'
+        f'<tr><th>input \\ backend</th>{head}</tr>{"".join(rows)}</table></div>'
+    )
+
+
+def _engine(record: Mapping[str, Any]) -> str:
+    engine = record.get('engine')
+    if not engine:
+        return '<h2>Ray</h2><p class="meta">No cell ran in this invocation.</p>'
+    resources = ', '.join(f'{k}: {v:g}' for k, v in engine['resources'].items())
+    nodes = ''.join(
+        f'<tr><td><code>{_e(str(n["node_id"])[:12])}</code>'
+        f'{" (head)" if n["node_id"] == engine.get("head_node_id") else ""}</td>'
+        f'<td>{_e(n.get("hostname"))}</td><td>{_e(n.get("ip"))}</td>'
+        f'<td>{"alive" if n.get("alive") else "dead"}</td>'
+        f'<td>{_e(", ".join(f"{k}: {v:g}" for k, v in n["resources"].items()))}</td></tr>'
+        for n in engine['nodes']
+    )
+    placement = engine['placement']
+    return (
+        '<h2>Ray</h2>'
+        f'<p class="meta">Ray {_e(engine["ray_version"])} · {_e(engine["mode"])} · address '
+        f'<code>{_e(engine.get("address"))}</code> · CPU cells: {_e(placement["cpu_cells"])} · '
+        f'GPU cells: {_e(placement["gpu_cells"])}</p>'
+        f'<p class="meta">Cluster resources: {_e(resources)}</p>'
+        '<div class="table-wrap"><table><tr><th>node</th><th>host</th><th>ip</th><th>state</th>'
+        f'<th>resources</th></tr>{nodes}</table></div>'
+    )
+
+
+def _banners(record: Mapping[str, Any]) -> str:
+    entries = record['cells']
+    failed = [e for e in entries if e['status'] == 'failed']
+    flagged = [e for e in entries if e.get('flags')]
+    out = []
+    if failed:
+        items = ''.join(
+            f'<li><code>{_e(e["cell"])}</code>: {_e(e.get("error"))}</li>' for e in failed
+        )
+        out.append(
+            f'<div class="banner bad"><strong>{len(failed)} cell(s) failed</strong>'
+            f'<ul>{items}</ul></div>'
+        )
+    if flagged:
+        items = ''.join(
+            f'<li><code>{_e(e["cell"])}</code>: {_e("; ".join(e["flags"]))}</li>' for e in flagged
+        )
+        out.append(
+            f'<div class="banner"><strong>{len(flagged)} cell(s) measured under different '
+            f'conditions</strong><ul>{items}</ul></div>'
+        )
+    return ''.join(out)
+
+
+def render_sweep_html(record: Mapping[str, Any]) -> str:
+    """The sweep.html page of a sweep.json record."""
+    counts = record['counts']
+    status = record['status']
+    summary = (
+        f'{counts["cells"]} cells: {counts["complete"]} complete ({counts["resumed"]} kept from '
+        f'an earlier run), {counts["failed"]} failed, {counts["interrupted"]} interrupted'
+    )
+    body = [
+        f'<h1>replaybench sweep <span class="badge {_e(status)}">{_e(status)}</span></h1>',
+        (
+            f'<p class="meta">{_e(summary)} · started {_e(record["started_at"])} · '
+            f'{record["wall_s"]:.1f} s</p>'
+        ),
+        f'<p class="meta"><code>{_e(" ".join(record["command"]))}</code></p>',
+        _banners(record),
+        _matrix(record),
+        _engine(record),
+        (
+            f'<footer>replaybench {_e(record["tool"]["version"])} · sweep.json schema '
+            f'{record["schema_version"]} · sweep.csv has one row per cell</footer>'
+        ),
+    ]
+    return (
+        '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
+        '<meta name="viewport" content="width=device-width,initial-scale=1">'
+        '<title>replaybench sweep</title>'
+        f'<style>{_CSS}</style></head><body><main>{"".join(body)}</main></body></html>\n'
+    )

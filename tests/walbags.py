@@ -11,6 +11,7 @@ way (sqlite recovers the log) and returns the rows it holds; it never calls repl
 
 from __future__ import annotations
 
+import functools
 import shutil
 import sqlite3
 import tempfile
@@ -67,11 +68,11 @@ def write_wal_bag(
     scratch = Path(tempfile.mkdtemp(prefix='walbag', dir=folder.parent))
     try:
         full = scratch / folder.name
-        with Writer(full, version=9) as writer:
-            conn = writer.add_connection(CAMERA, IMAGE, typestore=TS)
-            for t, data in payloads:
-                writer.write(conn, t, data)
+        full.mkdir()
+        whole, meta = _whole_bag(tuple(payloads))
         source = full / f'{folder.name}.db3'
+        source.write_bytes(whole)
+        (full / 'metadata.yaml').write_text(meta.replace('whole.db3', source.name))
         work = scratch / 'work'
         work.mkdir()
         db3 = work / source.name
@@ -80,6 +81,7 @@ def write_wal_bag(
         try:
             db.execute('PRAGMA journal_mode=WAL')
             db.execute('PRAGMA wal_autocheckpoint=0')
+            db.execute('PRAGMA synchronous=OFF')  # the log's content does not depend on it
             db.execute('ATTACH DATABASE ? AS src', (str(source),))
             schema = db.execute(
                 'SELECT type, name, sql FROM src.sqlite_master WHERE sql IS NOT NULL ORDER BY '
@@ -129,6 +131,18 @@ def write_wal_bag(
     return folder
 
 
+@functools.cache
+def _whole_bag(payloads: tuple[tuple[int, bytes], ...]) -> tuple[bytes, str]:
+    """The .db3 bytes and metadata.yaml text ``rosbags`` writes for the payloads (once)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        bag = Path(tmp) / 'whole'
+        with Writer(bag, version=9) as writer:
+            conn = writer.add_connection(CAMERA, IMAGE, typestore=TS)
+            for t, data in payloads:
+                writer.write(conn, t, data)
+        return (bag / 'whole.db3').read_bytes(), (bag / 'metadata.yaml').read_text()
+
+
 def killed_before_checkpoint(
     folder: Path, frames: int = 45, in_db3: int = 32, *, shm: bool = True, metadata: bool = True
 ) -> Path:
@@ -163,7 +177,8 @@ def sqlite_rows(db3: Path, topic: str = CAMERA) -> list[tuple[int, bytes]]:
 
 
 def immutable_rows(db3: Path, topic: str = CAMERA) -> int:
-    """How many of ``topic``'s messages sqlite sees when it ignores the log (``immutable=1``)."""
+    """How many of ``topic``'s messages sqlite sees when it ignores the log (``immutable=1``);
+    0 when the .db3 alone is no readable database."""
     db = sqlite3.connect(f'file:{db3}?immutable=1', uri=True)
     try:
         (count,) = db.execute(

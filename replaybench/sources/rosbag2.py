@@ -94,7 +94,9 @@ def open_rosbag2(path: str | Path) -> McapSource | RosbagsSource:
         if storage == 'mcap' and mode in ('', 'none', 'storage'):  # storage: compressed chunks
             return McapSource(path, files, fmt='rosbag2')
         plain = mode in ('', 'none') or (mode == 'message' and compression == 'zstd')
-        if storage == 'sqlite3' and plain and any(has_wal(file) for file in files):
+        logged = any(has_wal(file) for file in files)
+        if storage == 'sqlite3' and plain and (logged or not _all_cdr(info)):
+            # rosbags ignores write-ahead logs and refuses a whole bag for one non-CDR topic
             return _open_sqlite(path, files, message_compressed=mode == 'message')
     elif has_wal(path):
         return _open_sqlite(path, files)
@@ -116,6 +118,18 @@ def open_rosbag2(path: str | Path) -> McapSource | RosbagsSource:
         close=reader.close,
         message_compressed=reader.compression_mode == 'message',
     )
+
+
+def _all_cdr(info: dict[str, Any]) -> bool:
+    """Whether metadata.yaml lists only topics in CDR (an unreadable list counts as all CDR)."""
+    try:
+        formats = {
+            str(topic['topic_metadata']['serialization_format'])
+            for topic in info.get('topics_with_message_count') or ()
+        }
+    except (KeyError, TypeError):
+        return True
+    return formats <= {'cdr'}
 
 
 def _open_sqlite(

@@ -237,6 +237,25 @@ def test_a_db3_topic_in_another_serialization_is_listed_with_its_count(tmp_path)
     assert any(CAMERA in x and '6 msgs' in x and 'json' in x for x in result.stdout.splitlines())
 
 
+def test_a_rosbag2_folder_with_a_json_image_topic_replays_its_cdr_topics(tmp_path):
+    folder = tmp_path / 'bag'
+    with Writer(folder, version=9) as writer:
+        cdr = writer.add_connection(CAMERA, IMAGE, typestore=TS)
+        other = writer.add_connection('/cam/json', IMAGE, typestore=TS, serialization_format='json')
+        for t, data in image_payloads(6):
+            writer.write(cdr, t, data)
+            writer.write(other, t, b'{"height": 24}')
+    code, stderr = invoke('info', str(folder))
+    assert code == 0, stderr
+    with open_source(folder) as source:
+        assert [t.name for t in source.skipped_topics()] == ['/cam/json']
+        assert [t.count for t in source.skipped_topics()] == [6]
+    out = tmp_path / 'out'
+    code, stderr = invoke('run', str(folder), '--backend', 'null', '--no-report', '--out', str(out))
+    assert code == 0, stderr
+    assert replayed_times(out) == [t for t, _ in image_payloads(6)]
+
+
 # -- empty ROS 1 bags (item 14) ----------------------------------------------------------------
 
 

@@ -19,7 +19,17 @@ from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
-from walbags import CAMERA, PERIOD, T0, immutable_rows, killed_before_checkpoint, sqlite_rows
+from walbags import (
+    CAMERA,
+    PERIOD,
+    T0,
+    Step,
+    image_payloads,
+    immutable_rows,
+    killed_before_checkpoint,
+    sqlite_rows,
+    write_wal_bag,
+)
 
 from replaybench.cli import app
 from replaybench.sources import open_source
@@ -67,6 +77,19 @@ def test_a_db3_killed_before_a_checkpoint_replays_every_row_sqlite_returns(
     assert any('bag.db3-wal' in line and 'not closed' in line for line in warnings), warnings
     assert not truncated
     assert snapshot(folder) == before
+
+
+def test_a_partly_checkpointed_log_replays_the_rows_of_the_db3_and_of_the_log(tmp_path):
+    # a reader pinned the snapshot after 10 frames: the checkpoint copied only those pages, and
+    # the .db3 alone is not even a consistent database (sqlite sizes it when a checkpoint ends)
+    steps = [Step('insert', 10), Step('pin'), Step('insert', 20), Step('checkpoint')]
+    steps += [Step('unpin'), Step('insert', 15)]
+    folder = write_wal_bag(tmp_path / 'bag', image_payloads(45), steps, shm=False)
+    db3 = folder / 'bag.db3'
+    assert immutable_rows(db3) < 45
+    expected = sqlite_rows(db3)
+    assert len(expected) == 45
+    assert replayed(folder) == expected
 
 
 def test_a_replay_window_over_a_write_ahead_log_keeps_the_seq_of_the_whole_bag(tmp_path):

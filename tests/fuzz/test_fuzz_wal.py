@@ -49,7 +49,7 @@ def build_case(tmp_path: Path, steps: list[Step], shm: bool, metadata: bool, cut
 PARTIAL = [Step('insert', 4), Step('pin'), Step('insert', 5), Step('checkpoint'), Step('insert', 3)]
 
 
-@fuzz_settings(0.8)
+@fuzz_settings(0.6)
 @example(
     steps=PARTIAL, shm=False, metadata=True, bare=False, read_only_folder=True, cut=None, info=True
 )

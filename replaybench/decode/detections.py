@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from replaybench.decode.kinds import message_kind
@@ -24,6 +25,7 @@ class GroundTruth(NamedTuple):
     stamp_ns: int
     frame_id: str
     detections: tuple[Detection, ...]
+    nonfinite: int = 0  #: detections left out because a coordinate or the score is NaN or inf
 
 
 def _detection(d: Any) -> Detection:
@@ -101,10 +103,15 @@ def decode_detections(msg: RawMessage) -> GroundTruth:
         raise DecodeError(text)
     try:
         m = _deserialize(msg)
-        detections = tuple(_detection(d) for d in m.detections)
+        decoded = [_detection(d) for d in m.detections]
     except Exception as err:
         text = f'invalid {DETECTION2DARRAY} ({msg.serialization}) on {msg.topic}: {err}'
         raise DecodeError(text) from None
+    detections = tuple(d for d in decoded if _finite(d))
     stamp = m.header.stamp
     stamp_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-    return GroundTruth(stamp_ns, m.header.frame_id, detections)
+    return GroundTruth(stamp_ns, m.header.frame_id, detections, len(decoded) - len(detections))
+
+
+def _finite(d: Detection) -> bool:
+    return all(math.isfinite(v) for v in (d.score, d.x0, d.y0, d.x1, d.y1))

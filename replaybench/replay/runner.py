@@ -165,6 +165,7 @@ class _Input(NamedTuple):
     recorded: dict[tuple[str, int], tuple[Detection, ...]]  # for the `recorded` backend
     recorded_topic: str | None
     external: ExternalGroundTruth | None = None  # --ground-truth-file; replaces ground_truth
+    notes: tuple[str, ...] = ()  # warnings found while opening (detections left out)
 
 
 class _Sample:
@@ -247,6 +248,7 @@ def _open_input(
             end_ns = (start_ns if start_ns is not None else first) + round(config.duration_s * _NS)
         info_topics = [t.name for t in all_topics if message_kind(t.msgtype) == 'camera_info']
         camera_infos = CameraInfoIndex.from_source(source, info_topics)
+        notes: list[str] = []
         ground_truth: dict[tuple[str, int], tuple[Detection, ...]] = {}
         gt_topic = config.ground_truth_topic
         gt_present = any(t.name == gt_topic for t in all_topics)
@@ -254,12 +256,12 @@ def _open_input(
             msg = f'{path}: ground-truth topic {gt_topic} is not in this file'
             raise UsageError(msg)
         if gt_topic and gt_present and external is None:
-            ground_truth = _read_detections(source, gt_topic)
+            ground_truth = _read_detections(source, gt_topic, notes)
         recorded: dict[tuple[str, int], tuple[Detection, ...]] = {}
         recorded_topic = None
         if 'recorded' in config.backends:
             recorded_topic = _recorded_topic(path, all_topics, config)
-            recorded = _read_detections(source, recorded_topic)
+            recorded = _read_detections(source, recorded_topic, notes)
         # the frame drawn in samples/: the middle one of the replayed frames (the first one when
         # --start/--duration cut a window whose size is unknown before reading)
         windowed = config.start_s is not None or config.duration_s is not None
@@ -280,6 +282,7 @@ def _open_input(
             recorded,
             recorded_topic,
             external,
+            tuple(notes),
         )
     except BaseException:
         source.close()
@@ -304,15 +307,30 @@ def _check_external_topics(
         raise UsageError(msg)
 
 
-def _read_detections(source: Source, topic: str) -> dict[tuple[str, int], tuple[Detection, ...]]:
-    """Detection2DArray messages of a topic keyed by (frame_id, stamp); bad messages skipped."""
+def _read_detections(
+    source: Source, topic: str, notes: list[str] | None = None
+) -> dict[tuple[str, int], tuple[Detection, ...]]:
+    """Detection2DArray messages of a topic keyed by (frame_id, stamp); bad messages skipped.
+
+    Detections with a NaN or infinite box or score are left out; ``notes`` gets a line
+    saying how many.
+    """
     table: dict[tuple[str, int], tuple[Detection, ...]] = {}
+    nonfinite = messages = 0
     for raw in source.messages(topics=[topic]):
         try:
             found = decode_detections(raw)
         except DecodeError:
             continue
         table[(found.frame_id, found.stamp_ns)] = found.detections
+        if found.nonfinite:
+            nonfinite += found.nonfinite
+            messages += 1
+    if nonfinite and notes is not None:
+        notes.append(
+            f'{topic}: left out {nonfinite} detection(s) with a NaN or infinite box or score '
+            f'in {messages} message(s)'
+        )
     return table
 
 
@@ -1062,7 +1080,7 @@ def _execute(
         write_rosbag2_metadata(out / 'detections.mcap')
     for inp, meta in zip(inputs, input_meta, strict=True):
         meta['truncated'] = inp.source.truncated
-        meta['warnings'] = list(inp.source.warnings)
+        meta['warnings'] = [*inp.source.warnings, *inp.notes]
         if inp.number in copy_problems:
             meta['warnings'].append(copy_problems[inp.number])
         if inp.external is not None:

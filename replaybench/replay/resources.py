@@ -25,11 +25,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from replaybench.backends.gpu._cuda import (
-    device_identity,
-    load_libcuda,
-    normalise_pci_bus_id,
-)
+from replaybench.backends.gpu import _cuda
 
 if TYPE_CHECKING:
     from types import TracebackType
@@ -129,8 +125,8 @@ class _Nvml:
             count = int(module.nvmlDeviceGetCount())
             identity = None
             handle, match = None, ''
-            if index is not None and load_libcuda() is not None:
-                identity = device_identity(index)
+            if index is not None and _cuda.load_libcuda() is not None:
+                identity = _cuda.device_identity(index)
                 found = None if identity is None else _by_identity(module, count, identity)
                 if found is not None:
                     handle, match = found
@@ -174,7 +170,11 @@ def _by_identity(module: Any, count: int, identity: DeviceIdentity) -> tuple[Any
         if uuid is not None and uuid.lower() == identity.uuid.lower():
             return handle, 'uuid'
         bus = _quiet(lambda h=handle: _text(module.nvmlDeviceGetPciInfo(h).busId))
-        if found is None and bus is not None and normalise_pci_bus_id(bus) == identity.pci_bus_id:
+        if (
+            found is None
+            and bus is not None
+            and _cuda.normalise_pci_bus_id(bus) == identity.pci_bus_id
+        ):
             found = (handle, 'pci_bus_id')
     return found
 

@@ -1,25 +1,46 @@
-# replaybench: `make run` installs and runs the main job on a bundled fixture bag;
-# `make test` installs and runs lint, types and the test suite.
+# replaybench: `make run` installs the core tier and runs the main job on a bundled fixture bag;
+# `make test` installs the development tier and runs lint, types and the test suite.
+#
+# Two install tiers share one virtual environment, each with its own stamp file, so `make run`
+# after `make test` (and the other way round) reuses what is there:
+#   core: `pip install -e .` only: what run, info, compare and report need (no torch, no
+#         browser, no linters; see README.md for its size)
+#   dev:  the core tier plus the dev and train extras (tests, lint, types, the browser driver,
+#         CPU torch) and onnx2torch
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
-STAMP  := $(VENV)/.installed
+CORE_STAMP := $(VENV)/.installed-core
+DEV_STAMP  := $(VENV)/.installed-dev
 
-.PHONY: install run test lint typecheck pytest bench fuzz fixtures clean
+.PHONY: install install-core run test lint typecheck pytest bench fuzz fixtures clean
 
-install: $(STAMP)
+install: $(DEV_STAMP)
 
-$(STAMP): pyproject.toml
-	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+install-core: $(CORE_STAMP)
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
+
+# --no-compile: Python compiles the modules it imports on first use, not every module up front
+$(CORE_STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q --no-compile -e .
+	touch $(CORE_STAMP)
+
+$(DEV_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[dev,train]'
 	# the cuda backend's torch engine, tested on the CPU: onnx2torch without its torchvision
 	# requirement (PyPI's torchvision does not import beside the CPU build of torch)
 	$(BIN)/python -m pip install -q --no-deps 'onnx2torch==1.5.15'
-	touch $(STAMP)
+	touch $(DEV_STAMP) $(CORE_STAMP)
 
-run: install
+run: install-core
 	$(BIN)/replaybench run fixtures/bags/rgb8_raw.mcap --backend hsv --backend null --out replaybench-runs/demo --force
+	@echo
+	@echo 'replaybench is installed in $(VENV). In a new shell, activate it first:'
+	@echo '    . $(VENV)/bin/activate'
+	@echo 'or call $(BIN)/replaybench directly. Then try the examples in README.md.'
 
 lint: install
 	$(BIN)/ruff check replaybench tests benchmarks training
@@ -39,7 +60,7 @@ bench: install
 fuzz: install
 	REPLAYBENCH_FUZZ=long $(BIN)/pytest tests/fuzz -q -n auto
 
-fixtures: install
+fixtures: install-core
 	$(BIN)/replaybench fixtures --out fixtures/bags
 
 clean:

@@ -21,6 +21,7 @@ __all__ = [
     'decompress_partial',
     'normalize_msgtype',
     'normalize_topic',
+    'zero_tail_start',
 ]
 
 
@@ -177,6 +178,25 @@ def decompress_partial(data: memoryview, compression: str, size: int) -> bytes:
     raise ValueError(msg)
 
 
+def zero_tail_start(view: memoryview, size: int) -> int:
+    """Where the run of zero bytes that ends ``view[:size]`` begins (``size`` when none does).
+
+    A file whose last blocks never reached the disk (power loss) keeps its size but reads as
+    zeros from some point on; the readers treat such a file as cut where the zeros begin.
+    """
+    end = size
+    block = 4096
+    while end > 0:
+        start = max(0, end - block)
+        with view[start:end] as part:
+            kept = len(bytes(part).rstrip(b'\x00'))
+        if kept:
+            return start + kept
+        end = start
+        block = min(block * 4, 1 << 24)
+    return 0
+
+
 class MappedFile:
     """A file opened ``'rb'`` and mapped with ``mmap.ACCESS_READ``."""
 
@@ -193,6 +213,14 @@ class MappedFile:
             raise SourceError(msg) from None
         self.path = path
         self.view = memoryview(self.map)
+
+    def cut(self, size: int) -> None:
+        """Read the file as if it ended at ``size``: nothing after it is seen again."""
+        if 0 <= size < self.size:
+            whole = self.view
+            self.view = whole[:size]
+            whole.release()
+            self.size = size
 
     def close(self) -> None:
         """Unmap; a mapping still referenced by yielded messages is freed when they are."""

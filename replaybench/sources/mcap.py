@@ -8,7 +8,8 @@ Files without a summary, with an incomplete index, or cut short (no footer) are 
 record by record instead. The scan keeps only per-message metadata and sorts it like the
 index, so such files replay in the same deterministic order as indexed ones; a cut file
 yields every complete message before the cut (also those in a partly written chunk) and
-sets ``truncated``.
+sets ``truncated``. A file without a footer that ends in zeros (its last blocks lost to a power
+cut) is read as cut where the zeros begin: no message is built from the zeroed bytes.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 from replaybench.errors import SourceError
 from replaybench.types import SkippedTopic
 
-from ._common import MappedFile, normalize_msgtype
+from ._common import MappedFile, decompress_chunk, normalize_msgtype, zero_tail_start
 from ._table import Channel, Chunk, TableSource
 
 if TYPE_CHECKING:
@@ -75,6 +76,7 @@ class _ChunkIndex(NamedTuple):
 
 
 class _Summary(NamedTuple):
+    start: int  # where the summary section (and so the data section's end) is
     schemas: dict[int, _Schema]
     channels: dict[int, _ChannelRecord]
     chunk_indexes: list[_ChunkIndex]
@@ -217,7 +219,61 @@ def _read_summary(buf: memoryview, start: int, size: int) -> _Summary:
         elif op == _OP_STATISTICS and length >= 8:
             message_count = int(_U64(buf, body)[0])
         pos = rec_end
-    return _Summary(schemas, channels, chunk_indexes, message_count)
+    return _Summary(start, schemas, channels, chunk_indexes, message_count)
+
+
+def _schemas_in(buf: memoryview, start: int, end: int, found: dict[int, _Schema]) -> None:
+    """Add the Schema records among the records in ``buf[start:end]`` (first one per id wins)."""
+    pos = start
+    while pos + 9 <= end:
+        (length,) = _U64(buf, pos + 1)
+        rec_end = pos + 9 + length
+        if rec_end > end:
+            return
+        if buf[pos] == _OP_SCHEMA:
+            sid, schema = _parse_schema(buf, pos + 9, rec_end)
+            found.setdefault(sid, schema)
+        pos = rec_end
+
+
+def _data_schemas(buf: memoryview, end: int, wanted: set[int]) -> dict[int, _Schema]:
+    """The Schema records with ids in ``wanted`` from the data section ``buf[:end]``.
+
+    For a summary that lists channels but no schemas (``repeat_schemas=False``): the schemas
+    are then only where they were first written, at the top level or inside a chunk. Records
+    are read in file order, and chunks decompressed, until every wanted id is found; a record
+    or chunk that cannot be read is passed over.
+    """
+    found: dict[int, _Schema] = {}
+    pos = len(MCAP_MAGIC)
+    while pos + 9 <= end and not wanted <= found.keys():
+        op = buf[pos]
+        (length,) = _U64(buf, pos + 1)
+        rec_end = pos + 9 + length
+        if rec_end > end:
+            break
+        try:
+            if op == _OP_SCHEMA:
+                _schemas_in(buf, pos, rec_end, found)
+            elif op == _OP_CHUNK:
+                head = _chunk_head(buf, pos, rec_end)
+                if not head.compression:
+                    _schemas_in(buf, head.data_start, head.data_start + head.data_len, found)
+                else:
+                    data = decompress_chunk(
+                        buf,
+                        head.data_start,
+                        head.data_len,
+                        head.compression,
+                        head.uncompressed_size,
+                        partial=False,
+                    )
+                    with memoryview(data) as view:
+                        _schemas_in(view, 0, len(view), found)
+        except (ValueError, struct.error):  # _CorruptError and codec errors are ValueErrors
+            pass
+        pos = rec_end
+    return {sid: schema for sid, schema in found.items() if sid in wanted}
 
 
 class McapSource(TableSource):
@@ -263,6 +319,11 @@ class McapSource(TableSource):
             return
         schema = schemas.get(record.schema_id)
         name = schema.name if schema else ''
+        if schema is None and record.schema_id:
+            self._warn(
+                f'topic {record.topic}: schema {record.schema_id} is not in the file; '
+                'its message type is unknown'
+            )
         if serialization == 'protobuf':
             channel = Channel(record.topic, name, serialization, schema.data if schema else b'')
         else:
@@ -302,11 +363,17 @@ class McapSource(TableSource):
             else:
                 if self._index_from_summary(file_no, mapped, summary):
                     return
-        if not self._scan_file(file_no, mapped):
+        zeros = ''
+        if summary_start is None:  # no footer: a zero-filled tail is where the file was cut
+            end = zero_tail_start(buf, size)
+            if end < size:
+                mapped.cut(end)
+                zeros = f'; the last {size - end} bytes are zeros'
+        if not self._scan_file(file_no, mapped) or zeros:
             self._truncated = True
             self._warn(
-                f'{mapped.path.name}: file is cut short at byte {size} (no MCAP footer); '
-                'replaying every complete message before the cut'
+                f'{mapped.path.name}: file is cut short at byte {mapped.size} '
+                f'(no MCAP footer{zeros}); replaying every complete message before the cut'
             )
 
     def _index_from_summary(self, file_no: int, mapped: MappedFile, summary: _Summary) -> bool:
@@ -319,8 +386,12 @@ class McapSource(TableSource):
         buf, size = mapped.view, mapped.size
         chmap: dict[int, int] = {}
         channels_before = len(self._channels)
+        schemas = summary.schemas
+        missing = {ch.schema_id for ch in summary.channels.values() if ch.schema_id} - set(schemas)
+        if missing:  # channels in the summary, their schemas only in the data section
+            schemas = {**_data_schemas(buf, summary.start, missing), **schemas}
         for record in summary.channels.values():
-            self._register(chmap, record, summary.schemas)
+            self._register(chmap, record, schemas)
         plans: list[tuple[int, _ChunkHead, list[tuple[int, int, int]] | None]] = []
         indexed = 0
         for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_pos):

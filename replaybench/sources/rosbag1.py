@@ -6,7 +6,9 @@ copy for uncompressed chunks) or from the chunk decompressed once.
 
 A bag whose index is missing (recording not closed) or cut off is scanned record by record:
 the scan keeps per-message metadata only, replays every complete message before the cut in
-the same deterministic order as an indexed bag, and sets ``truncated``.
+the same deterministic order as an indexed bag, and sets ``truncated``. A bag that ends in
+zeros where its data or index should be (its last blocks lost to a power cut) is read as cut
+where the zeros begin: no message is built from the zeroed bytes.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 
 from replaybench.errors import SourceError
 
-from ._common import MappedFile, normalize_msgtype, normalize_topic
+from ._common import MappedFile, normalize_msgtype, normalize_topic, zero_tail_start
 from ._table import Channel, Chunk, TableSource
 
 __all__ = ['ROSBAG_MAGIC', 'Rosbag1Source', 'ros1_payload']
@@ -143,11 +145,21 @@ class Rosbag1Source(TableSource):
                 reason = f'bag index unreadable ({err})'
             else:
                 return
-        complete = self._scan(mapped)
+        # A zero-filled tail (last blocks lost to a power cut) is where the file was cut: the
+        # zeros a readable index may end with never get here.
+        end = zero_tail_start(buf, size)
+        cut = end < size
+        if cut:
+            mapped.cut(end)
+        complete = self._scan(mapped) and not cut
         if index_pos == 0 or index_pos >= size or not complete:
             self._truncated = True
+            where = ''
+            if cut:
+                where = f'; file is cut short at byte {end} (the last {size - end} bytes are zeros)'
             self._warn(
-                f'{self.path.name}: {reason}; replaying every complete message before the cut'
+                f'{self.path.name}: {reason}{where}; replaying every complete message before '
+                'the cut'
             )
         else:
             self._warn(f'{self.path.name}: {reason}; scanned the file')
@@ -198,6 +210,14 @@ class Rosbag1Source(TableSource):
                 kmap[chunk_pos] = self._add_chunk(
                     Chunk(0, chunk_pos, info.datapos, info.datasize, compression, usize, False)
                 )
+            # What the chunk infos count must be what the index lists (and no chunk holds
+            # nothing): a zeroed tail can leave the index readable with its last counts gone.
+            listed = {
+                (kmap.get(info.pos, -1), cid): count
+                for info in reader.chunk_infos
+                for cid, count in info.connection_counts.items()
+            }
+            indexed: dict[tuple[int, int], int] = {}
             for conn in reader.connections:
                 entries = reader.indexes.get(conn.id, [])
                 if not entries:
@@ -208,7 +228,17 @@ class Rosbag1Source(TableSource):
                 offsets = np.fromiter((e.offset for e in entries), np.int64, n)
                 for k in np.unique(chunks).tolist():
                     mask = chunks == k
+                    indexed[int(k), conn.id] = int(np.count_nonzero(mask))
                     self._add_rows(times[mask], chmap[conn.id], int(k), offsets[mask])
+            # (a bag without any message is empty, not damaged: rosbags writes its connections
+            # into a chunk that counts none)
+            empty_chunk = not all(info.connection_counts for info in reader.chunk_infos)
+            if indexed != listed or (empty_chunk and indexed):
+                msg = (
+                    f'chunk infos count {sum(listed.values())} messages, '
+                    f'the index lists {sum(indexed.values())}'
+                )
+                raise ValueError(msg)
         finally:
             reader.close()
 

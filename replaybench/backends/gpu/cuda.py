@@ -6,17 +6,21 @@ Per frame, all on one GPU (``options.device``):
 * ``preprocess``: letterbox resize, padding, channel order, scale/mean/std and HWC->CHW with
   torch ops on the device, written straight into the model's bound input tensor;
 * ``infer``: onnxruntime's CUDA provider with the input and outputs bound on the device
-  (``engine='ort'``), or the graph converted with onnx2torch and run by PyTorch
-  (``engine='torch'``: ``precision='fp16'`` casts it to half, and its forward pass is captured
-  as a CUDA graph when capture works);
+  (``engine='ort'``, on the backend's stream through ``user_compute_stream``), or the graph,
+  its shapes folded for the fixed input size (``_fold``), converted with onnx2torch and run by
+  PyTorch (``engine='torch'``: ``precision='fp16'`` casts it to half, and its forward pass is
+  captured as a CUDA graph when capture works);
 * ``postprocess``: decode, class-aware greedy NMS (torch ops, no torchvision) and the mapping
   to source pixels on the device, then Detections on the host;
 * ``d2h``: only the kept boxes (x0, y0, x1, y1, score, class) come back, with the count of
   candidates left out for NaN or inf model outputs (``info()``: ``nonfinite_dropped``).
 
-Each stage boundary synchronises the device before the clock is read (``StageClock``).
-The backend never runs on the CPU: a session whose first provider is not the GPU one is
-refused with ``BackendUnavailableError``.
+Each stage boundary records a CUDA event on the backend's stream, then synchronises it before
+the host clock is read (``StageClock``): host and device time per stage. ``open()`` runs one
+whole frame (the warm-up). The backend never runs on the CPU: the session gets the GPU
+providers only with ``session.disable_cpu_ep_fallback``, and a session whose first provider is
+not the GPU one, or with a node placed on the CPU, is refused with ``BackendUnavailableError``.
+``precision='fp32'`` keeps TF32 off (torch and the CUDA provider); ``tf32`` allows it.
 """
 
 from __future__ import annotations
@@ -490,6 +494,8 @@ class CudaBackend:
     engines: ClassVar[tuple[str, ...]] = ('ort', 'torch')
     #: The onnxruntime provider the ``ort`` engine must run every node on.
     provider: ClassVar[str] = 'CUDAExecutionProvider'
+    #: Engine ``ort`` runs the model in its own precision: fp16 needs an fp16 model.
+    _fp16_needs_fp16_model: ClassVar[bool] = True
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()
@@ -668,9 +674,6 @@ class CudaBackend:
             else 'onnxruntime default',
         }
         return spec, session, facts
-
-    #: Engine ``ort`` runs the model in its own precision: fp16 needs an fp16 model.
-    _fp16_needs_fp16_model: ClassVar[bool] = True
 
     def _open_torch(self, torch: Any) -> tuple[ModelSpec, Any, dict[str, Any]]:
         missing = [m for m in ('onnx2torch', 'onnx') if module_missing(m)]

@@ -431,6 +431,33 @@ class _Pass:
     def messages(self) -> Iterator[RawMessage]:
         return _replayed(self.inp, self.run.config)
 
+    def warm_short_topics(self) -> list[str]:
+        """Before the pass, one detect on the first frame of each topic too short for warm-up
+        frames (the default gives under 10 frames none): not timed, not recorded, not counted.
+        An explicit ``--warmup`` is left as given. Returns the topics warmed."""
+        if self.run.config.warmup is not None:
+            return []
+        pending = {t.name for t in self.inp.topics if self.run.warmup_for(t.name) == 0}
+        warmed: list[str] = []
+        if not pending:
+            return warmed
+        for raw in self.messages():
+            if raw.topic not in pending:
+                continue
+            try:
+                frame = self.decode(raw)
+            except DecodeError:
+                continue  # the next frame of the topic may decode
+            try:
+                self.backend.detect(frame)
+            except Exception as err:
+                raise _DetectError(self.inp.number, frame.topic, frame.seq, err) from err
+            pending.discard(raw.topic)
+            warmed.append(raw.topic)
+            if not pending:
+                break
+        return warmed
+
     # -- the replay loops: nothing but read, decode, detect and one log entry per frame --------
 
     def run_max(self) -> None:
@@ -1200,6 +1227,7 @@ def _run_backend(
             p = _Pass(run, label, backend, inp)
             passes.append(p)
             try:
+                p.warm_short_topics()
                 if config.rate.timed:
                     p.run_timed(config.rate)
                 else:

@@ -4,24 +4,163 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path  # noqa: TC003 - typer reads the annotations at run time
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import typer
+from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
 from replaybench import __version__
 from replaybench.errors import ReplaybenchError, RunAborted
 from replaybench.textsafe import visible
 
 if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
     from replaybench.backends.base import BackendOptions
     from replaybench.results.stats import Summary
 
 __all__ = ['app', 'main']
 
+_Function = TypeVar('_Function', bound='Callable[..., Any]')
+
 EXIT_FAILURE = 1
+EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 
-app = typer.Typer(
+#: Placeholders shown in help and usage lines, by parameter name; other parameters get one by
+#: type (_metavar). Positional arguments are their name in capitals, singular when repeated.
+_METAVARS = {
+    'backend': 'NAME',
+    'out': 'DIR',
+    'rate': 'RATE',
+    'topic': 'TOPIC',
+    'ground_truth': 'TOPIC',
+    'recorded_topic': 'TOPIC',
+    'ground_truth_image_topic': 'TOPIC',
+    'ground_truth_match': 'stamp|seq',
+    'model_family': 'FAMILY',
+    'labels': 'coco|PATH',
+    'engine': 'auto|ort|torch',
+    'precision': 'fp32|tf32|fp16',
+    'detections_format': 'mcap|rosbag2',
+    'start': 'S',
+    'duration': 'S',
+    'size': 'WxH',
+    'fail_if': 'CONDITION',
+    'param': 'BACKEND.KEY=V,...',
+    'address': 'HOST:PORT',
+    'max_drop': 'FRACTION',
+    'p99_ms': 'MS',
+    'min_hz': 'HZ',
+    'max_hz': 'HZ',
+}
+_TYPE_METAVARS = {'Path': 'PATH', 'int': 'N', 'float': 'X', 'str': 'TEXT'}
+#: click's UsageError (bad option, bad value, missing argument), found without importing the
+#: click that typer vendors by its private name
+_USAGE_ERROR: type[Exception] = next(
+    c for c in typer.BadParameter.__mro__ if c.__name__ == 'UsageError'
+)
+
+
+def _metavar(name: str, bare_type: str) -> str:
+    known = _METAVARS.get(name)
+    if known is not None:
+        return known
+    return _TYPE_METAVARS.get(bare_type.removeprefix('list[').removesuffix(']'), 'VALUE')
+
+
+class _Argument(TyperArgument):
+    """A positional argument shown by its placeholder alone: ``BAG...``, not ``{bags}...``
+    followed by ``<list[Path]>``."""
+
+    def _usage_display_name(self) -> str:
+        name = self.display_name_raw + ('...' if self.nargs != 1 else '')
+        return name if self.required else f'[{name}]'
+
+    def _rich_display_name(self) -> str:
+        return self.display_name_raw + ('...' if self.nargs != 1 else '')
+
+    def display_type_rich(self, ctx: Any) -> str | None:
+        return None
+
+
+class _Option(TyperOption):
+    """An option whose bad value is named in the error, next to what was wrong with it."""
+
+    def process_value(self, ctx: Any, value: Any) -> Any:
+        try:
+            return super().process_value(ctx, value)
+        except typer.BadParameter as err:
+            if value is not None and repr(value) not in err.message:
+                err.message = f'{value!r}: {err.message}'
+            raise
+
+
+class _Command(TyperCommand):
+    """A command whose help shows placeholders people read (``PATH``, ``NAME``, ``N``)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        if self.help:
+            # examples are copied to a shell: click must not wrap them ('\b' keeps a paragraph)
+            self.help = self.help.replace('\n\nExample:', '\n\n\b\nExample:')
+        for param in self.params:
+            name = param.name or ''
+            if isinstance(param, TyperArgument):
+                param.__class__ = _Argument
+                if param.metavar is None:
+                    singular = name.removesuffix('s') if param.nargs != 1 else name
+                    param.metavar = singular.upper()
+            elif isinstance(param, TyperOption):
+                param.__class__ = _Option
+                if param.metavar is None and not param.is_flag:
+                    param.metavar = _metavar(name, param.bare_type())
+
+
+class _Group(TyperGroup):
+    """The command group: a usage error is two lines on stderr, what is wrong (naming the value)
+    and the usage line, exit status 2; not click's four."""
+
+    def main(  # type: ignore[override]
+        self,
+        args: Sequence[str] | None = None,
+        prog_name: str | None = None,
+        complete_var: str | None = None,
+        standalone_mode: bool = True,
+        **extra: Any,
+    ) -> Any:
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            code = super().main(args, prog_name, complete_var, False, **extra)
+        except _USAGE_ERROR as err:
+            if type(err).__name__ == 'NoArgsIsHelpError':  # bare `replaybench`: the help
+                getattr(err, 'show', lambda: None)()
+                sys.exit(EXIT_USAGE)
+            ctx = getattr(err, 'ctx', None)
+            describe = getattr(err, 'format_message', None)
+            message = describe() if callable(describe) else str(err)
+            _echo(f'replaybench: error: {message}', err=True)
+            if ctx is not None:
+                usage = ctx.get_usage().strip()
+                _echo(f'{usage}  (-h for help)', err=True)
+            sys.exit(EXIT_USAGE)
+        except typer.Abort:
+            sys.stderr.write('replaybench: aborted\n')
+            sys.exit(EXIT_FAILURE)
+        sys.exit(code if isinstance(code, int) else 0)
+
+
+class _App(typer.Typer):
+    """``typer.Typer`` whose commands are ``_Command``s."""
+
+    def command(self, *args: Any, **kwargs: Any) -> Callable[[_Function], _Function]:
+        kwargs.setdefault('cls', _Command)
+        return super().command(*args, **kwargs)
+
+
+app = _App(
+    cls=_Group,
     name='replaybench',
     help='Replay camera logs through detectors and measure latency, FPS and accuracy.\n\n'
     'Example: replaybench run bag.mcap --backend hsv --backend null',
@@ -105,10 +244,13 @@ def _print_summary(summaries: list[Summary]) -> None:
         'P@.5',
         'R@.5',
         'mAP@.5',
+        'private MiB',
     )
     rows = []
     for s in summaries:
         acc = s.accuracy or {}
+        # private (anonymous) memory, not the RSS that counts the memory-mapped input
+        private = (s.resources or {}).get('private_mb_peak')
         rows.append(
             (
                 visible(s.backend),
@@ -123,6 +265,7 @@ def _print_summary(summaries: list[Summary]) -> None:
                 _fmt(acc.get('precision50'), 3),
                 _fmt(acc.get('recall50'), 3),
                 _fmt(acc.get('map50'), 3),
+                _fmt(private, 0),
             )
         )
     widths = [max([len(h), *(len(r[i]) for r in rows)]) for i, h in enumerate(header)]
@@ -524,6 +667,7 @@ def _backend_options(
 ) -> BackendOptions:
     from replaybench.backends.base import BackendOptions
 
+    _check_gpu_options(engine, precision)
     return BackendOptions(
         threads=threads,
         config=config,
@@ -536,6 +680,21 @@ def _backend_options(
         engine=engine,
         precision=precision,
     )
+
+
+def _check_gpu_options(engine: str, precision: str) -> None:
+    """Refuse an --engine or --precision no backend knows, whichever backends run: a typo must
+    not pass silently because this run happens to use only CPU backends."""
+    from replaybench.backends.gpu.cuda import ENGINES, PRECISIONS
+    from replaybench.errors import UsageError
+
+    for option, value, known in (
+        ('--engine', engine, ENGINES),
+        ('--precision', precision, PRECISIONS),
+    ):
+        if value not in known:
+            msg = f'invalid {option} {value!r}: use {", ".join(known[:-1])} or {known[-1]}'
+            raise UsageError(msg)
 
 
 @app.command()
@@ -745,6 +904,7 @@ def sweep(
 
     bar = progress_bar(sys.stderr)
     try:
+        _check_gpu_options(engine, precision)
         result = run_sweep(
             bags,
             backends=backend,

@@ -3,10 +3,14 @@
 CPU time comes from ``time.process_time_ns`` (``CLOCK_PROCESS_CPUTIME_ID``: every thread of
 the process, nanosecond resolution; ``/proc/self/stat`` counts in 10 ms ticks, too coarse for
 0.1 s intervals). ``cpu_percent`` is CPU time over wall time in percent of one core, so a
-process keeping two cores busy shows 200. RSS is read from ``/proc/self/statm``; where there is
-no ``/proc``, ``resource.getrusage`` gives the peak RSS so far instead. GPU numbers come from
-NVML when ``pynvml`` (the ``nvidia-ml-py`` or ``pynvml`` distribution) imports and reports a
-device; they describe the whole device (every process on it), not only this one. The NVML
+process keeping two cores busy shows 200. Memory is read from ``/proc/self/statm``: the private
+(anonymous) memory the process allocated, ``RssAnon`` = resident - shared pages, comes first;
+the resident pages of mapped files and shared memory (``RssFile`` + ``RssShmem``: the
+memory-mapped input, the loaded libraries), which the kernel can drop and read back, are
+reported apart as ``mapped``, and their sum as ``rss``. Where there is no ``/proc``,
+``resource.getrusage`` gives the peak RSS so far instead, and no private figure. GPU numbers
+come from NVML when ``pynvml`` (the ``nvidia-ml-py`` or ``pynvml`` distribution) imports and
+reports a device; they describe the whole device (every process on it), not only this one. The NVML
 device is matched to the CUDA device the backend uses by UUID / PCI bus id (see ``_Nvml``).
 Without NVML the GPU fields are None.
 
@@ -48,6 +52,8 @@ class _Point(NamedTuple):
     t_s: float
     cpu_s: float  # process CPU time since the start, cumulative
     rss_mb: float | None  # highest of the merged samples
+    private_mb: float | None  # highest of the merged samples
+    mapped_mb: float | None  # highest of the merged samples
     gpu_util: float | None  # mean of the merged samples
     gpu_mem_mb: float | None  # highest of the merged samples
     gpu_power_w: float | None  # mean of the merged samples
@@ -73,6 +79,8 @@ def _merge(points: list[_Point]) -> _Point:
         t_s=last.t_s,
         cpu_s=last.cpu_s,
         rss_mb=_max([p.rss_mb for p in points]),
+        private_mb=_max([p.private_mb for p in points]),
+        mapped_mb=_max([p.mapped_mb for p in points]),
         gpu_util=_mean([p.gpu_util for p in points], weights),
         gpu_mem_mb=_max([p.gpu_mem_mb for p in points]),
         gpu_power_w=_mean([p.gpu_power_w for p in points], weights),
@@ -187,7 +195,8 @@ def _quiet(call: Any) -> Any:
 
 
 class _Rss:
-    """Resident set size in MiB: ``/proc/self/statm``, else the peak from getrusage."""
+    """Memory in MiB: (resident, private, mapped) from ``/proc/self/statm``, else the peak
+    resident size from getrusage and no private or mapped figure."""
 
     def __init__(self) -> None:
         self.fd: int | None = None
@@ -203,20 +212,26 @@ class _Rss:
                 return
             self.source = 'getrusage_maxrss'
 
-    def read(self) -> float | None:
+    def read(self) -> tuple[float | None, float | None, float | None]:
         if self.fd is not None:
             try:
+                # size resident shared ...: shared = RssFile + RssShmem, resident - shared = RssAnon
                 fields = os.pread(self.fd, 256, 0).split()
-                return int(fields[1]) * self.page / _MIB
+                resident, shared = int(fields[1]), int(fields[2])
             except (OSError, IndexError, ValueError):
-                return None
+                return None, None, None
+            return (
+                resident * self.page / _MIB,
+                max(0, resident - shared) * self.page / _MIB,
+                shared * self.page / _MIB,
+            )
         if self.source == 'getrusage_maxrss':
             import resource
 
             peak = float(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
             # kilobytes on Linux and the BSDs, bytes on macOS
-            return peak / _MIB if sys.platform == 'darwin' else peak / 1024.0
-        return None
+            return (peak / _MIB if sys.platform == 'darwin' else peak / 1024.0), None, None
+        return None, None, None
 
     def close(self) -> None:
         if self.fd is not None:
@@ -269,6 +284,10 @@ class ResourceSampler:
         self._rss_sum = 0.0
         self._rss_n = 0
         self._rss_peak: float | None = None
+        self._private_sum = 0.0
+        self._private_n = 0
+        self._private_peak: float | None = None
+        self._mapped_peak: float | None = None
         self._gpu_util_sum = 0.0
         self._gpu_util_n = 0
         self._gpu_mem_peak: float | None = None
@@ -336,12 +355,12 @@ class ResourceSampler:
     def _take(self, *, timed: bool) -> None:
         begin = time.perf_counter()
         cpu_s = (time.process_time_ns() - self._cpu0) / 1e9
-        rss = self._rss.read() if self._rss is not None else None
+        rss, private, mapped = self._rss.read() if self._rss is not None else (None, None, None)
         util = mem = power = None
         if self._gpu is not None:
             util, mem, power = self._gpu.read()
         t_s = time.perf_counter() - self._t0
-        point = _Point(t_s, cpu_s, rss, util, mem, power, 1)
+        point = _Point(t_s, cpu_s, rss, private, mapped, util, mem, power, 1)
         with self._lock:
             span = t_s - self._last_t
             if self._samples and span >= 0.25 * self.interval_s:
@@ -353,6 +372,12 @@ class ResourceSampler:
                 self._rss_sum += rss
                 self._rss_n += 1
                 self._rss_peak = rss if self._rss_peak is None else max(self._rss_peak, rss)
+            if private is not None:
+                self._private_sum += private
+                self._private_n += 1
+                self._private_peak = _max([self._private_peak, private])
+            if mapped is not None:
+                self._mapped_peak = _max([self._mapped_peak, mapped])
             if util is not None:
                 self._gpu_util_sum += util
                 self._gpu_util_n += 1
@@ -387,6 +412,9 @@ class ResourceSampler:
             return {
                 'cpu_percent_mean': cpu_mean,
                 'cpu_percent_max': self._cpu_max if self._cpu_max is not None else cpu_mean,
+                'private_mb_peak': self._private_peak,
+                'private_mb_mean': self._private_sum / self._private_n if self._private_n else None,
+                'mapped_mb_peak': self._mapped_peak,
                 'rss_mb_peak': self._rss_peak,
                 'rss_mb_mean': self._rss_sum / self._rss_n if self._rss_n else None,
                 'gpu_util_mean': self._gpu_util_sum / self._gpu_util_n
@@ -431,6 +459,8 @@ class ResourceSampler:
                     'cpu_percent': 100.0 * (p.cpu_s - prev_cpu) / span
                     if span >= shortest
                     else None,
+                    'private_mb': p.private_mb,
+                    'mapped_mb': p.mapped_mb,
                     'rss_mb': p.rss_mb,
                     'gpu_util': p.gpu_util,
                     'gpu_mem_mb': p.gpu_mem_mb,

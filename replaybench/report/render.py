@@ -712,6 +712,7 @@ def _agreement(run: Mapping[str, Any], colours: Mapping[str, str]) -> str:
 #: (series key, chart title, y label) of the resource charts, drawn when some backend has data.
 _RESOURCE_CHARTS: tuple[tuple[str, str, str], ...] = (
     ('cpu_percent', 'CPU use over time', 'CPU (% of one core)'),
+    ('private_mb', 'Private memory over time', 'private memory (MiB)'),
     ('rss_mb', 'Resident memory over time', 'RSS (MiB)'),
     ('gpu_util', 'GPU utilisation over time', 'GPU utilisation (%)'),
     ('gpu_mem_mb', 'GPU memory used over time', 'GPU memory (MiB)'),
@@ -742,13 +743,18 @@ def _resources(run: Mapping[str, Any], colours: Mapping[str, str]) -> str:
         for _, s, _ in entries
         for k in ('gpu_util_mean', 'gpu_mem_mb_peak', 'gpu_power_w_mean')
     )
-    head = [
-        'backend',
-        'CPU % mean',
-        'CPU % max',
-        'RSS peak MiB',
-        'RSS mean MiB',
-    ]
+    # private (anonymous) memory first, the mapped input apart; RSS for runs made before
+    private = any(_num(s.get('private_mb_peak')) is not None for _, s, _ in entries)
+    memory = (
+        [
+            ('private_mb_peak', 'private peak MiB'),
+            ('private_mb_mean', 'private mean MiB'),
+            ('mapped_mb_peak', 'mapped input + libraries peak MiB'),
+        ]
+        if private
+        else [('rss_mb_peak', 'RSS peak MiB'), ('rss_mb_mean', 'RSS mean MiB')]
+    )
+    head = ['backend', 'CPU % mean', 'CPU % max', *(title for _, title in memory)]
     if gpu:
         head += ['GPU util % mean', 'GPU mem peak MiB', 'GPU power W mean']
     head += ['samples', 'sampler cost']
@@ -771,8 +777,7 @@ def _resources(run: Mapping[str, Any], colours: Mapping[str, str]) -> str:
             f'<td>{_swatch(colours, label)}{_e(label)}</td>',
             f'<td class="n">{_e(_fmt(s.get("cpu_percent_mean"), 1))}</td>',
             f'<td class="n">{_e(_fmt(s.get("cpu_percent_max"), 1))}</td>',
-            f'<td class="n">{_e(_fmt(s.get("rss_mb_peak"), 1))}</td>',
-            f'<td class="n">{_e(_fmt(s.get("rss_mb_mean"), 1))}</td>',
+            *(f'<td class="n">{_e(_fmt(s.get(key), 1))}</td>' for key, _ in memory),
         ]
         if gpu:
             cells += [
@@ -787,8 +792,15 @@ def _resources(run: Mapping[str, Any], colours: Mapping[str, str]) -> str:
         body.append(f'<tr>{"".join(cells)}</tr>')
     note = (
         'Sampled in a background thread while each backend ran. CPU is this process (every '
-        'thread) in % of one core, so more than 100 means several cores; RSS is its resident '
-        'memory.'
+        'thread) in % of one core, so more than 100 means several cores. '
+        + (
+            'Private memory is what the process allocated (RssAnon: resident, not backed by a '
+            'file); mapped is the resident part of memory-mapped files, the input bag and the '
+            'loaded libraries, which the kernel reads back from disk and can drop at any time, '
+            'so a large bag is not a leak.'
+            if private
+            else 'RSS is its resident memory, the memory-mapped input included.'
+        )
     )
     if gpu:
         note += ' GPU numbers are for the whole device' + (
@@ -797,6 +809,8 @@ def _resources(run: Mapping[str, Any], colours: Mapping[str, str]) -> str:
         note += ', all processes on it.'
     charts = []
     for key, title, y_label in _RESOURCE_CHARTS:
+        if key == ('rss_mb' if private else 'private_mb'):
+            continue
         series = []
         for label, _, points in entries:
             xs = [_num(p.get('t_s')) for p in points]

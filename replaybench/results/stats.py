@@ -85,6 +85,8 @@ _FLAT_FIELDS: tuple[str, ...] = tuple(
 #: Resource-use columns of summary.csv (from the backend's ResourceSampler summary).
 RESOURCE_COLUMNS: tuple[str, ...] = (
     'cpu_percent_mean',
+    'private_mb_peak',
+    'mapped_mb_peak',
     'rss_mb_peak',
     'gpu_util_mean',
     'gpu_mem_mb_peak',

@@ -16,6 +16,9 @@ from replaybench.replay.resources import ResourceSampler
 SUMMARY_KEYS = {
     'cpu_percent_mean',
     'cpu_percent_max',
+    'private_mb_peak',
+    'private_mb_mean',
+    'mapped_mb_peak',
     'rss_mb_peak',
     'rss_mb_mean',
     'gpu_util_mean',
@@ -25,7 +28,16 @@ SUMMARY_KEYS = {
     'interval_s',
     'overhead_ms_per_sample',
 }
-SERIES_KEYS = {'t_s', 'cpu_percent', 'rss_mb', 'gpu_util', 'gpu_mem_mb', 'gpu_power_w'}
+SERIES_KEYS = {
+    't_s',
+    'cpu_percent',
+    'private_mb',
+    'mapped_mb',
+    'rss_mb',
+    'gpu_util',
+    'gpu_mem_mb',
+    'gpu_power_w',
+}
 
 
 @pytest.fixture

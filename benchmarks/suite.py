@@ -28,6 +28,7 @@ if TYPE_CHECKING:
 __all__ = [
     'DEFAULT_OUT',
     'ITEMS',
+    'ON_REQUEST_ITEMS',
     'OPTIONAL_ITEMS',
     'SCHEMA_VERSION',
     'item_modules',
@@ -49,6 +50,8 @@ ITEMS = (
 )
 #: Optional items, run when the module exists.
 OPTIONAL_ITEMS = ('benchmarks.bench_onnx',)
+#: Items run only when --items names them (item g starts Ray clusters: docs/sweep.md).
+ON_REQUEST_ITEMS = ('benchmarks.bench_sweep',)
 
 
 def _specs(settings: Settings, names: Collection[str], memory: bool) -> list[BagSpec]:
@@ -97,6 +100,7 @@ def item_modules(selected: Collection[str] | None, log: Callable[[str], None]) -
             log(f'{name} has no run(ctx) -> ItemResult; not included')
     if not selected:
         return modules
+    modules += [importlib.import_module(name) for name in ON_REQUEST_ITEMS]
     known = set().union(*(_keys(m) for m in modules))
     unknown = sorted(set(selected) - known)
     if unknown:

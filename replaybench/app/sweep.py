@@ -583,6 +583,7 @@ def local_ray(
     with _environment(join_auth_env(None, os.environ)):
         try:
             context = ray.init(
+                address='local',  # a new instance, never a cluster `ray start` left running
                 num_cpus=num_cpus,
                 resources={NODE_SLOT: 1},
                 include_dashboard=False,
@@ -940,7 +941,9 @@ class _Sweep:
     def run(self, todo: list[Cell], address: str | None) -> bool:
         """Run ``todo`` on Ray; False when interrupted."""
         ray = _import_ray()
-        with _engine(address) as info:
+        # Ray prints its cluster messages (a worker that died, memory pressure) on stdout:
+        # they go to stderr, stdout keeps the sweep's own output
+        with contextlib.redirect_stdout(sys.stderr), _engine(address) as info:
             self.engine = _engine_record(ray, info, self.pack)
             runnable = self._feasible(todo)
             return self._loop(ray, runnable)

@@ -150,17 +150,27 @@ def _matrix(record: Mapping[str, Any]) -> str:
     )
 
 
+def _amount(name: str, value: float) -> str:
+    if name in ('memory', 'object_store_memory'):
+        return f'{name}: {value / (1 << 30):.1f} GiB'
+    return f'{name}: {value:g}'
+
+
+def _resources(resources: Mapping[str, float]) -> str:
+    return ', '.join(_amount(k, v) for k, v in resources.items())
+
+
 def _engine(record: Mapping[str, Any]) -> str:
     engine = record.get('engine')
     if not engine:
         return '<h2>Ray</h2><p class="meta">No cell ran in this invocation.</p>'
-    resources = ', '.join(f'{k}: {v:g}' for k, v in engine['resources'].items())
+    resources = _resources(engine['resources'])
     nodes = ''.join(
         f'<tr><td><code>{_e(str(n["node_id"])[:12])}</code>'
         f'{" (head)" if n["node_id"] == engine.get("head_node_id") else ""}</td>'
         f'<td>{_e(n.get("hostname"))}</td><td>{_e(n.get("ip"))}</td>'
         f'<td>{"alive" if n.get("alive") else "dead"}</td>'
-        f'<td>{_e(", ".join(f"{k}: {v:g}" for k, v in n["resources"].items()))}</td></tr>'
+        f'<td>{_e(_resources(n["resources"]))}</td></tr>'
         for n in engine['nodes']
     )
     placement = engine['placement']

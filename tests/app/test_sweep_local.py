@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import itertools
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -267,3 +268,60 @@ def test_packed_cells_are_flagged_as_not_comparable(bags: dict[str, Path], tmp_p
         assert cell['concurrency']['limit_per_node'] is None
     assert result.record['engine']['placement']['cpu_cells'] == 'packed, one per CPU'
     assert 'measured under different conditions' in (tmp_path / 'sw' / 'sweep.html').read_text()
+
+
+def _workers(title: bytes) -> list[int]:
+    found = []
+    for proc in Path('/proc').iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            cmdline = (proc / 'cmdline').read_bytes()
+        except OSError:
+            continue
+        if cmdline.startswith(title):
+            found.append(int(proc.name))
+    return found
+
+
+@pytest.mark.skipif(not Path('/proc/self/cmdline').exists(), reason='needs /proc')
+def test_a_cell_whose_worker_is_killed_is_run_again_by_ray_and_completes(
+    bags: dict[str, Path], tmp_path: Path
+) -> None:
+    import signal
+    import threading
+    import time
+
+    from replaybench.app.sweep import SweepSettings, input_identity, parse_params, plan_cells
+
+    params = ['busy.busy_ms=97']
+    settings = SweepSettings(max_frames=30)
+    cell = plan_cells(
+        [input_identity(bags['a'])], ['busy'], parse_params(params, ['busy']), settings
+    )[0]
+    title = f'ray::replaybench cell {cell.name}'.encode()
+    results: list[SweepResult] = []
+    runner = threading.Thread(
+        target=lambda: results.append(
+            _sweep([bags['a']], tmp_path / 'sw', backends=['busy'], params=params)
+        )
+    )
+    runner.start()
+    killed = None
+    deadline = time.monotonic() + 120
+    while killed is None and time.monotonic() < deadline and runner.is_alive():
+        found = _workers(title)
+        if found:
+            killed = found[0]
+            os.kill(killed, signal.SIGKILL)
+        time.sleep(0.05)
+    runner.join(timeout=300)
+    assert killed is not None, 'the cell never ran'
+    assert results, 'the sweep did not return'
+    result = results[0]
+    assert result.status == 'complete', result.record['cells']
+    entry = result.record['cells'][0]
+    assert entry['key'] == cell.key
+    run = json.loads((tmp_path / 'sw' / entry['run_dir'] / 'run.json').read_text())
+    assert run['status'] == 'complete'
+    assert run['summary'][0]['measured'] == 27

@@ -11,6 +11,7 @@ from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import SourceError
+from replaybench.report.headline import headline_html
 from replaybench.report.samples import sample_relpath
 from replaybench.report.svg import (
     Marks,
@@ -77,7 +78,8 @@ margin:12px 0}
 .banner strong{display:block;margin-bottom:4px}
 .banner ul{margin:4px 0 0;padding-left:20px}
 .cards{display:grid;grid-template-columns:repeat(auto-fit,minmax(320px,1fr));gap:12px}
-.card{background:var(--soft);border:1px solid var(--line);border-radius:6px;padding:10px 14px}
+.card{background:var(--soft);border:1px solid var(--line);border-radius:6px;padding:10px 14px;
+min-width:0;overflow-x:auto}
 .card h3{margin:0 0 6px}
 dl{display:grid;grid-template-columns:max-content 1fr;gap:2px 12px;margin:0}
 dt{color:var(--muted)}dd{margin:0;overflow-wrap:anywhere}
@@ -993,6 +995,7 @@ def render_html(data: RunData) -> str:
     body = [
         _header(run),
         _banner(run, frames),
+        headline_html(run, rows, frames),
         '<div class="cards">',
         _inputs_card(run),
         _environment_card(run),

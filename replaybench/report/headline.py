@@ -1,0 +1,331 @@
+"""The headline at the top of report.html: per topic, the fastest backend, the most accurate one
+and how well the two agree, in one table narrow enough for a laptop screen.
+
+* **Fastest**: the highest throughput (summary ``throughput_fps``) among the backends that
+  detect; ``null`` (the harness alone) is a reference and is only named when it ran alone. Its
+  FPS, p50 and p99 latency come with 95 % block-bootstrap intervals computed from the measured
+  frames of frames.csv exactly as ``replaybench compare`` computes a row's own interval
+  (``replaybench.compare.bootstrap``, the same seed: ``compare RUN`` shows the same intervals;
+  none below ``MIN_FRAMES`` measured frames), so the same run folder gives the same page.
+* **Most accurate**: the highest mAP@0.5 against ground truth; none without ground truth.
+* **Agreement**: from run.json ``agreement``, the share of each of the two backends' detections
+  that the other one matched, and their mean IoU.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+from html import escape
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from replaybench.compare.bootstrap import CONFIDENCE, percentile_interval, replicates
+from replaybench.textsafe import visible
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+
+    import numpy.typing as npt
+
+    from replaybench.results.records import FrameRecord
+
+__all__ = ['Agreement', 'TopicHeadline', 'headline_html', 'topic_headlines']
+
+#: Backends that measure the harness, not a detector: the fastest only when alone.
+REFERENCE_BACKENDS = frozenset({'null'})
+
+Interval = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """How the fastest and the most accurate backend agree on one topic."""
+
+    matched_fastest: float | None  # share of the fastest backend's detections matched
+    matched_accurate: float | None  # share of the most accurate backend's detections matched
+    mean_iou: float | None
+
+
+@dataclass(frozen=True)
+class TopicHeadline:
+    """One row of the headline."""
+
+    topic: str
+    fastest: str | None
+    fps: float | None
+    fps_ci: Interval | None
+    fps_all: float | None  # the fastest backend's FPS summed over every topic (several topics)
+    p50_ms: float | None
+    p50_ci: Interval | None
+    p99_ms: float | None
+    p99_ci: Interval | None
+    measured: int
+    accurate: str | None
+    map50: float | None
+    agreement: Agreement | None
+
+
+def _num(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    number = float(value)
+    return number if np.isfinite(number) else None
+
+
+def _map50(row: Mapping[str, Any]) -> float | None:
+    accuracy = row.get('accuracy')
+    if isinstance(accuracy, dict) and 'map50' in accuracy:
+        return _num(accuracy.get('map50'))
+    return _num(row.get('map50'))
+
+
+def _series(
+    records: Sequence[FrameRecord],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64] | None]:
+    """Measured latencies and completion-to-completion times in replay order (the series that
+    ``replaybench compare`` resamples; the times add up to the throughput window)."""
+    ordered = sorted(records, key=lambda r: r.release_s)
+    measured = [
+        r for r in ordered if r.status == 'ok' and not r.warmup and r.latency_ms is not None
+    ]
+    latency = np.asarray([r.latency_ms for r in measured], dtype=np.float64)
+    if not measured or any(r.done_s is None for r in measured):
+        return latency, None
+    start = measured[0].start_s
+    previous = None
+    for record in ordered:
+        if record is measured[0]:
+            break
+        if record.status == 'ok':
+            previous = record
+    if previous is not None and previous.done_s is not None:
+        start = previous.done_s
+    if start is None:
+        return latency, None
+    done = np.asarray([start] + [r.done_s for r in measured], dtype=np.float64)
+    return latency, np.diff(done)
+
+
+def _intervals(
+    backend: str, topic: str, records: Sequence[FrameRecord]
+) -> tuple[Interval | None, Interval | None, Interval | None]:
+    """95 % intervals of (FPS, p50, p99) of one backend on one topic, or None each."""
+    latency, times = _series(records)
+    # the generator ``replaybench compare`` uses for the first run folder, default seed
+    seed = np.random.SeedSequence(0, spawn_key=(0, zlib.crc32(f'{backend}\0{topic}'.encode())))
+    reps = replicates(latency, times, rng=np.random.default_rng(seed))
+    if reps is None:
+        return None, None, None
+    fps = percentile_interval(reps.fps, CONFIDENCE) if reps.fps is not None else None
+    return (
+        fps,
+        percentile_interval(reps.p50, CONFIDENCE),
+        percentile_interval(reps.p99, CONFIDENCE),
+    )
+
+
+def _agreement(run: Mapping[str, Any], topic: str, fast: str, accurate: str) -> Agreement | None:
+    entries = run.get('agreement')
+    for entry in entries if isinstance(entries, list) else []:
+        if not isinstance(entry, dict) or str(entry.get('topic')) != topic:
+            continue
+        a, b = str(entry.get('backend_a')), str(entry.get('backend_b'))
+        if (a, b) == (fast, accurate):
+            frac_fast, frac_acc = entry.get('matched_frac_a'), entry.get('matched_frac_b')
+        elif (a, b) == (accurate, fast):
+            frac_fast, frac_acc = entry.get('matched_frac_b'), entry.get('matched_frac_a')
+        else:
+            continue
+        return Agreement(_num(frac_fast), _num(frac_acc), _num(entry.get('mean_iou')))
+    return None
+
+
+def topic_headlines(
+    run: Mapping[str, Any], rows: Sequence[Mapping[str, Any]], frames: Sequence[FrameRecord]
+) -> list[TopicHeadline]:
+    """One headline per topic, in the order of the summary rows."""
+    names: dict[str, str] = {}
+    backends = run.get('backends')
+    for entry in backends if isinstance(backends, list) else []:
+        if isinstance(entry, dict):
+            label = entry.get('label') or entry.get('name')
+            names[str(label)] = str(entry.get('name') or label)
+    by_topic: dict[str, list[Mapping[str, Any]]] = {}
+    for row in rows:
+        by_topic.setdefault(str(row.get('topic', '?')), []).append(row)
+    fps_all: dict[str, float] = {}
+    for row in rows:
+        fps = _num(row.get('throughput_fps'))
+        if fps is not None:
+            backend = str(row.get('backend'))
+            fps_all[backend] = fps_all.get(backend, 0.0) + fps
+    groups: dict[tuple[str, str], list[FrameRecord]] = {}
+    for record in frames:
+        groups.setdefault((record.backend, record.topic), []).append(record)
+    out = []
+    for topic, topic_rows in by_topic.items():
+        timed = [r for r in topic_rows if _num(r.get('throughput_fps')) is not None]
+        detectors = [
+            r for r in timed if names.get(str(r.get('backend')), '') not in REFERENCE_BACKENDS
+        ]
+        pool = detectors or timed
+        fastest = max(pool, key=lambda r: _num(r.get('throughput_fps')) or 0.0, default=None)
+        scored = [r for r in topic_rows if _map50(r) is not None]
+        accurate = max(scored, key=lambda r: _map50(r) or 0.0, default=None)
+        fast_name = str(fastest.get('backend')) if fastest is not None else None
+        acc_name = str(accurate.get('backend')) if accurate is not None else None
+        fps_ci = p50_ci = p99_ci = None
+        if fast_name is not None:
+            fps_ci, p50_ci, p99_ci = _intervals(
+                fast_name, topic, groups.get((fast_name, topic), [])
+            )
+        agreement = None
+        if fast_name is not None and acc_name is not None and fast_name != acc_name:
+            agreement = _agreement(run, topic, fast_name, acc_name)
+        out.append(
+            TopicHeadline(
+                topic=topic,
+                fastest=fast_name,
+                fps=_num(fastest.get('throughput_fps')) if fastest is not None else None,
+                fps_ci=fps_ci,
+                fps_all=fps_all.get(fast_name) if fast_name and len(by_topic) > 1 else None,
+                p50_ms=_num(fastest.get('latency_ms_p50')) if fastest is not None else None,
+                p50_ci=p50_ci,
+                p99_ms=_num(fastest.get('latency_ms_p99')) if fastest is not None else None,
+                p99_ci=p99_ci,
+                measured=int(_num(fastest.get('measured')) or 0) if fastest is not None else 0,
+                accurate=acc_name,
+                map50=_map50(accurate) if accurate is not None else None,
+                agreement=agreement,
+            )
+        )
+    return out
+
+
+# --------------------------------------------------------------------------- HTML
+
+
+def _e(value: object) -> str:
+    return escape(visible(str(value)), quote=True)
+
+
+def _fmt(value: float | None, digits: int) -> str:
+    return '–' if value is None else f'{value:.{digits}f}'
+
+
+def _ms_digits(value: float | None) -> int:
+    return 3 if value is not None and value < 1 else 2 if value is not None and value < 100 else 1
+
+
+def _with_interval(value: float | None, interval: Interval | None, digits: int) -> str:
+    text = f'<b>{_e(_fmt(value, digits))}</b>'
+    if interval is not None:
+        lo, hi = interval
+        text += f'<br><span class="muted">{_e(_fmt(lo, digits))}–{_e(_fmt(hi, digits))}</span>'
+    return text
+
+
+def _share(value: float | None) -> str:
+    return '–' if value is None else f'{100 * value:.0f} %'
+
+
+def _agreement_cell(head: TopicHeadline) -> str:
+    if head.fastest is None or head.accurate is None:
+        return '<span class="muted">–</span>'
+    if head.fastest == head.accurate:
+        return '<span class="muted">one backend is both</span>'
+    found = head.agreement
+    if found is None:
+        return '<span class="muted">not measured</span>'
+    iou = f', IoU {found.mean_iou:.2f}' if found.mean_iou is not None else ''
+    return (
+        f'{_e(_share(found.matched_fastest))} of {_e(head.fastest)}’s boxes, '
+        f'{_e(_share(found.matched_accurate))} of {_e(head.accurate)}’s matched{_e(iou)}'
+    )
+
+
+_CSS = (
+    '#headline-table{table-layout:fixed;width:100%}'
+    '#headline-table td,#headline-table th{overflow-wrap:anywhere;white-space:normal}'
+    '#headline-table col.topic{width:17%}#headline-table col.backend{width:10%}'
+    '#headline-table col.fps{width:12%}#headline-table col.ms{width:9%}'
+    '#headline-table col.map{width:8%}#headline-table col.agree{width:25%}'
+    '#headline-table.timed col.topic{width:34%}#headline-table.timed col.backend{width:24%}'
+    '#headline-table.timed col.fps{width:16%}#headline-table.timed col.ms{width:13%}'
+)
+
+
+def headline_html(
+    run: Mapping[str, Any], rows: Sequence[Mapping[str, Any]], frames: Sequence[FrameRecord]
+) -> str:
+    """The headline section, or '' when no row was measured."""
+    heads = topic_headlines(run, rows, frames)
+    if not heads or all(h.fastest is None and h.accurate is None for h in heads):
+        return ''
+    many = len(heads) > 1
+    scored = any(h.map50 is not None for h in heads)
+    level = f'{CONFIDENCE * 100:.0f} %'
+    body = []
+    for head in heads:
+        fps = _with_interval(head.fps, head.fps_ci, 1)
+        p50 = _with_interval(head.p50_ms, head.p50_ci, _ms_digits(head.p50_ms))
+        p99 = _with_interval(head.p99_ms, head.p99_ci, _ms_digits(head.p99_ms))
+        if head.fps_all is not None:
+            fps += f'<br><span class="muted">of {_e(_fmt(head.fps_all, 1))} in all</span>'
+        cells = [
+            f'<td><code>{_e(head.topic).replace("/", "/<wbr>")}</code></td>',
+            f'<td>{_e(head.fastest or "–")}</td>',
+            f'<td class="n">{fps}</td>',
+            f'<td class="n">{p50}</td>',
+            f'<td class="n">{p99}</td>',
+        ]
+        if scored:
+            cells += [
+                f'<td>{_e(head.accurate or "no ground truth")}</td>',
+                f'<td class="n"><b>{_e(_fmt(head.map50, 3))}</b></td>',
+                f'<td>{_agreement_cell(head)}</td>',
+            ]
+        body.append(f'<tr>{"".join(cells)}</tr>')
+    cols = (
+        '<col class="topic"><col class="backend"><col class="fps"><col class="ms"><col class="ms">'
+    )
+    head_row = (
+        '<th>topic</th><th>fastest</th><th class="n">FPS</th><th class="n">p50 ms</th>'
+        '<th class="n">p99 ms</th>'
+    )
+    if scored:
+        cols += '<col class="backend"><col class="map"><col class="agree">'
+        head_row += '<th>most accurate</th><th class="n">mAP@0.5</th><th>agreement of the two</th>'
+    notes = [
+        (
+            f'Under each figure of the fastest backend, its {level} interval (block bootstrap '
+            'of the measured frames, as in replaybench compare; none under 20 measured frames). '
+            'null, the harness alone, is left out of "fastest" unless it ran alone.'
+        )
+    ]
+    if scored:
+        notes[0] += (
+            ' mAP@0.5 against the ground truth; agreement: share of each backend’s detections '
+            'the other matched (IoU ≥ 0.5, same class).'
+        )
+    else:
+        notes.append(
+            'No ground truth in this run, so no accuracy: give a ground-truth topic '
+            '(--ground-truth) or file (--ground-truth-file).'
+        )
+    if many:
+        notes.append(
+            'FPS with several topics: a topic’s measured frames per second of the backend’s '
+            'processing window. The topics are replayed together, interleaved, so they share '
+            'that window and each topic gets a part of it: "in all" is the backend’s rate over '
+            'every topic, the sum of its topics’ FPS.'
+        )
+    return (
+        f'<style>{_CSS}</style><h2 id="headline">Headline</h2>'
+        f'<table id="headline-table" class="{"scored" if scored else "timed"}">'
+        f'<colgroup>{cols}</colgroup><thead><tr>{head_row}</tr></thead>'
+        f'<tbody>{"".join(body)}</tbody></table>'
+        + ''.join(f'<p class="muted">{_e(note)}</p>' for note in notes)
+    )

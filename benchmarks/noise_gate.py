@@ -14,10 +14,11 @@ Each pair is judged with ``--fail-if 'p50_ms > +10%'``, ``'mean_ms > +10%'``,
 ``'p99_ms > +10%'`` and ``'fps < -10%'`` by the gate (``compare_runs`` + ``evaluate_gate``), and,
 for contrast, by the gate's previous method: a 95 % circular block-bootstrap interval of each
 whole-run ratio, failing when it lies past the threshold. Then ``--hsv-pairs`` A/A pairs of the
-``hsv`` backend on a 320x240 scene bag, under the same hog.
+``hsv`` backend on a 640x480 scene bag (a few milliseconds a frame, so that a run spans several
+hog phases, as the busy runs do), under the same hog.
 
 Runs are made in the order A, B, A' within a pair (A/A = A and A', A/B = A and B), so the two
-runs of a pair are minutes apart at most. Writes benchmarks/results/noise_gate.json and prints
+runs of a pair are seconds apart. Writes benchmarks/results/noise_gate.json and prints
 the counts. It takes minutes (``--pairs 50``: about 15 on an idle 2-core machine); the hog uses
 every core, so other work on the machine slows it and adds its own noise: run it alone.
 Not part of ``python -m benchmarks``: it measures the statistics, not the speed.
@@ -275,7 +276,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix='replaybench-noise-') as tmp:
         work = Path(tmp)
         busy_bag = _bag(work / 'small.mcap', (64, 48), args.frames + _WARMUP)
-        hsv_bag = _bag(work / 'scene.mcap', (320, 240), args.frames + _WARMUP)
+        hsv_bag = _bag(work / 'scene.mcap', (640, 480), args.frames + _WARMUP)
 
         def busy(name: str, ms: float) -> Path:
             return _run(busy_bag, work / name, 'busy', args.frames, spin_options(ms, args.clock))
@@ -326,7 +327,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             'cost_ms': [args.cost_ms, cost_b],
             'busy_clock': clock,
             'hsv_pairs': args.hsv_pairs,
-            'hsv_bag': '320x240 rgb8 scene',
+            'hsv_bag': '640x480 rgb8 scene',
             'hog': {'seed': args.seed, 'workers': args.workers, 'phase_s': list(PHASE_S)},
             'conditions': list(CONDITIONS),
             'order': "A, B, A' per pair; A/A = (A, A'), A/B = (A, B)",

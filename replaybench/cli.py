@@ -582,7 +582,7 @@ def info(
         )
     for st in skipped:
         if st.name in unreadable:
-            typer.echo(f'  {st.name}  {st.msgtype}  {st.count} msgs  skipped: {st.reason}')
+            _echo(f'  {st.name}  {st.msgtype}  {st.count} msgs  skipped: {st.reason}')
     others = [t for t in topics if t.name not in cameras]
     skipped_others = [st for st in skipped if st.name not in unreadable]
     if others or skipped_others:
@@ -590,7 +590,7 @@ def info(
         for t in others:
             _echo(f'  {t.name}  {t.msgtype}  {t.count} msgs')
         for st in skipped_others:
-            typer.echo(f'  {st.name}  {st.msgtype}  {st.count} msgs  skipped: {st.reason}')
+            _echo(f'  {st.name}  {st.msgtype}  {st.count} msgs  skipped: {st.reason}')
     for warning in warnings:
         _echo(f'replaybench: warning: {warning}', err=True)
 
@@ -957,8 +957,13 @@ def compare(
         typer.Argument(help='Run folders; the first is the baseline.', show_default=False),
     ],
     out: Annotated[
-        Path, typer.Option('--out', '-o', help='Folder for comparison.html/.csv/.json.')
-    ],
+        Path | None,
+        typer.Option(
+            '--out',
+            '-o',
+            help='Also write comparison.html/.csv/.json into this folder (default: print only).',
+        ),
+    ] = None,
     fail_if: Annotated[
         list[str],
         typer.Option(

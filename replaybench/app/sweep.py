@@ -475,8 +475,12 @@ def execute_cell(
                 for p in sorted(out.rglob('*'))
                 if p.is_file()
             }
-        report['status'] = 'complete' if outcome.status == 'complete' else 'interrupted'
-        report['files'] = files
+        if outcome.status in ('complete', 'interrupted'):
+            report['status'] = outcome.status
+            report['files'] = files
+        else:  # one backend per cell: no other status is expected
+            report['status'] = 'failed'
+            report['error'] = f'the run ended with status {outcome.status}'
     except Exception as err:  # one line per failed cell; the other cells go on
         report['status'] = 'failed'
         report['error'] = _error_line(err)
@@ -812,8 +816,10 @@ def _conditions(run: Mapping[str, Any], gpu: bool) -> dict[str, Any]:
     gpus = env.get('gpus') or []
     gpu_name = None
     if gpu and isinstance(gpus, list) and gpus:
-        first = gpus[0]
-        gpu_name = first.get('name') if isinstance(first, dict) else str(first)
+        ids = section.get('gpu_ids') or []
+        at = int(ids[0]) if ids and str(ids[0]).isdigit() and int(ids[0]) < len(gpus) else 0
+        found = gpus[at]  # the GPU Ray gave the cell, in nvidia-smi's order
+        gpu_name = found.get('name') if isinstance(found, dict) else str(found)
     concurrency = section.get('concurrency') or {}
     return {
         'cpu': f'{cpu.get("model")} x{cpu.get("logical_cores")}',

@@ -53,6 +53,10 @@ class Backend(Protocol):
     ``detect`` must time its own stages (``StageTimes``), synchronising any device first, and
     return boxes in source-image pixels. It must be deterministic: the same frame gives the same
     detections in the same order.
+
+    Optional: ``forget_warmup()``: the runner calls it after detects that are neither timed nor
+    recorded (the warm-up detect of a topic too short for warm-up frames); counters that
+    ``info()`` reports (e.g. non-finite model outputs) start again from there.
     """
 
     name: ClassVar[str]

@@ -259,6 +259,10 @@ class OnnxCpuBackend:
             detections, StageTimes(preprocess_ns=t1 - t0, infer_ns=t2 - t1, postprocess_ns=t3 - t2)
         )
 
+    def forget_warmup(self) -> None:
+        """Leave the untimed warm-up detects out of the counts ``info()`` reports."""
+        self.nonfinite.reset()
+
     def info(self) -> dict[str, Any]:
         facts: dict[str, Any] = {
             'model': str(self.model_path),

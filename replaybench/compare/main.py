@@ -87,7 +87,7 @@ def format_summary(
 
 def main_compare(
     run_dirs: Sequence[str | Path],
-    out: str | Path,
+    out: str | Path | None,
     fail_if: Sequence[str] = (),
     strict: bool = False,
     *,
@@ -99,7 +99,8 @@ def main_compare(
     echo: Callable[[str], None] = print,
     echo_err: Callable[[str], None] = _stderr,
 ) -> int:
-    """Compare ``run_dirs``, judge ``fail_if`` and write the files into ``out``.
+    """Compare ``run_dirs``, judge ``fail_if`` and write the files into ``out`` (None: no
+    files, the summary and the verdict only).
 
     Prints the summary through ``echo`` and warnings, failed and inconclusive conditions and
     errors through ``echo_err``. Returns the exit status: 0 when every condition passed, 1 when
@@ -122,15 +123,17 @@ def main_compare(
         return err.exit_code
     for warning in comparison.warnings:
         echo_err(f'replaybench: warning: {warning}')
+    written = None
     try:
-        csv_path, html_path = write_comparison(
-            comparison,
-            out,
-            gate=gate,
-            conditions=fail_if,
-            strict=strict,
-            allow_inconclusive=allow_inconclusive,
-        )
+        if out is not None:
+            written = write_comparison(
+                comparison,
+                out,
+                gate=gate,
+                conditions=fail_if,
+                strict=strict,
+                allow_inconclusive=allow_inconclusive,
+            )
     except OSError as err:
         echo_err(f'replaybench: error: cannot write into {out}: {err.strerror or err}')
         return 2
@@ -139,8 +142,10 @@ def main_compare(
     for result in gate:
         if result.verdict != 'passed':
             echo_err(f'replaybench: gate: {result.explanation}')
-    echo(f'Comparison: {html_path}')
-    echo(f'CSV: {csv_path}')
+    if written is not None:
+        csv_path, html_path = written
+        echo(f'Comparison: {html_path}')
+        echo(f'CSV: {csv_path}')
     verdict = gate_verdict(gate)
     if verdict == 'inconclusive' and allow_inconclusive:
         return 0

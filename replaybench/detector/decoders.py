@@ -88,6 +88,11 @@ class NonfiniteTally:
             self.dropped += dropped
             self.frames += 1
 
+    def reset(self) -> None:
+        """Start counting again (after detects that are not part of the run)."""
+        self.dropped = 0
+        self.frames = 0
+
     def info(self) -> dict[str, int]:
         """``nonfinite_dropped`` and ``nonfinite_frames`` for a backend's ``info()``."""
         return {'nonfinite_dropped': self.dropped, 'nonfinite_frames': self.frames}

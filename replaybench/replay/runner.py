@@ -434,8 +434,9 @@ class _Pass:
     def warm_short_topics(self) -> list[str]:
         """Before the pass, one detect on the first frame of each topic too short for warm-up
         frames (the default gives under 10 frames none): not timed, not recorded, not counted.
-        An explicit ``--warmup`` is left as given. Returns the topics warmed."""
-        if self.run.config.warmup is not None:
+        An explicit ``--warmup`` is left as given, and a backend that is not timed (``recorded``)
+        needs no warm-up. Returns the topics warmed."""
+        if self.run.config.warmup is not None or not self.measures_latency:
             return []
         pending = {t.name for t in self.inp.topics if self.run.warmup_for(t.name) == 0}
         warmed: list[str] = []
@@ -456,6 +457,9 @@ class _Pass:
             warmed.append(raw.topic)
             if not pending:
                 break
+        forget = getattr(self.backend, 'forget_warmup', None)
+        if warmed and callable(forget):
+            forget()
         return warmed
 
     # -- the replay loops: nothing but read, decode, detect and one log entry per frame --------

@@ -184,14 +184,18 @@ def zero_tail_start(view: memoryview, size: int) -> int:
     A file whose last blocks never reached the disk (power loss) keeps its size but reads as
     zeros from some point on; the readers treat such a file as cut where the zeros begin.
     """
+    import numpy as np
+
     end = size
     block = 4096
     while end > 0:
         start = max(0, end - block)
         with view[start:end] as part:
-            kept = len(bytes(part).rstrip(b'\x00'))
-        if kept:
-            return start + kept
+            values = np.frombuffer(part, np.uint8)
+            zeros = not values.any()
+            del values  # the slice is released on leaving the block
+            if not zeros:
+                return start + len(bytes(part).rstrip(b'\x00'))
         end = start
         block = min(block * 4, 1 << 24)
     return 0

@@ -128,6 +128,9 @@ class Rosbag1Source(TableSource):
                 msg = f'{self.path}: not a ROS 1 bag (no #ROSBAG V2.0 magic)'
             raise SourceError(msg)
         index_pos = self._bag_header(buf, size)
+        # A zero-filled tail (last blocks lost to a power cut) is where the file was cut. An
+        # index always holds non-zero bytes: zeros from before index_pos mean it is gone.
+        end = zero_tail_start(buf, size)
         reason = ''
         if index_pos == 0:
             reason = 'bag is not indexed (recording was not closed)'
@@ -135,6 +138,8 @@ class Rosbag1Source(TableSource):
             return  # closed without a connection or a chunk: an empty bag, not a cut one
         elif index_pos >= size:
             reason = 'bag index is missing (file cut short)'
+        elif end <= index_pos:
+            reason = 'bag index is zeroed'
         else:
             try:
                 self._index_with_rosbags(mapped)
@@ -145,10 +150,7 @@ class Rosbag1Source(TableSource):
                 reason = f'bag index unreadable ({err})'
             else:
                 return
-        # A zero-filled tail (last blocks lost to a power cut) is where the file was cut: the
-        # zeros a readable index may end with never get here.
-        end = zero_tail_start(buf, size)
-        cut = end < size
+        cut = end < size  # the zeros a readable index may end with never get here
         if cut:
             mapped.cut(end)
         complete = self._scan(mapped) and not cut

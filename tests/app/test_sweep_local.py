@@ -325,3 +325,26 @@ def test_a_cell_whose_worker_is_killed_is_run_again_by_ray_and_completes(
     run = json.loads((tmp_path / 'sw' / entry['run_dir'] / 'run.json').read_text())
     assert run['status'] == 'complete'
     assert run['summary'][0]['measured'] == 27
+
+
+def test_a_cell_measured_on_another_cpu_is_flagged(bags: dict[str, Path], tmp_path: Path) -> None:
+    from replaybench.results.runfile import write_json_atomic
+
+    inputs = [bags['a'], bags['b'], REPO / 'fixtures' / 'bags' / 'jpeg.mcap']
+    out = tmp_path / 'sw'
+    first = _sweep(inputs, out, backends=['null'])
+    assert [c['flags'] for c in first.record['cells']] == [[], [], []]
+    # the second cell as if an earlier invocation had run it on a node of another kind
+    path = out / first.record['cells'][1]['run_dir'] / 'run.json'
+    run = json.loads(path.read_text(encoding='utf-8'))
+    usual = first.record['cells'][0]['conditions']['cpu']
+    run['environment']['cpu']['model'] = 'Other CPU 9000'
+    write_json_atomic(path, run)
+    again = _sweep(inputs, out, backends=['null'])
+    assert again.record['counts']['resumed'] == 3
+    flags = [c['flags'] for c in again.record['cells']]
+    cores = run['environment']['cpu']['logical_cores']
+    assert flags == [[], [f'other CPU: Other CPU 9000 x{cores} (most cells: {usual})'], []]
+    assert again.cells['flags'].tolist() == ['', flags[1][0], '']
+    html = (out / 'sweep.html').read_text(encoding='utf-8')
+    assert '1 cell(s) measured under different conditions' in html

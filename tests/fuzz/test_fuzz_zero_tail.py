@@ -284,6 +284,7 @@ def test_unchunked_mcap_zeroed_anywhere_replays_every_message_before_the_zeros(t
 @given(at=tail_offsets('bag'))
 @example(at=len(fixture_bytes('rgb8.bag')) - 16)
 @example(at=len(fixture_bytes('rgb8.bag')) - 3000)
+@example(at=82)  # the bag header's chunk_count: zeroed, it declared an empty bag
 def test_ros1_bag_zeroed_anywhere_replays_every_message_before_the_zeros(tmp_path, at):
     _source_case(tmp_path, 'bag', at)
 

@@ -205,6 +205,21 @@ def test_ros1_bag_with_a_zeroed_tail_replays_exactly_the_messages_before_it(
         check_reported(truncated, warnings, z)
 
 
+@pytest.mark.parametrize('field', [b'chunk_count=', b'conn_count=', b'index_pos='])
+def test_a_bag_zeroed_from_inside_its_header_is_a_cut_bag_not_an_empty_one(
+    tmp_path: Path, field: bytes
+) -> None:
+    raw_path = tmp_path / 'whole.bag'
+    write_image_bag(raw_path, 'none')
+    raw = raw_path.read_bytes()
+    at = raw.find(field) + len(field)  # the field's value and all that follows are zeros
+    path = tmp_path / 'zeroed.bag'
+    path.write_bytes(zero_tail(raw, at))
+    got, truncated, warnings = replayed(path)
+    assert got == []
+    check_reported(truncated, warnings, zeros_start(zero_tail(raw, at)))
+
+
 def test_unclosed_ros1_bag_with_a_zeroed_tail_replays_exactly_the_messages_before_it(
     tmp_path: Path,
 ) -> None:

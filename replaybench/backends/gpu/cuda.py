@@ -851,6 +851,11 @@ class CudaBackend:
     def close(self) -> None:
         self._release()
 
+    def forget_warmup(self) -> None:
+        """Leave the untimed warm-up detects out of the counts ``info()`` reports."""
+        if self._pipeline is not None:
+            self._pipeline.nonfinite.reset()
+
     def info(self) -> dict[str, Any]:
         facts: dict[str, Any] = {
             'model': str(self.model_path),

@@ -160,9 +160,9 @@ def _bootstrap_verdicts(base: Path, cand: Path, seed: int) -> dict[str, str]:
     """The previous gate: 95 % block-bootstrap interval of the whole-run ratio, per frame."""
     import numpy as np
 
-    from replaybench.compare.bootstrap import percentile_interval, replicates
-    from replaybench.compare.gate import parse_condition
-    from replaybench.compare.verdict import decide
+    from replaybench.comparison.bootstrap import percentile_interval, replicates
+    from replaybench.comparison.gate import parse_condition
+    from replaybench.comparison.verdict import decide
 
     rng = np.random.default_rng(seed)
     rb = replicates(*_series(base), rng=rng)
@@ -185,7 +185,7 @@ def _bootstrap_verdicts(base: Path, cand: Path, seed: int) -> dict[str, str]:
 
 
 def _judge(base: Path, cand: Path, seed: int) -> dict[str, Any]:
-    from replaybench.compare import compare_runs, evaluate_gate
+    from replaybench.comparison import compare_runs, evaluate_gate
 
     comparison = compare_runs([base, cand], n_boot=1000, seed=seed)
     gate = evaluate_gate(comparison, list(CONDITIONS))

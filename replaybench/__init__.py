@@ -1,5 +1,5 @@
 """replaybench: replay camera logs through detectors and measure speed and accuracy."""
 
-__version__ = '0.1.0'
+from replaybench._version import __version__
 
 __all__ = ['__version__']

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 import typer
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
-from replaybench import __version__
+from replaybench._version import __version__
 from replaybench.errors import ReplaybenchError, RunAborted
 from replaybench.textsafe import visible
 
@@ -988,7 +988,7 @@ def compare(
 
     Example: replaybench compare runs/baseline runs/candidate --out cmp --fail-if "p99_ms > +10%"
     """
-    from replaybench.compare import main_compare
+    from replaybench.comparison import main_compare
 
     code = main_compare(
         run_dirs,

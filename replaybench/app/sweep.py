@@ -46,7 +46,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from replaybench import __version__
+from replaybench._version import __version__
 from replaybench.backends.base import BackendOptions
 from replaybench.errors import EngineError, ReplaybenchError, SourceError, UsageError
 
@@ -724,7 +724,7 @@ def _pooled_intervals(ordered: Sequence[Any], measured: Sequence[Any]) -> list[f
 
 
 def _interval(values: Any) -> list[float] | None:
-    from replaybench.compare.bootstrap import percentile_interval
+    from replaybench.comparison.bootstrap import percentile_interval
 
     if values is None:
         return None
@@ -737,7 +737,7 @@ def cell_metrics(run_dir: Path, key: str) -> dict[str, Any]:
     measured frames (every topic together), and mAP@0.5 (the mean over its topics)."""
     import numpy as np
 
-    from replaybench.compare.bootstrap import replicates
+    from replaybench.comparison.bootstrap import replicates
     from replaybench.results.records import read_frames_csv
     from replaybench.results.stats import summarize
 

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, ParamSpec, cast
 
 import numpy as np
 
-from replaybench import __version__
+from replaybench._version import __version__
 from replaybench.errors import OutputError, SourceError, UsageError
 from replaybench.replay.rate import Rate
 from replaybench.replay.runner import RunConfig, default_warmup, run_benchmark

@@ -21,7 +21,7 @@ from itertools import islice
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
-from replaybench import __version__
+from replaybench._version import __version__
 from replaybench.backends import get_backend
 from replaybench.backends.base import BackendOptions
 from replaybench.backends.recorded import RecordedBackend

@@ -5,7 +5,7 @@ and how well the two agree, in one table narrow enough for a laptop screen.
   detect; ``null`` (the harness alone) is a reference and is only named when it ran alone. Its
   FPS, p50 and p99 latency come with 95 % block-bootstrap intervals computed from the measured
   frames of frames.csv exactly as ``replaybench compare`` computes a row's own interval
-  (``replaybench.compare.bootstrap``, the same seed: ``compare RUN`` shows the same intervals;
+  (``replaybench.comparison.bootstrap``, the same seed: ``compare RUN`` shows the same intervals;
   none below ``MIN_FRAMES`` measured frames), so the same run folder gives the same page.
 * **Most accurate**: the highest mAP@0.5 against ground truth; none without ground truth.
 * **Agreement**: from run.json ``agreement``, the share of each of the two backends' detections
@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from replaybench.compare.bootstrap import CONFIDENCE, percentile_interval, replicates
+from replaybench.comparison.bootstrap import CONFIDENCE, percentile_interval, replicates
 from replaybench.textsafe import visible
 
 if TYPE_CHECKING:

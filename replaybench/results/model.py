@@ -589,7 +589,7 @@ class ComparisonRun:
 
 @dataclass(frozen=True, slots=True)
 class MetricResult:
-    """One metric of a row against its baseline row (``replaybench.compare``)."""
+    """One metric of a row against its baseline row (``replaybench.comparison``)."""
 
     value: float | None = None
     value_ci: tuple[float, float] | None = None

@@ -15,7 +15,7 @@ from importlib import metadata
 from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from replaybench import __version__
+from replaybench._version import __version__
 from replaybench.errors import SourceError
 from replaybench.results.records import FrameRecord, csv_writer, read_frames_csv
 from replaybench.results.runfolder import with_filename

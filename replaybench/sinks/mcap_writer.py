@@ -24,7 +24,7 @@ from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench import __version__
+from replaybench._version import __version__
 from replaybench.errors import DecodeError
 from replaybench.msgs import (
     CAMERA_INFO,

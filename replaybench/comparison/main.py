@@ -5,19 +5,19 @@ from __future__ import annotations
 import sys
 from typing import TYPE_CHECKING
 
-from replaybench.compare.bootstrap import DEFAULT_RESAMPLES
-from replaybench.compare.core import compare_runs
-from replaybench.compare.gate import evaluate_gate, gate_verdict, parse_condition
-from replaybench.compare.output import write_comparison
-from replaybench.compare.verdict import EXIT_STATUS
+from replaybench.comparison.bootstrap import DEFAULT_RESAMPLES
+from replaybench.comparison.core import compare_runs
+from replaybench.comparison.gate import evaluate_gate, gate_verdict, parse_condition
+from replaybench.comparison.output import write_comparison
+from replaybench.comparison.verdict import EXIT_STATUS
 from replaybench.errors import ReplaybenchError
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
     from pathlib import Path
 
-    from replaybench.compare.core import Comparison, MetricComparison
-    from replaybench.compare.gate import GateResult
+    from replaybench.comparison.core import Comparison, MetricComparison
+    from replaybench.comparison.gate import GateResult
 
 __all__ = ['EXIT_GATE_FAILED', 'EXIT_INCONCLUSIVE', 'format_summary', 'main_compare']
 

@@ -15,7 +15,7 @@ from runbuilder import TOPIC, latencies, write_run
 from typer.testing import CliRunner
 
 from replaybench.cli import app
-from replaybench.compare import (
+from replaybench.comparison import (
     EXIT_STATUS,
     compare_runs,
     decide,
@@ -26,7 +26,7 @@ from replaybench.compare import (
     ratio_interval,
     shift_interval,
 )
-from replaybench.compare.exact import mann_whitney_null, moses_cut
+from replaybench.comparison.exact import mann_whitney_null, moses_cut
 from replaybench.errors import UsageError
 
 if TYPE_CHECKING:

@@ -6,19 +6,19 @@ import math
 from html import escape
 from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench.compare.blocks import BLOCK_FRAMES, MAX_BLOCKS, MIN_BLOCKS
-from replaybench.compare.bootstrap import MIN_FRAMES
-from replaybench.compare.core import ACCURACY_METRICS, TIMING_METRICS
-from replaybench.compare.gate import gate_verdict, method_text
-from replaybench.compare.runs import CV_LIMIT, engine_text, inputs_match
+from replaybench.comparison.blocks import BLOCK_FRAMES, MAX_BLOCKS, MIN_BLOCKS
+from replaybench.comparison.bootstrap import MIN_FRAMES
+from replaybench.comparison.core import ACCURACY_METRICS, TIMING_METRICS
+from replaybench.comparison.gate import gate_verdict, method_text
+from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match
 from replaybench.report.svg import colour, nice_ticks, step_cdf
 from replaybench.textsafe import visible
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from replaybench.compare.core import Comparison, MetricComparison, Row
-    from replaybench.compare.gate import GateResult
+    from replaybench.comparison.core import Comparison, MetricComparison, Row
+    from replaybench.comparison.gate import GateResult
 
 __all__ = ['render_comparison_html']
 

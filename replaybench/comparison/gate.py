@@ -6,10 +6,10 @@ from __future__ import annotations
 import re
 from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench.compare.blocks import change_interval, point_value
-from replaybench.compare.bootstrap import CONFIDENCE
-from replaybench.compare.core import ACCURACY_METRICS, METRICS, TIMING_METRICS
-from replaybench.compare.verdict import Verdict, decide, overall, past
+from replaybench.comparison.blocks import change_interval, point_value
+from replaybench.comparison.bootstrap import CONFIDENCE
+from replaybench.comparison.core import ACCURACY_METRICS, METRICS, TIMING_METRICS
+from replaybench.comparison.verdict import Verdict, decide, overall, past
 from replaybench.errors import UsageError
 
 if TYPE_CHECKING:
@@ -17,7 +17,7 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
-    from replaybench.compare.core import Comparison, MetricComparison, Row
+    from replaybench.comparison.core import Comparison, MetricComparison, Row
 
 __all__ = [
     'CONDITION_GRAMMAR',

@@ -4,14 +4,14 @@ inconclusive (``replaybench compare``)."""
 
 from __future__ import annotations
 
-from replaybench.compare.blocks import (
+from replaybench.comparison.blocks import (
     BLOCK_FRAMES,
     MAX_BLOCKS,
     MIN_BLOCKS,
     ChangeInterval,
     change_interval,
 )
-from replaybench.compare.bootstrap import (
+from replaybench.comparison.bootstrap import (
     CONFIDENCE,
     DEFAULT_RESAMPLES,
     MIN_FRAMES,
@@ -20,7 +20,7 @@ from replaybench.compare.bootstrap import (
     ratio_ci,
     replicates,
 )
-from replaybench.compare.core import (
+from replaybench.comparison.core import (
     ACCURACY_METRICS,
     METRICS,
     TIMING_METRICS,
@@ -29,8 +29,8 @@ from replaybench.compare.core import (
     Row,
     compare_runs,
 )
-from replaybench.compare.exact import ratio_interval, shift_interval
-from replaybench.compare.gate import (
+from replaybench.comparison.exact import ratio_interval, shift_interval
+from replaybench.comparison.gate import (
     CONDITION_GRAMMAR,
     Condition,
     GateResult,
@@ -41,20 +41,20 @@ from replaybench.compare.gate import (
     judge_series,
     parse_condition,
 )
-from replaybench.compare.main import (
+from replaybench.comparison.main import (
     EXIT_GATE_FAILED,
     EXIT_INCONCLUSIVE,
     format_summary,
     main_compare,
 )
-from replaybench.compare.output import (
+from replaybench.comparison.output import (
     COMPARISON_SCHEMA_VERSION,
     CSV_COLUMNS,
     comparison_json,
     write_comparison,
 )
-from replaybench.compare.runs import CV_LIMIT, RunInfo
-from replaybench.compare.verdict import EXIT_STATUS, VERDICTS, Verdict, decide
+from replaybench.comparison.runs import CV_LIMIT, RunInfo
+from replaybench.comparison.verdict import EXIT_STATUS, VERDICTS, Verdict, decide
 
 __all__ = [
     'ACCURACY_METRICS',

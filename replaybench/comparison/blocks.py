@@ -34,8 +34,8 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from replaybench.compare.bootstrap import MIN_FRAMES
-from replaybench.compare.exact import ratio_interval, shift_interval
+from replaybench.comparison.bootstrap import MIN_FRAMES
+from replaybench.comparison.exact import ratio_interval, shift_interval
 
 if TYPE_CHECKING:
     import numpy.typing as npt

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from runbuilder import TOPIC, latencies, write_run
 
-from replaybench.compare import (
+from replaybench.comparison import (
     CONDITION_GRAMMAR,
     compare_runs,
     evaluate_gate,

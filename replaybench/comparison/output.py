@@ -7,13 +7,13 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from replaybench import __version__
-from replaybench.compare.blocks import BLOCK_FRAMES, MAX_BLOCKS, MIN_BLOCKS
-from replaybench.compare.bootstrap import MIN_FRAMES
-from replaybench.compare.core import ACCURACY_METRICS, TIMING_METRICS
-from replaybench.compare.gate import gate_verdict, method_text
-from replaybench.compare.runs import CV_LIMIT, engine_text
-from replaybench.compare.verdict import EXIT_STATUS
+from replaybench._version import __version__
+from replaybench.comparison.blocks import BLOCK_FRAMES, MAX_BLOCKS, MIN_BLOCKS
+from replaybench.comparison.bootstrap import MIN_FRAMES
+from replaybench.comparison.core import ACCURACY_METRICS, TIMING_METRICS
+from replaybench.comparison.gate import gate_verdict, method_text
+from replaybench.comparison.runs import CV_LIMIT, engine_text
+from replaybench.comparison.verdict import EXIT_STATUS
 from replaybench.results.records import csv_writer
 from replaybench.results.runfile import write_json_atomic, write_text_atomic
 from replaybench.textsafe import csv_text
@@ -21,8 +21,8 @@ from replaybench.textsafe import csv_text
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from replaybench.compare.core import Comparison, MetricComparison, Row
-    from replaybench.compare.gate import GateResult
+    from replaybench.comparison.core import Comparison, MetricComparison, Row
+    from replaybench.comparison.gate import GateResult
 
 __all__ = [
     'COMPARISON_SCHEMA_VERSION',
@@ -292,7 +292,7 @@ def write_comparison(
 
     Returns the paths of the CSV and the HTML page; comparison.json lies beside them.
     """
-    from replaybench.compare.html import render_comparison_html
+    from replaybench.comparison.html import render_comparison_html
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from runbuilder import TOPIC, latencies, write_run
 
-from replaybench.compare import (
+from replaybench.comparison import (
     COMPARISON_SCHEMA_VERSION,
     CSV_COLUMNS,
     compare_runs,

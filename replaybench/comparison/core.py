@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 import numpy as np
 
-from replaybench.compare.blocks import change_interval
-from replaybench.compare.bootstrap import (
+from replaybench.comparison.blocks import change_interval
+from replaybench.comparison.bootstrap import (
     CONFIDENCE,
     DEFAULT_RESAMPLES,
     MIN_FRAMES,
@@ -17,7 +17,7 @@ from replaybench.compare.bootstrap import (
     percentile_interval,
     replicates,
 )
-from replaybench.compare.runs import CV_LIMIT, engine_text, inputs_match, load_runs, run_flags
+from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match, load_runs, run_flags
 from replaybench.errors import UsageError
 from replaybench.results.stats import summarize
 
@@ -27,8 +27,8 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
-    from replaybench.compare.blocks import ChangeInterval
-    from replaybench.compare.runs import RunInfo
+    from replaybench.comparison.blocks import ChangeInterval
+    from replaybench.comparison.runs import RunInfo
     from replaybench.results.records import FrameRecord
     from replaybench.results.stats import Summary
 

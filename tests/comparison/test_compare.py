@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from runbuilder import SHA, TOPIC, latencies, write_run
 
-from replaybench.compare import change_interval, compare_runs
+from replaybench.comparison import change_interval, compare_runs
 from replaybench.errors import SourceError, UsageError
 
 if TYPE_CHECKING:

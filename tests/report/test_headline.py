@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 
-from replaybench.compare import compare_runs
+from replaybench.comparison import compare_runs
 from replaybench.report import render_report
 from replaybench.report.headline import topic_headlines
 from replaybench.results import write_json_atomic

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from replaybench.colours import PALETTE, colour
 from replaybench.textsafe import visible
 
 if TYPE_CHECKING:
@@ -39,30 +40,11 @@ __all__ = [
     'step_cdf',
 ]
 
-#: Colour per backend, by index (colour-blind friendly, Okabe-Ito order first).
-PALETTE: tuple[str, ...] = (
-    '#0072b2',
-    '#d55e00',
-    '#009e73',
-    '#cc79a7',
-    '#e69f00',
-    '#56b4e9',
-    '#8c564b',
-    '#7f7f7f',
-    '#bcbd22',
-    '#17becf',
-)
-
 _FONT = 'system-ui, -apple-system, Segoe UI, Roboto, sans-serif'
 _CHAR_W = 6.6  # approximate width of one 12 px character
 _AXIS = '#444'
 _GRID = '#e4e4e4'
 _TEXT = '#222'
-
-
-def colour(index: int) -> str:
-    """The palette colour for the ``index``-th backend."""
-    return PALETTE[index % len(PALETTE)]
 
 
 class Series(NamedTuple):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from replaybench.colours import colour
 from replaybench.msgs import IMAGE_ANNOTATIONS, typestore
 
 if TYPE_CHECKING:
@@ -52,8 +53,6 @@ def annotations_channel(backend: str, image_topic: str) -> str:
 
 def backend_colour(index: int) -> str:
     """The colour (``#rrggbb``) of the ``index``-th backend: the report's palette colour."""
-    from replaybench.report.svg import colour
-
     return colour(index)
 
 

@@ -14,12 +14,20 @@ reports a device; they describe the whole device (every process on it), not only
 device is matched to the CUDA device the backend uses by UUID / PCI bus id (see ``_Nvml``).
 Without NVML the GPU fields are None.
 
+Throttling: each sample also reads the current frequency of the CPUs this process may run on
+(``/sys/devices/system/cpu/cpu*/cpufreq/scaling_cur_freq``, the highest of them, in MHz) and,
+with NVML, the GPU's clock event (throttle) reasons. The kernel's thermal throttle counters
+(``thermal_throttle/core_throttle_count`` and ``package_throttle_count``) are read at the start
+and at the stop. Without cpufreq (many virtual machines and containers) the frequency fields are
+None and CPU throttling cannot be judged.
+
 Memory sizes are in MiB (2**20 bytes). The sampler measures its own cost: the wall time of one
 sample, and the CPU time of its thread as a percentage of one core.
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import math
 import os
@@ -37,12 +45,34 @@ if TYPE_CHECKING:
 
     from replaybench.backends.gpu._cuda import DeviceIdentity
 
-__all__ = ['DEFAULT_INTERVAL_S', 'DEFAULT_MAX_SAMPLES', 'ResourceSampler']
+__all__ = [
+    'BUSY_CPU_PERCENT',
+    'DEFAULT_INTERVAL_S',
+    'DEFAULT_MAX_SAMPLES',
+    'GPU_THROTTLE_REASONS',
+    'ResourceSampler',
+]
 
 DEFAULT_INTERVAL_S = 0.1
 DEFAULT_MAX_SAMPLES = 2000
 #: Where the RSS is read; a missing folder makes the sampler use ``resource.getrusage``.
 PROC_SELF = Path('/proc/self')
+#: Where CPU frequencies (cpufreq) and thermal throttle counters are read.
+SYS_CPU = Path('/sys/devices/system/cpu')
+#: A sample's CPU frequency enters ``cpu_mhz_min`` / ``cpu_mhz_max`` only when the process used
+#: at least this much CPU (percent of one core) over the interval before it: an idle CPU's
+#: frequency falls by design and says nothing about throttling.
+BUSY_CPU_PERCENT = 50.0
+#: NVML clock event reason bits that mean the GPU's clocks were held down (power cap, thermal or
+#: hardware slowdown); idle, application clock settings, sync boost and display clocks are not.
+GPU_THROTTLE_REASONS: dict[int, str] = {
+    0x4: 'sw_power_cap',
+    0x8: 'hw_slowdown',
+    0x20: 'sw_thermal_slowdown',
+    0x40: 'hw_thermal_slowdown',
+    0x80: 'hw_power_brake_slowdown',
+}
+_MAX_CPUS = 256
 _MIB = float(1 << 20)
 
 
@@ -57,6 +87,8 @@ class _Point(NamedTuple):
     gpu_util: float | None  # mean of the merged samples
     gpu_mem_mb: float | None  # highest of the merged samples
     gpu_power_w: float | None  # mean of the merged samples
+    cpu_mhz: float | None  # mean of the merged samples
+    gpu_throttle: int | None  # every reason bit of the merged samples
     weight: int
 
 
@@ -72,6 +104,21 @@ def _max(values: list[float | None]) -> float | None:
     return max(present) if present else None
 
 
+def _min(values: list[float | None]) -> float | None:
+    present = [v for v in values if v is not None]
+    return min(present) if present else None
+
+
+def _bits(values: list[int | None]) -> int | None:
+    present = [v for v in values if v is not None]
+    if not present:
+        return None
+    merged = 0
+    for value in present:
+        merged |= value
+    return merged
+
+
 def _merge(points: list[_Point]) -> _Point:
     weights = [p.weight for p in points]
     last = points[-1]
@@ -84,6 +131,8 @@ def _merge(points: list[_Point]) -> _Point:
         gpu_util=_mean([p.gpu_util for p in points], weights),
         gpu_mem_mb=_max([p.gpu_mem_mb for p in points]),
         gpu_power_w=_mean([p.gpu_power_w for p in points], weights),
+        cpu_mhz=_mean([p.cpu_mhz for p in points], weights),
+        gpu_throttle=_bits([p.gpu_throttle for p in points]),
         weight=sum(weights),
     )
 
@@ -117,6 +166,7 @@ class _Nvml:
         self.uuid = identity.uuid if identity is not None else None
         self.pci_bus_id = identity.pci_bus_id if identity is not None else None
         self.power_ok = True
+        self.reasons_ok = True
 
     @classmethod
     def open(cls, index: int | None) -> _Nvml | None:
@@ -160,6 +210,18 @@ class _Nvml:
             power = _quiet(lambda: float(nvml.nvmlDeviceGetPowerUsage(handle)) / 1000.0)
             self.power_ok = power is not None
         return util, mem, power
+
+    def reasons(self) -> int | None:
+        """The clock event (throttle) reason bits now, None where NVML cannot say."""
+        if not self.reasons_ok:
+            return None
+        nvml, handle = self.module, self.handle
+        getter = getattr(nvml, 'nvmlDeviceGetCurrentClocksEventReasons', None) or getattr(
+            nvml, 'nvmlDeviceGetCurrentClocksThrottleReasons', None
+        )
+        found = None if getter is None else _quiet(lambda: int(getter(handle)))
+        self.reasons_ok = found is not None
+        return found
 
     def close(self) -> None:
         _quiet(self.module.nvmlShutdown)
@@ -239,6 +301,64 @@ class _Rss:
             self.fd = None
 
 
+class _CpuFreq:
+    """The highest current frequency (MHz) of the CPUs this process may run on, from cpufreq,
+    and the kernel's thermal throttle counters of those CPUs."""
+
+    def __init__(self) -> None:
+        try:
+            cpus = sorted(os.sched_getaffinity(0))
+        except (AttributeError, OSError):
+            cpus = list(range(os.cpu_count() or 0))
+        self.cpus = cpus[:_MAX_CPUS]
+        self.fds: list[int] = []
+        for cpu in self.cpus:
+            try:
+                self.fds.append(
+                    os.open(SYS_CPU / f'cpu{cpu}' / 'cpufreq' / 'scaling_cur_freq', os.O_RDONLY)
+                )
+            except OSError:
+                continue
+        self.source = 'cpufreq' if self.fds else None
+        self.throttle_start = self.throttle_count()
+
+    def read(self) -> float | None:
+        best: int | None = None
+        for fd in self.fds:
+            try:
+                khz = int(os.pread(fd, 32, 0))
+            except (OSError, ValueError):
+                continue
+            best = khz if best is None else max(best, khz)
+        return None if best is None else best / 1000.0
+
+    def throttle_count(self) -> int | None:
+        """Core throttle events summed over the CPUs plus the most package events of any of
+        them (a package counter is shared by its CPUs); None without thermal_throttle."""
+        core = 0
+        package = 0
+        found = False
+        for cpu in self.cpus:
+            folder = SYS_CPU / f'cpu{cpu}' / 'thermal_throttle'
+            for name in ('core_throttle_count', 'package_throttle_count'):
+                try:
+                    count = int((folder / name).read_text(encoding='ascii'))
+                except (OSError, ValueError):
+                    continue
+                found = True
+                if name == 'core_throttle_count':
+                    core += count
+                else:
+                    package = max(package, count)
+        return core + package if found else None
+
+    def close(self) -> None:
+        for fd in self.fds:
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self.fds = []
+
+
 class ResourceSampler:
     """Sample this process every ``interval_s`` seconds in a daemon thread.
 
@@ -270,6 +390,7 @@ class ResourceSampler:
         self._thread: threading.Thread | None = None
         self._rss: _Rss | None = None
         self._gpu: _Nvml | None = None
+        self._freq: _CpuFreq | None = None
         self._points: list[_Point] = []  # each merges ``_stride`` samples
         self._pending: list[_Point] = []  # samples not yet merged into a point
         self._stride = 1
@@ -296,6 +417,10 @@ class ResourceSampler:
         self._cost_s = 0.0
         self._cost_n = 0
         self._thread_cpu_s = 0.0
+        self._cpu_mhz_min: float | None = None
+        self._cpu_mhz_max: float | None = None
+        self._gpu_reasons: int | None = None
+        self._throttle_events: int | None = None
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -306,6 +431,7 @@ class ResourceSampler:
             raise RuntimeError(msg)
         self._rss = _Rss()
         self._gpu = _Nvml.open(self.gpu_index)
+        self._freq = _CpuFreq()
         self._t0 = time.perf_counter()
         self._cpu0 = time.process_time_ns()
         self._take(timed=False)
@@ -327,6 +453,12 @@ class ResourceSampler:
             self._rss.close()
         if self._gpu is not None:
             self._gpu.close()
+        if self._freq is not None:
+            end = self._freq.throttle_count()
+            start = self._freq.throttle_start
+            if start is not None and end is not None:
+                self._throttle_events = max(0, end - start)
+            self._freq.close()
 
     def __enter__(self) -> Self:
         return self.start()
@@ -357,15 +489,23 @@ class ResourceSampler:
         cpu_s = (time.process_time_ns() - self._cpu0) / 1e9
         rss, private, mapped = self._rss.read() if self._rss is not None else (None, None, None)
         util = mem = power = None
+        reasons = None
         if self._gpu is not None:
             util, mem, power = self._gpu.read()
+            reasons = self._gpu.reasons()
+        mhz = self._freq.read() if self._freq is not None else None
         t_s = time.perf_counter() - self._t0
-        point = _Point(t_s, cpu_s, rss, private, mapped, util, mem, power, 1)
+        point = _Point(t_s, cpu_s, rss, private, mapped, util, mem, power, mhz, reasons, 1)
         with self._lock:
             span = t_s - self._last_t
             if self._samples and span >= 0.25 * self.interval_s:
                 percent = 100.0 * (cpu_s - self._last_cpu) / span
                 self._cpu_max = percent if self._cpu_max is None else max(self._cpu_max, percent)
+                if mhz is not None and percent >= BUSY_CPU_PERCENT:
+                    self._cpu_mhz_min = _min([self._cpu_mhz_min, mhz])
+                    self._cpu_mhz_max = _max([self._cpu_mhz_max, mhz])
+            if reasons is not None:
+                self._gpu_reasons = _bits([self._gpu_reasons, reasons])
             self._last_t, self._last_cpu = t_s, cpu_s
             self._samples += 1
             if rss is not None:
@@ -440,6 +580,15 @@ class ResourceSampler:
                 'gpu_uuid': self._gpu.uuid if self._gpu is not None else None,
                 'gpu_pci_bus_id': self._gpu.pci_bus_id if self._gpu is not None else None,
                 'gpu_match': self._gpu.match if self._gpu is not None else None,
+                'cpu_mhz_min': self._cpu_mhz_min,
+                'cpu_mhz_max': self._cpu_mhz_max,
+                'cpu_freq_source': self._freq.source if self._freq is not None else None,
+                'cpu_throttle_events': self._throttle_events,
+                'gpu_throttle_reasons': None
+                if self._gpu_reasons is None
+                else [
+                    name for bit, name in GPU_THROTTLE_REASONS.items() if self._gpu_reasons & bit
+                ],
             }
 
     def series(self) -> list[dict[str, float | None]]:
@@ -465,6 +614,8 @@ class ResourceSampler:
                     'gpu_util': p.gpu_util,
                     'gpu_mem_mb': p.gpu_mem_mb,
                     'gpu_power_w': p.gpu_power_w,
+                    'cpu_mhz': p.cpu_mhz,
+                    'gpu_throttle': p.gpu_throttle,
                 }
             )
             prev_t, prev_cpu = p.t_s, p.cpu_s

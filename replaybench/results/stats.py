@@ -2,6 +2,9 @@
 
 Only measured frames (status ``ok`` and not warm-up) enter latency, jitter, throughput,
 detection and stage statistics; warm-up, dropped and skipped frames are only counted.
+
+``summarize`` leaves the 95 % intervals and the warnings empty: ``replaybench.results.intervals``
+fills them in (``with_intervals``), since they cost a bootstrap.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     'ACCURACY_COLUMNS',
+    'INTERVAL_COLUMNS',
     'PERCENTILES',
     'RESOURCE_COLUMNS',
     'SUMMARY_CSV_COLUMNS',
@@ -76,10 +80,31 @@ class Summary:
     d2h_ms_mean: float | None
     accuracy: dict[str, Any] | None = None
     resources: dict[str, Any] | None = None
+    # 95 % block-bootstrap intervals (None below MIN_FRAMES measured frames) and warnings,
+    # filled in by replaybench.results.intervals.with_intervals
+    latency_ms_p50_ci_low: float | None = None
+    latency_ms_p50_ci_high: float | None = None
+    latency_ms_p99_ci_low: float | None = None
+    latency_ms_p99_ci_high: float | None = None
+    throughput_fps_ci_low: float | None = None
+    throughput_fps_ci_high: float | None = None
+    warnings: tuple[str, ...] = ()
 
+
+#: Interval columns of summary.csv (after the resource columns, before ``warnings``).
+INTERVAL_COLUMNS: tuple[str, ...] = (
+    'latency_ms_p50_ci_low',
+    'latency_ms_p50_ci_high',
+    'latency_ms_p99_ci_low',
+    'latency_ms_p99_ci_high',
+    'throughput_fps_ci_low',
+    'throughput_fps_ci_high',
+)
 
 _FLAT_FIELDS: tuple[str, ...] = tuple(
-    f.name for f in fields(Summary) if f.name not in {'accuracy', 'resources'}
+    f.name
+    for f in fields(Summary)
+    if f.name not in {'accuracy', 'resources', 'warnings', *INTERVAL_COLUMNS}
 )
 
 #: Resource-use columns of summary.csv (from the backend's ResourceSampler summary).
@@ -93,8 +118,10 @@ RESOURCE_COLUMNS: tuple[str, ...] = (
     'gpu_power_w_mean',
 )
 
-#: Columns of summary.csv, in order.
-SUMMARY_CSV_COLUMNS: tuple[str, ...] = _FLAT_FIELDS + ACCURACY_COLUMNS + RESOURCE_COLUMNS
+#: Columns of summary.csv, in order (later additions at the end, so older readers keep working).
+SUMMARY_CSV_COLUMNS: tuple[str, ...] = (
+    _FLAT_FIELDS + ACCURACY_COLUMNS + RESOURCE_COLUMNS + INTERVAL_COLUMNS + ('warnings',)
+)
 
 
 def _mean(values: Sequence[float | int | None]) -> float | None:
@@ -203,8 +230,7 @@ def summarize(records: Sequence[FrameRecord]) -> list[Summary]:
     return [_summary(backend, topic, groups[backend, topic]) for backend, topic in keys]
 
 
-def summary_row(summary: Summary) -> dict[str, Any]:
-    """Flat dict of one summary.csv row; accuracy keys are None when there is no accuracy."""
+def _flat(summary: Summary) -> dict[str, Any]:
     row: dict[str, Any] = {name: getattr(summary, name) for name in _FLAT_FIELDS}
     accuracy = summary.accuracy or {}
     for name in ACCURACY_COLUMNS:
@@ -212,11 +238,23 @@ def summary_row(summary: Summary) -> dict[str, Any]:
     resources = summary.resources or {}
     for name in RESOURCE_COLUMNS:
         row[name] = resources.get(name)
+    for name in INTERVAL_COLUMNS:
+        row[name] = getattr(summary, name)
+    return row
+
+
+def summary_row(summary: Summary) -> dict[str, Any]:
+    """Flat dict of one summary.csv row; accuracy keys are None when there is no accuracy;
+    ``warnings`` joined by ``'; '`` ('' when there is none)."""
+    row = _flat(summary)
+    row['warnings'] = '; '.join(summary.warnings)
     return row
 
 
 def summary_json(summary: Summary) -> dict[str, Any]:
-    """``summary_row`` plus the full ``accuracy`` dict, as run.json stores it."""
-    row = summary_row(summary)
+    """One run.json ``summary`` entry: the summary.csv columns with ``warnings`` as a list, and
+    the full ``accuracy`` dict."""
+    row = _flat(summary)
+    row['warnings'] = list(summary.warnings)
     row['accuracy'] = dict(summary.accuracy) if summary.accuracy is not None else None
     return row

@@ -37,6 +37,8 @@ SERIES_KEYS = {
     'gpu_util',
     'gpu_mem_mb',
     'gpu_power_w',
+    'cpu_mhz',
+    'gpu_throttle',
 }
 
 

@@ -115,7 +115,7 @@ def _load_builtin(name: str) -> type[Backend]:
         obj = getattr(importlib.import_module(module_name), attr)
     except Exception as exc:  # any import failure makes the backend unavailable
         msg = f'backend {name!r}: cannot import {target}: {type(exc).__name__}: {exc}'
-        raise BackendUnavailableError(msg) from None
+        raise BackendUnavailableError(msg) from exc
     return _check_class(name, obj, target)
 
 
@@ -124,7 +124,7 @@ def _load_entry_point(ep: EntryPoint) -> type[Backend]:
         obj = ep.load()
     except Exception as exc:  # a broken plugin must not break the others
         msg = f'backend {ep.name!r}: cannot load {ep.value}: {type(exc).__name__}: {exc}'
-        raise BackendUnavailableError(msg) from None
+        raise BackendUnavailableError(msg) from exc
     return _check_class(ep.name, obj, ep.value)
 
 

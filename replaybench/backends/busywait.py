@@ -52,10 +52,10 @@ def _read_toml(path: Path) -> dict[str, Any]:
             table = tomllib.load(f)
     except OSError as err:
         msg = f'busy backend: cannot read {path}: {err.strerror or err}'
-        raise BackendError(msg) from None
+        raise BackendError(msg) from err
     except tomllib.TOMLDecodeError as err:
         msg = f'busy backend: {path} is not valid TOML: {err}'
-        raise BackendError(msg) from None
+        raise BackendError(msg) from err
     unknown = sorted(set(table) - set(_TOML_KEYS))
     if unknown:
         msg = f'busy backend: {path}: unknown key {unknown[0]!r} (known: clock, ms)'

@@ -230,12 +230,12 @@ def load_config(path: str | Path) -> HsvConfig:
         text = path.read_text(encoding='utf-8')
     except (OSError, UnicodeDecodeError) as exc:
         msg = f'{path}: cannot read hsv config: {exc}'
-        raise BackendError(msg) from None
+        raise BackendError(msg) from exc
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         msg = f'{path}: not valid TOML: {exc}'
-        raise BackendError(msg) from None
+        raise BackendError(msg) from exc
     return parse_config(data, str(path))
 
 
@@ -250,9 +250,9 @@ def _apply_extra(config: HsvConfig, extra: Mapping[str, str]) -> HsvConfig:
             raise BackendError(msg)
         try:
             table[key] = float(text) if key == 'min_area' else int(text)
-        except ValueError:
+        except ValueError as err:
             msg = f'hsv: option {key}={text!r} is not a number'
-            raise BackendError(msg) from None
+            raise BackendError(msg) from err
     current = {key: getattr(config.detector, key) for key in _DETECTOR_KEYS}
     return replace(config, detector=_parse_detector('backend options', current | table))
 
@@ -369,7 +369,7 @@ class HsvBackend:
             import cv2
         except ImportError as exc:
             msg = f'hsv: cannot import OpenCV: {exc}'
-            raise BackendUnavailableError(msg) from None
+            raise BackendUnavailableError(msg) from exc
         params = self.config.detector
         self._kernel = np.asarray(
             cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (params.kernel, params.kernel)),

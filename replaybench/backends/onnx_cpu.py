@@ -150,7 +150,7 @@ class OnnxCpuBackend:
             import onnxruntime as ort
         except ImportError as exc:
             msg = f'{self.name}: cannot import onnxruntime: {exc}'
-            raise BackendUnavailableError(msg) from None
+            raise BackendUnavailableError(msg) from exc
         from replaybench.detector.decoders import postprocess
         from replaybench.detector.preprocess import Letterboxer
         from replaybench.detector.spec import load_model_spec
@@ -170,7 +170,7 @@ class OnnxCpuBackend:
             session = ort.InferenceSession(str(path), so, providers=list(self.providers))
         except Exception as exc:  # onnxruntime raises several types for bad models
             msg = f'{self.name}: cannot load {path}: {type(exc).__name__}: {exc}'
-            raise BackendError(msg) from None
+            raise BackendError(msg) from exc
         used = list(session.get_providers())
         missing = [p for p in self.providers if p not in used]
         if missing:
@@ -194,7 +194,7 @@ class OnnxCpuBackend:
             )
         except BackendError as exc:
             msg = f'{self.name}: {exc}'
-            raise BackendError(msg) from None
+            raise BackendError(msg) from exc
         letterbox = Letterboxer(spec.preprocess, spec.precision)
         self.spec = spec
         self.conf = (
@@ -237,13 +237,13 @@ class OnnxCpuBackend:
             _, transform = letterbox(frame.image, frame.encoding)
         except BackendError as exc:
             msg = f'{self.name}: frame {frame.topic}#{frame.seq}: {exc}'
-            raise BackendError(msg) from None
+            raise BackendError(msg) from exc
         t1 = clock()
         try:
             outputs = self._session.run(self._names, self._feed)
         except Exception as exc:  # onnxruntime errors have several types
             msg = f'{self.name}: inference failed: {type(exc).__name__}: {exc}'
-            raise BackendError(msg) from None
+            raise BackendError(msg) from exc
         t2 = clock()
         detections = self._postprocess(
             dict(zip(self._names, outputs, strict=True)),

@@ -43,7 +43,7 @@ def message_class(name: str, schema: bytes) -> Any:
         raise
     except Exception as err:
         msg = f'unusable protobuf schema for {name}: {err}'
-        raise DecodeError(msg) from None
+        raise DecodeError(msg) from err
 
 
 def parse_protobuf(msg: RawMessage) -> Any:
@@ -57,7 +57,7 @@ def parse_protobuf(msg: RawMessage) -> Any:
         return cls.FromString(msg.data)
     except Exception as err:
         msg_ = f'invalid {msg.msgtype} message: {err}'
-        raise DecodeError(msg_) from None
+        raise DecodeError(msg_) from err
 
 
 def stamp_ns(timestamp: Any) -> int:

@@ -115,9 +115,9 @@ def parse_image(buf: memoryview, serialization: str) -> ImageFields:
         pos = (pos + 1 + lay.align) & ~lay.align
         (step,) = lay.u32.unpack_from(buf, pos)
         offset, size = _payload(buf, pos + 4, lay)
-    except (struct.error, IndexError):
+    except (struct.error, IndexError) as err:
         msg = f'truncated sensor_msgs/Image message ({len(buf)} bytes)'
-        raise DecodeError(msg) from None
+        raise DecodeError(msg) from err
     return ImageFields(
         stamp_ns, frame_id, height, width, encoding, is_bigendian, step, offset, size
     )
@@ -130,7 +130,7 @@ def parse_compressed(buf: memoryview, serialization: str) -> CompressedFields:
         stamp_ns, frame_id, pos = _header(buf, lay)
         fmt, pos = _string(buf, pos, lay)
         offset, size = _payload(buf, pos, lay)
-    except (struct.error, IndexError):
+    except (struct.error, IndexError) as err:
         msg = f'truncated sensor_msgs/CompressedImage message ({len(buf)} bytes)'
-        raise DecodeError(msg) from None
+        raise DecodeError(msg) from err
     return CompressedFields(stamp_ns, frame_id, fmt, offset, size)

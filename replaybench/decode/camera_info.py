@@ -55,7 +55,7 @@ def _from_ros(msg: RawMessage) -> CameraInfo:
             d, k, r, p = m.d, m.k, m.r, m.p
     except Exception as err:
         text = f'invalid sensor_msgs/CameraInfo ({msg.serialization}) on {msg.topic}: {err}'
-        raise DecodeError(text) from None
+        raise DecodeError(text) from err
     stamp = m.header.stamp
     roi = m.roi
     return CameraInfo(

@@ -177,7 +177,7 @@ def _imdecode(data: memoryview, codec: str) -> npt.NDArray[Any]:
         image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as err:
         msg = f'{codec} decoding failed: {err}'
-        raise DecodeError(msg) from None
+        raise DecodeError(msg) from err
     if image is None:
         msg = f'{codec} decoding failed ({len(data)} bytes)'
         raise DecodeError(msg)

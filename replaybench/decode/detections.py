@@ -106,7 +106,7 @@ def decode_detections(msg: RawMessage) -> GroundTruth:
         decoded = [_detection(d) for d in m.detections]
     except Exception as err:
         text = f'invalid {DETECTION2DARRAY} ({msg.serialization}) on {msg.topic}: {err}'
-        raise DecodeError(text) from None
+        raise DecodeError(text) from err
     detections = tuple(d for d in decoded if _finite(d))
     stamp = m.header.stamp
     stamp_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)

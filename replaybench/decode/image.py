@@ -86,7 +86,7 @@ def raw_image_array(
             image = cv2.cvtColor(image, getattr(cv2, spec.convert))
         except cv2.error as err:
             msg = f'{encoding} conversion failed: {err}'
-            raise DecodeError(msg) from None
+            raise DecodeError(msg) from err
     return image, spec.canonical, spec.is_depth
 
 

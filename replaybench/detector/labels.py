@@ -38,9 +38,9 @@ def parse_names(text: str) -> tuple[str, ...]:
     if stripped[0] in '[{(':
         try:
             value = ast.literal_eval(stripped)
-        except (ValueError, SyntaxError, MemoryError, RecursionError):
+        except (ValueError, SyntaxError, MemoryError, RecursionError) as err:
             msg = f'class names {_short(stripped)} are not a valid list or dict literal'
-            raise BackendError(msg) from None
+            raise BackendError(msg) from err
         return _from_literal(value, stripped)
     names = tuple(part.strip() for part in stripped.split(','))
     if any(not name for name in names):
@@ -81,7 +81,7 @@ def read_labels_file(path: str | Path) -> tuple[str, ...]:
         text = path.read_text(encoding='utf-8')
     except (OSError, UnicodeDecodeError) as exc:
         msg = f'{path}: cannot read labels file: {exc}'
-        raise BackendError(msg) from None
+        raise BackendError(msg) from exc
     names = tuple(
         line.strip()
         for line in text.splitlines()
@@ -111,7 +111,7 @@ def resolve_labels(
             names = parse_names(metadata_names)
         except BackendError as exc:
             msg = f'model metadata "names": {exc}'
-            raise BackendError(msg) from None
+            raise BackendError(msg) from exc
         source = 'model metadata'
     elif num_classes == len(COCO80):
         return COCO80, 'coco (80 classes, no names in the model)'

@@ -339,7 +339,7 @@ def _open_session(path: Path) -> Any:
         return ort.InferenceSession(str(path), options, providers=['CPUExecutionProvider'])
     except Exception as exc:  # onnxruntime raises several types for bad files
         msg = f'{path}: cannot load the ONNX model: {type(exc).__name__}: {exc}'
-        raise BackendError(msg) from None
+        raise BackendError(msg) from exc
 
 
 def _shape(value: Sequence[Any]) -> tuple[int | str | None, ...]:
@@ -368,7 +368,7 @@ def _probe_rows(session: Any, input_name: str, dtype: str, pre: Preprocess, inde
         out = session.run([name], {input_name: tensor})[0]
     except Exception as exc:  # any runtime failure
         msg = f'probe inference failed: {type(exc).__name__}: {exc}'
-        raise BackendError(msg) from None
+        raise BackendError(msg) from exc
     return np.asarray(out, dtype=np.float32).reshape(-1, out.shape[-1])
 
 
@@ -501,7 +501,7 @@ def load_model_spec(
         class_names, labels_source = resolve_labels(labels, meta.get('names'), num_classes)
     except BackendError as exc:
         msg = f'{where}: {exc}'
-        raise BackendError(msg) from None
+        raise BackendError(msg) from exc
     return ModelSpec(
         path=path,
         sha256=file_sha256(path),

@@ -177,12 +177,12 @@ def load_ground_truth_file(
         raise UsageError(msg)
     try:
         data = path.read_bytes()
-    except FileNotFoundError:
+    except FileNotFoundError as err:
         msg = f'{path}: no such ground-truth file'
-        raise UsageError(msg) from None
+        raise UsageError(msg) from err
     except OSError as err:
         msg = f'{path}: cannot read the ground-truth file: {err.strerror or err}'
-        raise UsageError(msg) from None
+        raise UsageError(msg) from err
     start = data.lstrip()[:1]
     if data.startswith(b'\xef\xbb\xbf'):
         start = data[3:].lstrip()[:1]
@@ -238,10 +238,10 @@ class _Parser:
             doc = json.loads(data, parse_float=Decimal)
         except json.JSONDecodeError as err:
             msg = f'invalid JSON (line {err.lineno}, column {err.colno}): {err.msg}'
-            raise self.fail(msg) from None
+            raise self.fail(msg) from err
         except UnicodeDecodeError as err:
             msg = f'invalid JSON: not UTF-8 text ({err.reason} at byte {err.start})'
-            raise self.fail(msg) from None
+            raise self.fail(msg) from err
         if not isinstance(doc, dict):
             msg = 'not a COCO file: the top level must be an object with "images", "annotations"'
             msg += ' and "categories"'
@@ -367,9 +367,9 @@ class _Parser:
             seconds = Decimal(value)
             if not seconds.is_finite():
                 raise InvalidOperation
-        except (InvalidOperation, ValueError):
+        except (InvalidOperation, ValueError) as err:
             msg = f'{where} must be a number of seconds, not {value!r}'
-            raise self.fail(msg) from None
+            raise self.fail(msg) from err
         return int((seconds * _NS).to_integral_value())
 
     # ----------------------------------------------------------------------------- CVAT
@@ -382,7 +382,7 @@ class _Parser:
         except ET.ParseError as err:
             line, column = err.position
             msg = f'invalid XML (line {line}, column {column + 1}): {err}'
-            raise self.fail(msg) from None
+            raise self.fail(msg) from err
         if root.tag != 'annotations':
             msg = f'not a CVAT file: the root element is <{root.tag}>, not <annotations>'
             raise self.fail(msg)
@@ -472,9 +472,9 @@ class _Parser:
         value = element.get(name)
         try:
             return int(value or '')
-        except ValueError:
+        except ValueError as err:
             msg = f'{where}: attribute {name}={value!r} must be an integer'
-            raise self.fail(msg) from None
+            raise self.fail(msg) from err
 
     def _xml_float(self, element: Element, name: str, where: str) -> float:
         value = element.get(name)

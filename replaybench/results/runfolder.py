@@ -82,7 +82,7 @@ def check_out_dir(out: Path, *, force: bool, marker: str = 'run.json', kind: str
             empty = not any(out.iterdir())
         except OSError as err:
             msg = f'cannot read {out}: {err.strerror or err}'
-            raise UsageError(msg) from None
+            raise UsageError(msg) from err
         if not empty and not force:
             msg = f'output folder {out} is not empty: choose another --out or pass --force'
             raise UsageError(msg)
@@ -185,7 +185,7 @@ class RunFolder:
             try:
                 self.path.mkdir()
             except OSError as err:
-                raise self.output_error(err) from None
+                raise self.output_error(err) from err
         except BaseException:
             self._release()
             raise
@@ -208,7 +208,7 @@ class RunFolder:
             except OSError as err:
                 self._remove_created()
                 msg = f'cannot create {folder}: {err.strerror or err}'
-                raise UsageError(msg) from None
+                raise UsageError(msg) from err
             self._created.append(folder)
 
     def _lock(self) -> None:
@@ -219,10 +219,10 @@ class RunFolder:
                 fd = os.open(self._lock_path, os.O_RDWR | os.O_CREAT, 0o644)
             except OSError as err:
                 msg = f'cannot lock {self.out}: {self._lock_path}: {err.strerror or err}'
-                raise UsageError(msg) from None
+                raise UsageError(msg) from err
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
+            except BlockingIOError as err:
                 holder = _read_pid(fd)
                 os.close(fd)
                 by = f' (pid {holder})' if holder else ''
@@ -230,7 +230,7 @@ class RunFolder:
                     f'{self.out} is in use by another replaybench run{by}: wait for it to end '
                     'or choose another --out'
                 )
-                raise UsageError(msg) from None
+                raise UsageError(msg) from err
             # the run before us may have removed the file between our open and our lock
             try:
                 same = os.path.samestat(os.fstat(fd), self._lock_path.stat())
@@ -280,7 +280,7 @@ class RunFolder:
                 self.committed = True
         except OSError as err:
             msg = f'cannot move the run into {self.out}: {err.strerror or err}'
-            raise OutputError(msg) from None
+            raise OutputError(msg) from err
         _fsync_dir(self.parent)
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)

@@ -153,7 +153,7 @@ def ros1_to_ros2_cdr(data: bytes | memoryview, msgtype: str) -> bytes:
         return bytes(typestore().ros1_to_cdr(data, msgtype))
     except Exception as err:
         msg = f'invalid ROS 1 {msgtype}: {err}'
-        raise DecodeError(msg) from None
+        raise DecodeError(msg) from err
 
 
 def protobuf_to_ros2_cdr(

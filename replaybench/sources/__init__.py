@@ -180,8 +180,8 @@ def open_source(path: str | Path) -> Source:
         raise
     except OSError as err:
         msg = f'{path}: cannot read: {err.strerror or err}'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     except Exception as err:
         text = ' '.join(str(err).split()) or type(err).__name__
         msg = f'{path}: cannot read ({type(err).__name__}: {text})'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err

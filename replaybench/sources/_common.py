@@ -104,7 +104,7 @@ def decompress_chunk(
         raise
     except Exception as err:  # the codecs raise their own error types
         msg = f'{type(err).__name__}: {err}'
-        raise ValueError(msg) from None
+        raise ValueError(msg) from err
     finally:
         raw.release()
 
@@ -127,7 +127,7 @@ def decompress_message(
         claimed = zstandard.frame_content_size(data)
     except zstandard.ZstdError as err:
         msg = f'not a zstd frame ({err})'
-        raise ValueError(msg) from None
+        raise ValueError(msg) from err
     if claimed > cap:
         msg = f'zstd frame claims {claimed} bytes, beyond the {cap}-byte limit'
         raise ValueError(msg)
@@ -145,7 +145,7 @@ def decompress_message(
         out = stream.decompress(data)  # at most the ``held`` bytes just counted
     except zstandard.ZstdError as err:
         msg = f'zstd: {err}'
-        raise ValueError(msg) from None
+        raise ValueError(msg) from err
     if not stream.eof:
         msg = 'zstd: frame cut short'
         raise ValueError(msg)
@@ -214,7 +214,7 @@ class MappedFile:
                 self.map = mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
         except OSError as err:
             msg = f'{path}: cannot read: {err.strerror or err}'
-            raise SourceError(msg) from None
+            raise SourceError(msg) from err
         self.path = path
         self.view = memoryview(self.map)
 

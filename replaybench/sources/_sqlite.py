@@ -96,7 +96,7 @@ class SqliteStorage:
             self.close()
             log = f' with its write-ahead log {wal.name}' if logged else ''
             msg = f'{path}: cannot read the sqlite database{log}: {err}'
-            raise SourceError(msg) from None
+            raise SourceError(msg) from err
         except BaseException:
             self.close()
             raise

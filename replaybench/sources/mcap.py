@@ -105,9 +105,9 @@ def _string(buf: memoryview, pos: int, end: int) -> tuple[str, int]:
     data, pos = _bytes(buf, pos, end)
     try:
         return data.decode(), pos
-    except UnicodeDecodeError:
+    except UnicodeDecodeError as err:
         msg = 'string is not UTF-8'
-        raise _CorruptError(msg) from None
+        raise _CorruptError(msg) from err
 
 
 def _bytes(buf: memoryview, pos: int, end: int) -> tuple[bytes, int]:

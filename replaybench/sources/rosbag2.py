@@ -63,10 +63,10 @@ def _metadata(path: Path) -> dict[str, Any]:
             raise TypeError
     except OSError as err:
         msg = f'{meta}: cannot read: {err.strerror or err}'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     except Exception as err:
         msg = f'{meta}: not valid rosbag2 metadata ({_one_line(err)})'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     return info
 
 
@@ -87,7 +87,7 @@ def open_rosbag2(path: str | Path) -> McapSource | RosbagsSource:
             compression = str(info.get('compression_format', '') or '').lower()
         except (KeyError, TypeError) as err:
             msg = f'{path / "metadata.yaml"}: not valid rosbag2 metadata ({_one_line(err)})'
-            raise SourceError(msg) from None
+            raise SourceError(msg) from err
         if missing := [file.name for file in files if not file.is_file()]:
             msg = f'{path}: data files listed in metadata.yaml are missing: {", ".join(missing)}'
             raise SourceError(msg)
@@ -108,7 +108,7 @@ def open_rosbag2(path: str | Path) -> McapSource | RosbagsSource:
         reader.open()
     except Exception as err:
         msg = f'{path}: cannot read rosbag2 bag: {_one_line(err)}'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     opened = reader.storage
     storages = getattr(opened, 'storages', None)
     return RosbagsSource(

@@ -74,7 +74,7 @@ def engine_folder(root: Path, key: EngineKey) -> Path:
             record.write_text(text, encoding='utf-8')
     except OSError as exc:
         msg = f'cannot create the TensorRT engine cache {folder}: {exc.strerror or exc}'
-        raise BackendUnavailableError(msg) from None
+        raise BackendUnavailableError(msg) from exc
     return folder
 
 

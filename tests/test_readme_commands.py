@@ -245,8 +245,11 @@ def test_every_command_in_the_readme_and_docs_runs_as_written(tmp_path: Path) ->
     for c in skipped:
         print(f'not run: {c.doc}:{c.line}: {c.text}  ({c.skip})')
     workspaces = {doc: _workspace(tmp_path / re.sub(r'\W', '_', doc)) for doc in by_doc}
-    with ThreadPoolExecutor(max_workers=4) as pool:
-        futures = [pool.submit(_run_doc, cmds, workspaces[doc]) for doc, cmds in by_doc.items()]
+    # one thread per document, the documents with a Ray sweep (the longest) first: the test
+    # lasts as long as its longest document, not the sum of them
+    order = sorted(by_doc, key=lambda doc: -sum(' sweep ' in c.text for c in by_doc[doc]))
+    with ThreadPoolExecutor(max_workers=len(order)) as pool:
+        futures = [pool.submit(_run_doc, by_doc[doc], workspaces[doc]) for doc in order]
         results = [r for f in futures for r in f.result()]
     failures = []
     for command, code, output, seconds in results:

@@ -147,7 +147,7 @@ def replay(
     if outcome.status != 'complete' or summary.throughput_fps is None:
         msg = f'run of {backend} on {path.name}: status {outcome.status}, no throughput'
         raise RuntimeError(msg)
-    return summary.throughput_fps, wall, cpu, outcome.run['backends'][0]['record_s']
+    return summary.throughput_fps, wall, cpu, outcome.run.backends[0].record_s
 
 
 def steady_read_sampler(source: Source, bag: Bag) -> Sampler:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import zlib
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
@@ -19,17 +18,20 @@ from replaybench.comparison.bootstrap import (
 )
 from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match, load_runs, run_flags
 from replaybench.errors import UsageError
+from replaybench.results.intervals import interval_rng, measured_series
 from replaybench.results.stats import summarize
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Sequence
     from pathlib import Path
 
     import numpy.typing as npt
 
     from replaybench.comparison.blocks import ChangeInterval
     from replaybench.comparison.runs import RunInfo
+    from replaybench.results.model import RunResult
     from replaybench.results.records import FrameRecord
+    from replaybench.results.runfile import RunData
     from replaybench.results.stats import Summary
 
 __all__ = [
@@ -174,59 +176,23 @@ def _series(records: Sequence[FrameRecord]) -> dict[tuple[str, str], _Series]:
     summaries = {(s.backend, s.topic): s for s in summarize(records)}
     result: dict[tuple[str, str], _Series] = {}
     for key, group in groups.items():
-        ordered = sorted(group, key=lambda r: r.release_s)
-        measured = [
-            r for r in ordered if r.status == 'ok' and not r.warmup and r.latency_ms is not None
-        ]
-        latency = np.asarray([r.latency_ms for r in measured], dtype=np.float64)
-        result[key] = _Series(latency, _intervals(ordered, measured), summaries[key])
+        # the series run reports take their own intervals from (results.intervals)
+        latency, intervals = measured_series(group)
+        result[key] = _Series(latency, intervals, summaries[key])
     return result
 
 
-def _intervals(
-    ordered: Sequence[FrameRecord], measured: Sequence[FrameRecord]
-) -> npt.NDArray[np.float64] | None:
-    """Completion-to-completion times; they add up to the throughput window of stats.py."""
-    if not measured or any(r.done_s is None for r in measured):
-        return None
-    start: float | None = measured[0].start_s
-    previous = None
-    for record in ordered:
-        if record is measured[0]:
-            break
-        if record.status == 'ok':
-            previous = record
-    if previous is not None and previous.done_s is not None:
-        start = previous.done_s
-    if start is None:
-        return None
-    done = np.asarray([start] + [r.done_s for r in measured], dtype=np.float64)
-    return np.diff(done)
-
-
-def _accuracy(run: Mapping[str, Any]) -> dict[tuple[str, str], dict[str, float]]:
+def _accuracy(run: RunResult) -> dict[tuple[str, str], dict[str, float]]:
     table: dict[tuple[str, str], dict[str, float]] = {}
-    rows = run.get('summary')
-    for row in rows if isinstance(rows, list) else []:
-        if not isinstance(row, dict):
-            continue
-        found = row.get('accuracy')
-        acc: dict[str, Any] = found if isinstance(found, dict) else {}
+    for row in run.summary_rows:
+        source: Any = row.accuracy if row.accuracy is not None else row
         values: dict[str, float] = {}
         for name in ACCURACY_METRICS:
-            value = acc.get(name, row.get(name))
-            number = (
-                value if isinstance(value, int | float) and not isinstance(value, bool) else None
-            )
+            number = getattr(source, name)
             if number is not None and np.isfinite(number):
                 values[name] = float(number)
-        table[(str(row.get('backend')), str(row.get('topic')))] = values
+        table[(row.backend, row.topic)] = values
     return table
-
-
-def _rng(seed: int, run: int, backend: str, topic: str) -> np.random.Generator:
-    key = zlib.crc32(f'{backend}\0{topic}'.encode())
-    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(run, key)))
 
 
 def _reps(reps: Replicates | None, metric: str) -> npt.NDArray[np.float64] | None:
@@ -297,7 +263,7 @@ def _reference(
 
 
 def compare_runs(
-    run_dirs: Sequence[str | Path],
+    run_dirs: Sequence[str | Path | RunData],
     *,
     baseline: int = 0,
     baseline_backend: str | None = None,
@@ -352,7 +318,7 @@ def compare_runs(
         if key not in cache:
             s = series[run][backend, topic]
             cache[key] = replicates(
-                s.latency, s.intervals, n_boot=n_boot, rng=_rng(seed, run, backend, topic)
+                s.latency, s.intervals, n_boot=n_boot, rng=interval_rng(seed, run, backend, topic)
             )
         return cache[key]
 

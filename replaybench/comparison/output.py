@@ -14,8 +14,11 @@ from replaybench.comparison.core import ACCURACY_METRICS, TIMING_METRICS
 from replaybench.comparison.gate import gate_verdict, method_text
 from replaybench.comparison.runs import CV_LIMIT, engine_text
 from replaybench.comparison.verdict import EXIT_STATUS
+from replaybench.results.io import from_document, write_comparison_result
+from replaybench.results.model import COMPARISON_SCHEMA_VERSION
+from replaybench.results.model import Comparison as ComparisonResult
 from replaybench.results.records import csv_writer
-from replaybench.results.runfile import write_json_atomic, write_text_atomic
+from replaybench.results.runfile import write_text_atomic
 from replaybench.textsafe import csv_text
 
 if TYPE_CHECKING:
@@ -31,9 +34,6 @@ __all__ = [
     'csv_rows',
     'write_comparison',
 ]
-
-#: Version of the comparison.json layout.
-COMPARISON_SCHEMA_VERSION = 2
 
 _TIMING_SUFFIXES = (
     '',
@@ -299,16 +299,14 @@ def write_comparison(
     csv_path = out / 'comparison.csv'
     html_path = out / 'comparison.html'
     write_text_atomic(csv_path, _csv_text(comparison, gate))
-    write_json_atomic(
-        out / 'comparison.json',
-        comparison_json(
-            comparison,
-            gate=gate,
-            conditions=conditions,
-            strict=strict,
-            allow_inconclusive=allow_inconclusive,
-        ),
+    document = comparison_json(
+        comparison,
+        gate=gate,
+        conditions=conditions,
+        strict=strict,
+        allow_inconclusive=allow_inconclusive,
     )
+    write_comparison_result(out / 'comparison.json', from_document(ComparisonResult, document))
     write_text_atomic(
         html_path,
         render_comparison_html(

@@ -8,12 +8,13 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from replaybench.results.runfile import load_run
+from replaybench.results.intervals import CV_LIMIT
+from replaybench.results.runfile import RunData, load_run
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from replaybench.results.runfile import RunData
+    from replaybench.results.model import RunResult
 
 __all__ = [
     'CV_LIMIT',
@@ -25,9 +26,6 @@ __all__ = [
     'load_runs',
     'run_flags',
 ]
-
-#: A (backend, topic) whose latency coefficient of variation exceeds this is flagged unstable.
-CV_LIMIT = 0.1
 
 #: Keys of run.json ``backends[].info`` that identify the engine a backend ran on.
 ENGINE_KEYS: tuple[str, ...] = ('engine', 'providers', 'precision')
@@ -44,14 +42,6 @@ SETTINGS_KEYS: tuple[str, ...] = (
 )
 
 _BRANDS = re.compile(r'\((?:R|TM|tm|r)\)')
-
-
-def _dict(value: Any) -> dict[str, Any]:
-    return value if isinstance(value, dict) else {}
-
-
-def _list(value: Any) -> list[Any]:
-    return value if isinstance(value, list) else []
 
 
 def _num(value: Any) -> float | None:
@@ -106,54 +96,46 @@ def engine_text(info: dict[str, Any]) -> str | None:
     return ' '.join(parts) or None
 
 
-def _hostname(env: dict[str, Any]) -> str | None:
-    for key in ('hostname', 'host', 'node'):
-        found = _text(env.get(key))
-        if found:
-            return found
-    return _text(_dict(env.get('os')).get('node'))
-
-
-def _gpu_names(run: dict[str, Any], env: dict[str, Any]) -> tuple[str, ...]:
-    names = [_text(_dict(g).get('name')) for g in _list(env.get('gpus'))]
-    for entry in _list(run.get('backends')):
-        info = _dict(_dict(entry).get('info'))
-        names.append(_text(info.get('device_name')) or _text(info.get('gpu_name')))
+def _gpu_names(run: RunResult) -> tuple[str, ...]:
+    """The GPUs the run used: those nvidia-smi listed, the device a GPU backend reports
+    (``info.device_name``) and the one its resources were sampled on (``gpu_name``)."""
+    names = [_text(g.name) for g in run.environment.gpus]
+    for entry in run.backends:
+        names.append(_text(entry.info.get('device_name')))
+        if entry.resources is not None and entry.resources.summary is not None:
+            names.append(_text(entry.resources.summary.gpu_name))
     return tuple(dict.fromkeys(n for n in names if n))
 
 
 def _info(index: int, data: RunData) -> RunInfo:
     run = data.run
-    env = _dict(run.get('environment'))
-    cpu = _dict(env.get('cpu'))
-    model = _text(cpu.get('model'))
+    env = run.environment
+    cpu = env.cpu
+    model = _text(cpu.model)
     if model:
         model = ' '.join(_BRANDS.sub('', model).split())
-    cores = cpu.get('usable_cores') or cpu.get('logical_cores')
-    load = _list(env.get('load_average'))
-    inputs = [_dict(i) for i in _list(run.get('inputs'))]
+    load = env.load_average
     backends: dict[str, dict[str, Any]] = {}
-    for entry in _list(run.get('backends')):
-        entry = _dict(entry)
-        label = entry.get('label') or entry.get('name')
-        if isinstance(label, str):
-            backends.setdefault(label, _dict(entry.get('info')))
+    for entry in run.backends:
+        label = entry.label or entry.name
+        if label:
+            backends.setdefault(label, dict(entry.info))
     return RunInfo(
         index=index,
         label='',
         dir=data.dir,
         data=data,
-        status=str(run.get('status', 'unknown')),
-        hostname=_hostname(env),
+        status=run.status,
+        hostname=_text(env.hostname),
         cpu_model=model,
-        cores=cores if isinstance(cores, int) and not isinstance(cores, bool) else None,
-        governor=_text(cpu.get('governor')),
+        cores=cpu.usable_cores or cpu.logical_cores,
+        governor=_text(cpu.governor),
         load_average=_num(load[0]) if load else None,
-        gpus=_gpu_names(run, env),
-        input_sha256=tuple(_text(i.get('sha256')) for i in inputs),
-        input_paths=tuple(str(i.get('path', '?')) for i in inputs),
-        truncated=any(bool(i.get('truncated')) for i in inputs),
-        settings={k: _dict(run.get('settings')).get(k) for k in SETTINGS_KEYS},
+        gpus=_gpu_names(run),
+        input_sha256=tuple(_text(i.sha256) for i in run.inputs),
+        input_paths=tuple(i.path or '?' for i in run.inputs),
+        truncated=any(i.truncated for i in run.inputs),
+        settings={k: getattr(run.settings, k) for k in SETTINGS_KEYS},
         backend_info=backends,
     )
 
@@ -183,9 +165,13 @@ def _labels(infos: Sequence[RunInfo]) -> list[str]:
     return unique
 
 
-def load_runs(run_dirs: Sequence[str | Path]) -> list[RunInfo]:
-    """Load run folders (SourceError naming the folder when one is not readable), labelled."""
-    infos = [_info(index, load_run(Path(d))) for index, d in enumerate(run_dirs)]
+def load_runs(run_dirs: Sequence[str | Path | RunData]) -> list[RunInfo]:
+    """Load run folders (SourceError naming the folder when one is not readable), labelled;
+    a ``RunData`` (a run held in memory) is taken as it is."""
+    infos = [
+        _info(index, d if isinstance(d, RunData) else load_run(Path(d)))
+        for index, d in enumerate(run_dirs)
+    ]
     return [replace(i, label=label) for i, label in zip(infos, _labels(infos), strict=True)]
 
 

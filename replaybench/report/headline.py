@@ -4,9 +4,10 @@ and how well the two agree, in one table narrow enough for a laptop screen.
 * **Fastest**: the highest throughput (summary ``throughput_fps``) among the backends that
   detect; ``null`` (the harness alone) is a reference and is only named when it ran alone. Its
   FPS, p50 and p99 latency come with 95 % block-bootstrap intervals computed from the measured
-  frames of frames.csv exactly as ``replaybench compare`` computes a row's own interval
-  (``replaybench.comparison.bootstrap``, the same seed: ``compare RUN`` shows the same intervals;
-  none below ``MIN_FRAMES`` measured frames), so the same run folder gives the same page.
+  frames of frames.csv by the function that gives run.json and summary.csv theirs and
+  ``replaybench compare`` a row's own interval (``replaybench.results.intervals``, the same
+  seed: the same intervals everywhere; none below ``MIN_FRAMES`` measured frames), so the same
+  run folder gives the same page.
 * **Most accurate**: the highest mAP@0.5 against ground truth; none without ground truth.
 * **Agreement**: from run.json ``agreement``, the share of each of the two backends' detections
   that the other one matched, and their mean IoU.
@@ -14,21 +15,20 @@ and how well the two agree, in one table narrow enough for a laptop screen.
 
 from __future__ import annotations
 
-import zlib
 from dataclasses import dataclass
 from html import escape
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from replaybench.comparison.bootstrap import CONFIDENCE, percentile_interval, replicates
+from replaybench.results.bootstrap import CONFIDENCE
+from replaybench.results.intervals import measured_series, row_intervals
 from replaybench.textsafe import visible
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Sequence
 
-    import numpy.typing as npt
-
+    from replaybench.results.model import RunResult, SummaryRow
     from replaybench.results.records import FrameRecord
 
 __all__ = ['Agreement', 'TopicHeadline', 'headline_html', 'topic_headlines']
@@ -74,108 +74,64 @@ def _num(value: Any) -> float | None:
     return number if np.isfinite(number) else None
 
 
-def _map50(row: Mapping[str, Any]) -> float | None:
-    accuracy = row.get('accuracy')
-    if isinstance(accuracy, dict) and 'map50' in accuracy:
-        return _num(accuracy.get('map50'))
-    return _num(row.get('map50'))
-
-
-def _series(
-    records: Sequence[FrameRecord],
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64] | None]:
-    """Measured latencies and completion-to-completion times in replay order (the series that
-    ``replaybench compare`` resamples; the times add up to the throughput window)."""
-    ordered = sorted(records, key=lambda r: r.release_s)
-    measured = [
-        r for r in ordered if r.status == 'ok' and not r.warmup and r.latency_ms is not None
-    ]
-    latency = np.asarray([r.latency_ms for r in measured], dtype=np.float64)
-    if not measured or any(r.done_s is None for r in measured):
-        return latency, None
-    start = measured[0].start_s
-    previous = None
-    for record in ordered:
-        if record is measured[0]:
-            break
-        if record.status == 'ok':
-            previous = record
-    if previous is not None and previous.done_s is not None:
-        start = previous.done_s
-    if start is None:
-        return latency, None
-    done = np.asarray([start] + [r.done_s for r in measured], dtype=np.float64)
-    return latency, np.diff(done)
+def _map50(row: SummaryRow) -> float | None:
+    if row.accuracy is not None:
+        return _num(row.accuracy.map50)
+    return _num(row.map50)
 
 
 def _intervals(
     backend: str, topic: str, records: Sequence[FrameRecord]
 ) -> tuple[Interval | None, Interval | None, Interval | None]:
     """95 % intervals of (FPS, p50, p99) of one backend on one topic, or None each."""
-    latency, times = _series(records)
-    # the generator ``replaybench compare`` uses for the first run folder, default seed
-    seed = np.random.SeedSequence(0, spawn_key=(0, zlib.crc32(f'{backend}\0{topic}'.encode())))
-    reps = replicates(latency, times, rng=np.random.default_rng(seed))
-    if reps is None:
-        return None, None, None
-    fps = percentile_interval(reps.fps, CONFIDENCE) if reps.fps is not None else None
-    return (
-        fps,
-        percentile_interval(reps.p50, CONFIDENCE),
-        percentile_interval(reps.p99, CONFIDENCE),
-    )
+    found = row_intervals(backend, topic, measured_series(records))
+    return found.fps, found.p50, found.p99
 
 
-def _agreement(run: Mapping[str, Any], topic: str, fast: str, accurate: str) -> Agreement | None:
-    entries = run.get('agreement')
-    for entry in entries if isinstance(entries, list) else []:
-        if not isinstance(entry, dict) or str(entry.get('topic')) != topic:
+def _agreement(run: RunResult, topic: str, fast: str, accurate: str) -> Agreement | None:
+    for entry in run.agreement:
+        if entry.topic != topic:
             continue
-        a, b = str(entry.get('backend_a')), str(entry.get('backend_b'))
+        a, b = entry.backend_a, entry.backend_b
         if (a, b) == (fast, accurate):
-            frac_fast, frac_acc = entry.get('matched_frac_a'), entry.get('matched_frac_b')
+            frac_fast, frac_acc = entry.matched_frac_a, entry.matched_frac_b
         elif (a, b) == (accurate, fast):
-            frac_fast, frac_acc = entry.get('matched_frac_b'), entry.get('matched_frac_a')
+            frac_fast, frac_acc = entry.matched_frac_b, entry.matched_frac_a
         else:
             continue
-        return Agreement(_num(frac_fast), _num(frac_acc), _num(entry.get('mean_iou')))
+        return Agreement(_num(frac_fast), _num(frac_acc), _num(entry.mean_iou))
     return None
 
 
 def topic_headlines(
-    run: Mapping[str, Any], rows: Sequence[Mapping[str, Any]], frames: Sequence[FrameRecord]
+    run: RunResult, rows: Sequence[SummaryRow], frames: Sequence[FrameRecord]
 ) -> list[TopicHeadline]:
     """One headline per topic, in the order of the summary rows."""
     names: dict[str, str] = {}
-    backends = run.get('backends')
-    for entry in backends if isinstance(backends, list) else []:
-        if isinstance(entry, dict):
-            label = entry.get('label') or entry.get('name')
-            names[str(label)] = str(entry.get('name') or label)
-    by_topic: dict[str, list[Mapping[str, Any]]] = {}
+    for entry in run.backends:
+        label = entry.label or entry.name
+        names[label] = entry.name or label
+    by_topic: dict[str, list[SummaryRow]] = {}
     for row in rows:
-        by_topic.setdefault(str(row.get('topic', '?')), []).append(row)
+        by_topic.setdefault(row.topic or '?', []).append(row)
     fps_all: dict[str, float] = {}
     for row in rows:
-        fps = _num(row.get('throughput_fps'))
+        fps = _num(row.throughput_fps)
         if fps is not None:
-            backend = str(row.get('backend'))
-            fps_all[backend] = fps_all.get(backend, 0.0) + fps
+            fps_all[row.backend] = fps_all.get(row.backend, 0.0) + fps
     groups: dict[tuple[str, str], list[FrameRecord]] = {}
     for record in frames:
         groups.setdefault((record.backend, record.topic), []).append(record)
     out = []
     for topic, topic_rows in by_topic.items():
-        timed = [r for r in topic_rows if _num(r.get('throughput_fps')) is not None]
-        detectors = [
-            r for r in timed if names.get(str(r.get('backend')), '') not in REFERENCE_BACKENDS
-        ]
+        timed = [r for r in topic_rows if _num(r.throughput_fps) is not None]
+        detectors = [r for r in timed if names.get(r.backend, '') not in REFERENCE_BACKENDS]
         pool = detectors or timed
-        fastest = max(pool, key=lambda r: _num(r.get('throughput_fps')) or 0.0, default=None)
+        fastest = max(pool, key=lambda r: _num(r.throughput_fps) or 0.0, default=None)
         scored = [r for r in topic_rows if _map50(r) is not None]
         accurate = max(scored, key=lambda r: _map50(r) or 0.0, default=None)
-        fast_name = str(fastest.get('backend')) if fastest is not None else None
-        acc_name = str(accurate.get('backend')) if accurate is not None else None
+        fast_name = fastest.backend if fastest is not None else None
+        acc_name = accurate.backend if accurate is not None else None
         fps_ci = p50_ci = p99_ci = None
         if fast_name is not None:
             fps_ci, p50_ci, p99_ci = _intervals(
@@ -188,14 +144,14 @@ def topic_headlines(
             TopicHeadline(
                 topic=topic,
                 fastest=fast_name,
-                fps=_num(fastest.get('throughput_fps')) if fastest is not None else None,
+                fps=_num(fastest.throughput_fps) if fastest is not None else None,
                 fps_ci=fps_ci,
                 fps_all=fps_all.get(fast_name) if fast_name and len(by_topic) > 1 else None,
-                p50_ms=_num(fastest.get('latency_ms_p50')) if fastest is not None else None,
+                p50_ms=_num(fastest.latency_ms_p50) if fastest is not None else None,
                 p50_ci=p50_ci,
-                p99_ms=_num(fastest.get('latency_ms_p99')) if fastest is not None else None,
+                p99_ms=_num(fastest.latency_ms_p99) if fastest is not None else None,
                 p99_ci=p99_ci,
-                measured=int(_num(fastest.get('measured')) or 0) if fastest is not None else 0,
+                measured=fastest.measured if fastest is not None else 0,
                 accurate=acc_name,
                 map50=_map50(accurate) if accurate is not None else None,
                 agreement=agreement,
@@ -257,9 +213,7 @@ _CSS = (
 )
 
 
-def headline_html(
-    run: Mapping[str, Any], rows: Sequence[Mapping[str, Any]], frames: Sequence[FrameRecord]
-) -> str:
+def headline_html(run: RunResult, rows: Sequence[SummaryRow], frames: Sequence[FrameRecord]) -> str:
     """The headline section, or '' when no row was measured."""
     heads = topic_headlines(run, rows, frames)
     if not heads or all(h.fastest is None and h.accurate is None for h in heads):
@@ -308,7 +262,7 @@ def headline_html(
     if scored:
         notes[0] += (
             ' mAP@0.5 against the ground truth; agreement: share of each backend’s detections '
-            'the other matched (IoU ≥ 0.5, same class).'
+            f'the other matched (IoU ≥ {run.settings.agreement_iou:g}, same class).'
         )
     else:
         notes.append(

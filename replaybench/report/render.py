@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import dataclasses
 import json
 import math
 import shlex
@@ -25,13 +26,23 @@ from replaybench.report.svg import (
     stacked_bar_chart,
     step_cdf,
 )
+from replaybench.results.intervals import with_intervals
+from replaybench.results.io import from_document, read_peak_result, to_json
+from replaybench.results.model import PEAK_SCHEMA_VERSION, ResourceSummary, SummaryRow
 from replaybench.results.runfile import load_run, write_text_atomic
 from replaybench.results.stats import summarize, summary_json
 from replaybench.textsafe import visible, visible_lines
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable, Mapping, Sequence
+    from collections.abc import Callable, Iterable, Mapping, Sequence
 
+    from replaybench.results.model import (
+        AgreementRow,
+        Environment,
+        PeakResult,
+        ResourcePoint,
+        RunResult,
+    )
     from replaybench.results.records import FrameRecord
     from replaybench.results.runfile import RunData
 
@@ -189,12 +200,11 @@ def _dl(items: Iterable[tuple[str, Any]]) -> str:
     return f'<dl>{rows}</dl>'
 
 
-def _backend_order(run: Mapping[str, Any], frames: Sequence[FrameRecord]) -> list[str]:
+def _backend_order(run: RunResult, frames: Sequence[FrameRecord]) -> list[str]:
     order: list[str] = []
-    for entry in _list(run.get('backends')):
-        entry = _dict(entry)
-        label = entry.get('label') or entry.get('name')
-        if isinstance(label, str) and label not in order:
+    for entry in run.backends:
+        label = entry.label or entry.name
+        if label and label not in order:
             order.append(label)
     for record in frames:
         if record.backend not in order:
@@ -202,89 +212,94 @@ def _backend_order(run: Mapping[str, Any], frames: Sequence[FrameRecord]) -> lis
     return order
 
 
-def _topic_order(frames: Sequence[FrameRecord], rows: Sequence[Mapping[str, Any]]) -> list[str]:
+def _topic_order(frames: Sequence[FrameRecord], rows: Sequence[SummaryRow]) -> list[str]:
     order: list[str] = []
-    for topic in [r.topic for r in frames] + [str(r.get('topic')) for r in rows]:
+    for topic in [r.topic for r in frames] + [r.topic for r in rows]:
         if topic not in order:
             order.append(topic)
     return order
 
 
-def _summary_rows(run: Mapping[str, Any], frames: Sequence[FrameRecord]) -> list[dict[str, Any]]:
-    rows = [r for r in _list(run.get('summary')) if isinstance(r, dict)]
-    if rows:
-        return rows
-    return [summary_json(s) for s in summarize(frames)]
+def _summary_rows(run: RunResult, frames: Sequence[FrameRecord]) -> list[SummaryRow]:
+    """run.json's summary rows; where it has none, those computed from frames.csv as the run
+    would have written them, intervals and warnings included (throttling aside: that needs the
+    resource samples)."""
+    if run.summary_rows:
+        return list(run.summary_rows)
+    return [
+        from_document(SummaryRow, summary_json(s))
+        for s in with_intervals(summarize(frames), frames)
+    ]
 
 
 # --------------------------------------------------------------------------- header
 
 
-def _header(run: Mapping[str, Any]) -> str:
-    status = str(run.get('status', 'unknown'))
-    tool = _dict(run.get('tool'))
+def _header(run: RunResult) -> str:
+    status = run.status
     meta = [
         f'<span class="badge {_e(status)}">{_e(status)}</span>',
-        f'started {_e(run.get("started_at", "?"))}',
+        f'started {_e(run.started_at or "?")}',
     ]
-    wall = _num(run.get('wall_s'))
+    wall = _num(run.wall_s)
     if wall is not None:
         meta.append(f'wall time {wall:.1f} s')
-    meta.append(f'{_e(tool.get("name", "replaybench"))} {_e(tool.get("version", "?"))}')
+    meta.append(f'{_e(run.tool.name)} {_e(run.tool.version or "?")}')
     return f'<header><h1>replaybench report</h1><p class="meta">{" · ".join(meta)}</p></header>'
 
 
-def _banner(run: Mapping[str, Any], frames: Sequence[FrameRecord]) -> str:
+def _banner(run: RunResult, frames: Sequence[FrameRecord], rows: Sequence[SummaryRow]) -> str:
     items: list[str] = []
-    status = run.get('status')
+    status = run.status
     if status == 'interrupted':
         items.append(
             'The run was interrupted: the numbers cover only the frames processed before it '
             'stopped.',
         )
-    elif status not in (None, 'complete'):
+    elif status != 'complete':
         items.append(f'The run ended with status {_e(status)}.')
-    for entry in _list(run.get('inputs')):
-        entry = _dict(entry)
-        path = _e(entry.get('path', '?'))
-        if entry.get('truncated'):
+    for entry in run.inputs:
+        path = _e(entry.path or '?')
+        if entry.truncated:
             items.append(
                 f'Input <code>{path}</code> is truncated: only its complete messages were '
                 'replayed.',
             )
-        for warning in _list(entry.get('warnings')):
+        for warning in entry.warnings:
             items.append(f'<code>{path}</code>: {_e(warning)}')
-    skipped = {str(k): v for k, v in _dict(run.get('skipped')).items()}
+    skipped = dict(run.skipped)
     n_skipped = sum(1 for r in frames if r.status == 'skipped')
     if skipped or n_skipped:
         reasons = ''.join(
             f'<li>{_e(reason)}: {_e(count)}</li>' for reason, count in sorted(skipped.items())
         )
-        counted = sum(v for v in skipped.values() if _int(v) is not None)
-        total = counted or n_skipped
+        total = sum(skipped.values()) or n_skipped
         items.append(
             f'{total} frame(s) were skipped because they could not be decoded'
             + (f'<ul>{reasons}</ul>' if reasons else '.'),
         )
+    items += [_e(warning) for warning in run.warnings]
+    for row in rows:
+        where = f'<b>{_e(row.backend or "?")}</b> <code>{_e(row.topic or "?")}</code>'
+        items += [f'{where}: {_e(warning)}' for warning in row.warnings]
     if not items:
         return ''
     body = ''.join(f'<li>{item}</li>' for item in items)
     return f'<div class="banner" role="alert"><strong>Warnings</strong><ul>{body}</ul></div>'
 
 
-def _inputs_card(run: Mapping[str, Any]) -> str:
+def _inputs_card(run: RunResult) -> str:
     rows = []
-    for entry in _list(run.get('inputs')):
-        entry = _dict(entry)
-        sha = str(entry.get('sha256') or '')
-        topics = ', '.join(str(_dict(t).get('name', '?')) for t in _list(entry.get('topics')))
-        flags = ' (truncated)' if entry.get('truncated') else ''
+    for entry in run.inputs:
+        sha = entry.sha256 or ''
+        topics = ', '.join(t.name or '?' for t in entry.topics)
+        flags = ' (truncated)' if entry.truncated else ''
         rows.append(
-            f'<tr><td class="n">{_e(entry.get("index", ""))}</td>'
-            f'<td><code>{_e(entry.get("path", "?"))}</code>{_e(flags)}'
+            f'<tr><td class="n">{_e(entry.index)}</td>'
+            f'<td><code>{_e(entry.path or "?")}</code>{_e(flags)}'
             f'<br><span class="muted">{_e(topics)}</span></td>'
-            f'<td>{_e(entry.get("format", ""))}</td>'
-            f'<td class="n">{_e(_fmt_bytes(entry.get("size_bytes")))}</td>'
+            f'<td>{_e(entry.format or "")}</td>'
+            f'<td class="n">{_e(_fmt_bytes(entry.size_bytes))}</td>'
             f'<td><code title="{_e(sha)}">{_e(sha[:12])}</code></td></tr>',
         )
     table = (
@@ -295,62 +310,60 @@ def _inputs_card(run: Mapping[str, Any]) -> str:
     return f'<div class="card"><h3>Inputs</h3>{table}</div>'
 
 
-def _environment_card(run: Mapping[str, Any]) -> str:
-    env = _dict(run.get('environment'))
-    cpu = _dict(env.get('cpu'))
-    os_info = _dict(env.get('os'))
-    python = _dict(env.get('python'))
-    packages = _dict(env.get('packages'))
-    opencv = _dict(packages.get('opencv'))
+def _environment_card(env: Environment) -> str:
+    cpu, os_info, python, packages = env.cpu, env.os, env.python, env.packages
+    opencv = packages.opencv
     gpus = [
-        f'{_dict(g).get("name", "?")} ({_dict(g).get("memory_total", "?")}, '
-        f'driver {_dict(g).get("driver_version", "?")})'
-        for g in _list(env.get('gpus'))
+        f'{g.name or "?"} ({g.memory_total or "?"}, driver {g.driver_version or "?"})'
+        for g in env.gpus
     ]
     versions = [
-        f'{name} {value}'
-        for name, value in packages.items()
-        if name != 'opencv' and isinstance(value, str)
+        f'{f.name} {getattr(packages, f.name)}'
+        for f in dataclasses.fields(packages)
+        if isinstance(getattr(packages, f.name), str)
     ]
-    if opencv.get('version'):
-        versions.append(f'opencv {opencv["version"]} ({opencv.get("threads", "?")} threads)')
-    cores = cpu.get('logical_cores')
-    usable = cpu.get('usable_cores')
+    if opencv.version:
+        threads = opencv.threads if opencv.threads is not None else '?'
+        versions.append(f'opencv {opencv.version} ({threads} threads)')
+    cores, usable = cpu.logical_cores, cpu.usable_cores
     core_text = f'{cores}' + (f' ({usable} usable)' if usable not in (None, cores) else '')
-    load = _list(env.get('load_average'))
+    load = env.load_average
     items: list[tuple[str, Any]] = [
-        ('CPU', cpu.get('model')),
+        ('host', env.hostname),
+        ('CPU', cpu.model),
         ('cores', core_text),
-        ('governor', cpu.get('governor')),
-        ('memory', _fmt_bytes(env.get('memory_total_bytes'))),
+        ('governor', cpu.governor),
+        ('memory', _fmt_bytes(env.memory_total_bytes)),
         ('GPUs', '; '.join(gpus) if gpus else 'none found'),
-        ('OS', os_info.get('platform') or os_info.get('system')),
-        ('Python', f'{python.get("implementation", "")} {python.get("version", "")}'.strip()),
+        ('OS', os_info.platform or os_info.system),
+        ('Python', f'{python.implementation or ""} {python.version or ""}'.strip()),
         ('packages', ', '.join(versions)),
         ('load average', ' '.join(_fmt_value(v) for v in load) if load else None),
     ]
     return f'<div class="card"><h3>Machine</h3>{_dl(items)}</div>'
 
 
-def _settings_card(run: Mapping[str, Any]) -> str:
-    settings = _dict(run.get('settings'))
+def _settings_card(run: RunResult) -> str:
     backends = []
-    for entry in _list(run.get('backends')):
-        entry = _dict(entry)
-        name, label = entry.get('name', '?'), entry.get('label', '')
-        backends.append(f'{label} ({name})' if label and label != name else str(name))
+    for entry in run.backends:
+        name, label = entry.name or '?', entry.label
+        backends.append(f'{label} ({name})' if label and label != name else name)
     items: list[tuple[str, Any]] = [('backends', ', '.join(backends) or None)]
-    items += [(str(k), v) for k, v in settings.items()]
+    items += list(to_json(run.settings).items())
     return f'<div class="card"><h3>Settings</h3>{_dl(items)}</div>'
 
 
 # --------------------------------------------------------------------------- summary
 
 
-def _summary_table(rows: Sequence[Mapping[str, Any]], colours: Mapping[str, str]) -> str:
-    accuracy = any(isinstance(r.get('accuracy'), dict) for r in rows) or any(
-        r.get('map50') is not None for r in rows
-    )
+def _accuracy_value(row: SummaryRow, key: str) -> float | None:
+    """A row's accuracy figure: from its full ``accuracy`` when it has one."""
+    value: float | None = getattr(row.accuracy if row.accuracy is not None else row, key)
+    return value
+
+
+def _summary_table(rows: Sequence[SummaryRow], colours: Mapping[str, str]) -> str:
+    accuracy = any(r.accuracy is not None or r.map50 is not None for r in rows)
     head = [
         ('backend', ''),
         ('topic', ''),
@@ -372,42 +385,60 @@ def _summary_table(rows: Sequence[Mapping[str, Any]], colours: Mapping[str, str]
     )
     body = []
     for row in rows:
-        backend = str(row.get('backend', '?'))
+        backend = row.backend or '?'
         swatch = f'<span class="swatch" style="background:{colours.get(backend, "#777")}"></span>'
         cells = [
             f'<td>{swatch}{_e(backend)}</td>',
-            f'<td><code>{_e(row.get("topic", "?"))}</code></td>',
-            f'<td class="n">{_e(_fmt_value(row.get("measured")))}</td>',
-            f'<td class="n">{_e(_fmt_value(row.get("dropped")))}</td>',
-            f'<td class="n">{_e(_fmt_value(row.get("skipped")))}</td>',
-            f'<td class="n">{_e(_fmt_fps(row.get("throughput_fps")))}</td>',
+            f'<td><code>{_e(row.topic or "?")}</code></td>',
+            f'<td class="n">{_e(_fmt_value(row.measured))}</td>',
+            f'<td class="n">{_e(_fmt_value(row.dropped))}</td>',
+            f'<td class="n">{_e(_fmt_value(row.skipped))}</td>',
+            _with_ci(
+                row.throughput_fps, row.throughput_fps_ci_low, row.throughput_fps_ci_high, _fmt_fps
+            ),
+            _with_ci(
+                row.latency_ms_p50, row.latency_ms_p50_ci_low, row.latency_ms_p50_ci_high, _fmt_ms
+            ),
+            f'<td class="n">{_e(_fmt_ms(row.latency_ms_p95))}</td>',
+            _with_ci(
+                row.latency_ms_p99, row.latency_ms_p99_ci_low, row.latency_ms_p99_ci_high, _fmt_ms
+            ),
         ]
-        for key in ('latency_ms_p50', 'latency_ms_p95', 'latency_ms_p99', 'latency_ms_max'):
-            cells.append(f'<td class="n">{_e(_fmt_ms(row.get(key)))}</td>')
-        cells.append(f'<td class="n">{_e(_fmt_ms(row.get("jitter_ms")))}</td>')
-        cells.append(f'<td class="n">{_e(_fmt(row.get("detections_per_frame")))}</td>')
+        cells.append(f'<td class="n">{_e(_fmt_ms(row.latency_ms_max))}</td>')
+        cells.append(f'<td class="n">{_e(_fmt_ms(row.jitter_ms))}</td>')
+        cells.append(f'<td class="n">{_e(_fmt(row.detections_per_frame))}</td>')
         if accuracy:
-            acc = _dict(row.get('accuracy'))
             for key in ('precision50', 'recall50', 'map50', 'map50_95'):
-                value = acc.get(key, row.get(key))
-                cells.append(f'<td class="n">{_e(_fmt(value, 3))}</td>')
+                cells.append(f'<td class="n">{_e(_fmt(_accuracy_value(row, key), 3))}</td>')
         body.append(f'<tr>{"".join(cells)}</tr>')
     return (
         f'<div class="table-wrap"><table id="summary-table"><thead><tr>{th}</tr></thead>'
         f'<tbody>{"".join(body)}</tbody></table></div>'
         '<p class="muted">Statistics cover measured frames only (processed, after warm-up). '
         'FPS: measured frames per second of processing window; jitter: mean absolute '
-        'difference of consecutive latencies.</p>'
+        'difference of consecutive latencies. Under FPS, p50 and p99: the 95 % interval '
+        '(block bootstrap of the measured frames, as in replaybench compare; none under 20 '
+        'measured frames).</p>'
     )
 
 
-def _accuracy_details(rows: Sequence[Mapping[str, Any]]) -> str:
+def _with_ci(
+    value: float | None, low: float | None, high: float | None, fmt: Callable[[Any], str]
+) -> str:
+    """A number's cell, its 95 % interval under it when there is one."""
+    cell = f'<td class="n">{_e(fmt(value))}'
+    if _num(low) is not None and _num(high) is not None:
+        cell += f'<br><span class="muted ci">{_e(fmt(low))}–{_e(fmt(high))}</span>'
+    return cell + '</td>'
+
+
+def _accuracy_details(rows: Sequence[SummaryRow]) -> str:
     parts = []
     for row in rows:
-        acc = _dict(row.get('accuracy'))
-        ap50, ap50_95 = _dict(acc.get('ap50')), _dict(acc.get('ap50_95'))
-        if not ap50 and not ap50_95:
+        acc = row.accuracy
+        if acc is None or (not acc.ap50 and not acc.ap50_95):
             continue
+        ap50, ap50_95 = acc.ap50, acc.ap50_95
         labels = sorted(set(ap50) | set(ap50_95))
         body = ''.join(
             f'<tr><td>{_e(label)}</td><td class="n">{_e(_fmt(ap50.get(label), 3))}</td>'
@@ -415,10 +446,12 @@ def _accuracy_details(rows: Sequence[Mapping[str, Any]]) -> str:
             for label in labels
         )
         counts = ', '.join(
-            f'{k} {acc[k]}' for k in ('frames', 'n_gt', 'n_det') if _int(acc.get(k)) is not None
+            f'{name} {value}'
+            for name, value in (('frames', acc.frames), ('n_gt', acc.n_gt), ('n_det', acc.n_det))
+            if value is not None
         )
         parts.append(
-            f'<h3>{_e(row.get("backend", "?"))} · <code>{_e(row.get("topic", "?"))}</code></h3>'
+            f'<h3>{_e(row.backend or "?")} · <code>{_e(row.topic or "?")}</code></h3>'
             + (f'<p class="muted">{_e(counts)}</p>' if counts else '')
             + '<table><thead><tr><th>class</th><th class="n">AP@0.5</th>'
             f'<th class="n">AP@0.5:0.95</th></tr></thead><tbody>{body}</tbody></table>',
@@ -562,36 +595,36 @@ def _detections_timeline(
     )
 
 
-def _group_label(row: Mapping[str, Any], many_topics: bool) -> str:
-    backend = str(row.get('backend', '?'))
-    return f'{backend} · {row.get("topic", "?")}' if many_topics else backend
+def _group_label(row: SummaryRow, many_topics: bool) -> str:
+    backend = row.backend or '?'
+    return f'{backend} · {row.topic or "?"}' if many_topics else backend
 
 
 def _throughput_chart(
-    rows: Sequence[Mapping[str, Any]],
+    rows: Sequence[SummaryRow],
     colours: Mapping[str, str],
     many_topics: bool,
 ) -> str:
     return bar_chart(
         [_group_label(r, many_topics) for r in rows],
-        [_num(r.get('throughput_fps')) for r in rows],
-        [colours.get(str(r.get('backend')), '#777') for r in rows],
+        [_num(r.throughput_fps) for r in rows],
+        [colours.get(r.backend, '#777') for r in rows],
         title='Throughput (measured frames per second)',
         x_label='frames per second',
     )
 
 
-def _stage_chart(rows: Sequence[Mapping[str, Any]], many_topics: bool) -> str:
+def _stage_chart(rows: Sequence[SummaryRow], many_topics: bool) -> str:
     segments = []
     for key, name, fill in _STAGES:
-        values = [_num(r.get(key)) for r in rows]
+        values = [_num(getattr(r, key)) for r in rows]
         if not any(v for v in values):
             continue
         segments.append(Segment(name, fill, values))
     rest: list[float | None] = []
     for r in rows:
-        mean = _num(r.get('latency_ms_mean'))
-        parts = [_num(r.get(key)) for key, _, _ in _STAGES]
+        mean = _num(r.latency_ms_mean)
+        parts = [_num(getattr(r, key)) for key, _, _ in _STAGES]
         known = sum(p for p in parts if p is not None)
         rest.append(mean - known if mean is not None and mean - known > 1e-4 else None)
     if any(v is not None for v in rest):
@@ -606,7 +639,7 @@ def _stage_chart(rows: Sequence[Mapping[str, Any]], many_topics: bool) -> str:
 
 def _plots(
     frames: Sequence[FrameRecord],
-    rows: Sequence[Mapping[str, Any]],
+    rows: Sequence[SummaryRow],
     backends: Sequence[str],
     topics: Sequence[str],
     colours: Mapping[str, str],
@@ -645,11 +678,9 @@ def _plots(
 # --------------------------------------------------------------------------- agreement
 
 
-def _frame_name(key: Any, single_input: bool) -> str:
-    if isinstance(key, list | tuple) and len(key) == 2:
-        index, seq = key
-        return f'#{seq}' if single_input else f'{index}:#{seq}'
-    return str(key)
+def _frame_name(key: tuple[int, int], single_input: bool) -> str:
+    index, seq = key
+    return f'#{seq}' if single_input else f'{index}:#{seq}'
 
 
 def _fmt_frac(value: Any) -> str:
@@ -661,16 +692,15 @@ def _swatch(colours: Mapping[str, str], backend: str) -> str:
     return f'<span class="swatch" style="background:{_e(colours.get(backend, "#777"))}"></span>'
 
 
-def _agreement(run: Mapping[str, Any], colours: Mapping[str, str]) -> str:
+def _agreement(run: RunResult, colours: Mapping[str, str]) -> str:
     """Agreement between backends per topic, from run.json ``agreement``."""
-    entries = [_dict(e) for e in _list(run.get('agreement')) if isinstance(e, dict)]
-    if not entries:
+    if not run.agreement:
         return ''
-    single_input = len(_list(run.get('inputs'))) <= 1
-    threshold = _num(_dict(run.get('settings')).get('agreement_iou')) or 0.5
-    by_topic: dict[str, list[dict[str, Any]]] = {}
-    for entry in entries:
-        by_topic.setdefault(str(entry.get('topic', '?')), []).append(entry)
+    single_input = len(run.inputs) <= 1
+    threshold = run.settings.agreement_iou
+    by_topic: dict[str, list[AgreementRow]] = {}
+    for entry in run.agreement:
+        by_topic.setdefault(entry.topic or '?', []).append(entry)
     head = (
         '<tr><th>backends (a / b)</th><th class="n">frames</th><th class="n">detections a</th>'
         '<th class="n">detections b</th><th class="n">matched</th><th class="n">of a</th>'
@@ -687,19 +717,19 @@ def _agreement(run: Mapping[str, Any], colours: Mapping[str, str]) -> str:
     for topic, rows in by_topic.items():
         body = []
         for entry in rows:
-            a, b = str(entry.get('backend_a', '?')), str(entry.get('backend_b', '?'))
-            frames = [_frame_name(k, single_input) for k in _list(entry.get('disagreeing_frames'))]
+            a, b = entry.backend_a or '?', entry.backend_b or '?'
+            frames = [_frame_name(k, single_input) for k in entry.disagreeing_frames]
             shown = ', '.join(frames[:6]) + (f' … (+{len(frames) - 6})' if len(frames) > 6 else '')
             body.append(
                 f'<tr><td>{_swatch(colours, a)}{_e(a)} / {_swatch(colours, b)}{_e(b)}</td>'
-                f'<td class="n">{_e(_fmt_value(entry.get("frames")))}</td>'
-                f'<td class="n">{_e(_fmt_value(entry.get("n_a")))}</td>'
-                f'<td class="n">{_e(_fmt_value(entry.get("n_b")))}</td>'
-                f'<td class="n">{_e(_fmt_value(entry.get("matched")))}</td>'
-                f'<td class="n">{_e(_fmt_frac(entry.get("matched_frac_a")))}</td>'
-                f'<td class="n">{_e(_fmt_frac(entry.get("matched_frac_b")))}</td>'
-                f'<td class="n">{_e(_fmt(entry.get("mean_iou"), 3))}</td>'
-                f'<td class="n">{_e(_fmt(entry.get("mean_abs_score_diff"), 3))}</td>'
+                f'<td class="n">{_e(_fmt_value(entry.frames))}</td>'
+                f'<td class="n">{_e(_fmt_value(entry.n_a))}</td>'
+                f'<td class="n">{_e(_fmt_value(entry.n_b))}</td>'
+                f'<td class="n">{_e(_fmt_value(entry.matched))}</td>'
+                f'<td class="n">{_e(_fmt_frac(entry.matched_frac_a))}</td>'
+                f'<td class="n">{_e(_fmt_frac(entry.matched_frac_b))}</td>'
+                f'<td class="n">{_e(_fmt(entry.mean_iou, 3))}</td>'
+                f'<td class="n">{_e(_fmt(entry.mean_abs_score_diff, 3))}</td>'
                 f'<td title="{_e(", ".join(frames))}">{_e(shown) if frames else "none"}</td></tr>',
             )
         parts.append(
@@ -721,32 +751,46 @@ _RESOURCE_CHARTS: tuple[tuple[str, str, str], ...] = (
 )
 
 
-def _resource_entries(run: Mapping[str, Any]) -> list[tuple[str, dict[str, Any], list[Any]]]:
+#: The figures of a resource summary that a sampler measured (the rest describe the sampler).
+_MEASURED: tuple[str, ...] = (
+    'cpu_percent_mean',
+    'private_mb_peak',
+    'mapped_mb_peak',
+    'rss_mb_peak',
+    'gpu_util_mean',
+    'gpu_mem_mb_peak',
+    'gpu_power_w_mean',
+)
+
+
+def _resource_entries(
+    run: RunResult,
+) -> list[tuple[str, ResourceSummary, tuple[ResourcePoint, ...]]]:
     entries = []
-    for entry in _list(run.get('backends')):
-        entry = _dict(entry)
-        resources = _dict(entry.get('resources'))
-        summary = _dict(resources.get('summary'))
-        series = [p for p in _list(resources.get('series')) if isinstance(p, dict)]
-        if not summary and not series:
+    for entry in run.backends:
+        resources = entry.resources
+        if resources is None:
             continue
-        label = str(entry.get('label') or entry.get('name') or '?')
-        entries.append((label, summary, series))
+        summary = resources.summary or ResourceSummary()
+        if not resources.series and all(getattr(summary, k) is None for k in _MEASURED):
+            continue  # sampled nothing
+        label = entry.label or entry.name or '?'
+        entries.append((label, summary, resources.series))
     return entries
 
 
-def _resources(run: Mapping[str, Any], colours: Mapping[str, str]) -> str:
+def _resources(run: RunResult, colours: Mapping[str, str]) -> str:
     """Per backend CPU, memory and GPU use, from run.json ``backends[i].resources``."""
     entries = _resource_entries(run)
     if not entries:
         return ''
     gpu = any(
-        _num(s.get(k)) is not None
+        _num(getattr(s, k)) is not None
         for _, s, _ in entries
         for k in ('gpu_util_mean', 'gpu_mem_mb_peak', 'gpu_power_w_mean')
     )
     # private (anonymous) memory first, the mapped input apart; RSS for runs made before
-    private = any(_num(s.get('private_mb_peak')) is not None for _, s, _ in entries)
+    private = any(_num(s.private_mb_peak) is not None for _, s, _ in entries)
     memory = (
         [
             ('private_mb_peak', 'private peak MiB'),
@@ -766,29 +810,29 @@ def _resources(run: Mapping[str, Any], colours: Mapping[str, str]) -> str:
     body = []
     gpu_names: list[str] = []
     for label, s, _ in entries:
-        interval = _num(s.get('interval_s'))
-        cost = _num(s.get('overhead_ms_per_sample'))
-        share = _num(s.get('overhead_cpu_percent'))
+        interval = _num(s.interval_s)
+        cost = _num(s.overhead_ms_per_sample)
+        share = _num(s.overhead_cpu_percent)
         cost_text = '–' if cost is None else f'{cost:.3f} ms/sample'
         if share is not None:
             cost_text += f', {share:.2f} % of a core'
-        samples = _fmt_value(s.get('samples'))
+        samples = _fmt_value(s.samples)
         if interval is not None:
             samples += f' every {interval:g} s'
         cells = [
             f'<td>{_swatch(colours, label)}{_e(label)}</td>',
-            f'<td class="n">{_e(_fmt(s.get("cpu_percent_mean"), 1))}</td>',
-            f'<td class="n">{_e(_fmt(s.get("cpu_percent_max"), 1))}</td>',
-            *(f'<td class="n">{_e(_fmt(s.get(key), 1))}</td>' for key, _ in memory),
+            f'<td class="n">{_e(_fmt(s.cpu_percent_mean, 1))}</td>',
+            f'<td class="n">{_e(_fmt(s.cpu_percent_max, 1))}</td>',
+            *(f'<td class="n">{_e(_fmt(getattr(s, key), 1))}</td>' for key, _ in memory),
         ]
         if gpu:
             cells += [
-                f'<td class="n">{_e(_fmt(s.get("gpu_util_mean"), 1))}</td>',
-                f'<td class="n">{_e(_fmt(s.get("gpu_mem_mb_peak"), 0))}</td>',
-                f'<td class="n">{_e(_fmt(s.get("gpu_power_w_mean"), 1))}</td>',
+                f'<td class="n">{_e(_fmt(s.gpu_util_mean, 1))}</td>',
+                f'<td class="n">{_e(_fmt(s.gpu_mem_mb_peak, 0))}</td>',
+                f'<td class="n">{_e(_fmt(s.gpu_power_w_mean, 1))}</td>',
             ]
-            name = s.get('gpu_name')
-            if isinstance(name, str) and name and name not in gpu_names:
+            name = s.gpu_name
+            if name and name not in gpu_names:
                 gpu_names.append(name)
         cells += [f'<td class="n">{_e(samples)}</td>', f'<td class="n">{_e(cost_text)}</td>']
         body.append(f'<tr>{"".join(cells)}</tr>')
@@ -815,9 +859,11 @@ def _resources(run: Mapping[str, Any], colours: Mapping[str, str]) -> str:
             continue
         series = []
         for label, _, points in entries:
-            xs = [_num(p.get('t_s')) for p in points]
-            ys = [_num(p.get(key)) for p in points]
-            pairs = [(x, y) for x, y in zip(xs, ys, strict=True) if x is not None and y is not None]
+            pairs = [
+                (p.t_s, y)
+                for p in points
+                if _num(p.t_s) is not None and (y := _num(getattr(p, key))) is not None
+            ]
             if pairs:
                 series.append(
                     Series(
@@ -852,29 +898,16 @@ def _resources(run: Mapping[str, Any], colours: Mapping[str, str]) -> str:
 # --------------------------------------------------------------------------- samples
 
 
-def _sample_entries(run: Mapping[str, Any]) -> list[tuple[str, str, str]]:
+def _sample_entries(run: RunResult) -> list[tuple[str, str, str]]:
     """(relative path, topic or '', caption) of each sample listed in run.json."""
     known: dict[str, str] = {}
-    for entry in _list(run.get('inputs')):
-        entry = _dict(entry)
-        index = _int(entry.get('index'))
-        if index is None:
-            continue
-        for topic in _list(entry.get('topics')):
-            name = _dict(topic).get('name')
-            if isinstance(name, str):
-                known[sample_relpath(index, name)] = name
+    for source in run.inputs:
+        for meta in source.topics:
+            known[sample_relpath(source.index, meta.name)] = meta.name
     result = []
-    for item in _list(_dict(run.get('outputs')).get('samples')):
-        if isinstance(item, str):
-            rel, topic, caption = item, known.get(item, ''), ''
-        elif isinstance(item, dict) and isinstance(item.get('path'), str):
-            rel = item['path']
-            topic = str(item.get('topic') or known.get(rel, ''))
-            caption = str(item.get('title') or '')
-        else:
-            continue
-        result.append((rel, topic, caption or topic or PurePosixPath(rel).name))
+    for rel in run.outputs.samples:
+        topic = known.get(rel, '')
+        result.append((rel, topic, topic or PurePosixPath(rel).name))
     return result
 
 
@@ -895,7 +928,7 @@ def _sample_data_uri(run_dir: Path, rel: str) -> str | None:
     return f'data:{_IMAGE_TYPES[pure.suffix.lower()]};base64,{encoded}'
 
 
-def _samples(run: Mapping[str, Any], run_dir: Path) -> str:
+def _samples(run: RunResult, run_dir: Path) -> str:
     entries = _sample_entries(run)
     if not entries:
         return ''
@@ -924,54 +957,46 @@ def _samples(run: Mapping[str, Any], run_dir: Path) -> str:
 # --------------------------------------------------------------------------- details
 
 
-def _details(run: Mapping[str, Any]) -> str:
-    command = [str(c) for c in _list(run.get('command'))]
-    backends = _list(run.get('backends'))
-    env = _dict(run.get('environment'))
+def _details(run: RunResult) -> str:
     parts = ['<h2 id="details">Run details</h2>']
-    if command:
-        parts.append(f'<h3>Command</h3><pre>{_e(shlex.join(command))}</pre>')
+    if run.command:
+        parts.append(f'<h3>Command</h3><pre>{_e(shlex.join(run.command))}</pre>')
     parts.append(
         _dl(
             [
-                ('started', run.get('started_at')),
-                ('finished', run.get('finished_at')),
-                ('schema version', run.get('schema_version')),
+                ('started', run.started_at),
+                ('finished', run.finished_at),
+                ('schema version', run.schema_version),
             ],
         ),
     )
-    for entry in backends:
-        entry = _dict(entry)
-        info = json.dumps(entry.get('info', {}), indent=2, ensure_ascii=False, sort_keys=True)
+    for entry in run.backends:
+        info = json.dumps(to_json(entry.info), indent=2, ensure_ascii=False, sort_keys=True)
         parts.append(
-            f'<details><summary>Backend {_e(entry.get("label") or entry.get("name", "?"))}'
+            f'<details><summary>Backend {_e(entry.label or entry.name or "?")}'
             f'</summary><pre>{_pre(info)}</pre></details>',
         )
-    for entry in _list(run.get('inputs')):
-        entry = _dict(entry)
-        topics = json.dumps(entry.get('topics', []), indent=2, ensure_ascii=False)
+    for source in run.inputs:
+        topics = json.dumps(to_json(source.topics), indent=2, ensure_ascii=False)
         parts.append(
-            f'<details><summary>Input {_e(entry.get("index", "?"))}: '
-            f'<code>{_e(entry.get("path", "?"))}</code></summary>'
-            f'<p>sha256 <code>{_e(entry.get("sha256", "?"))}</code></p>'
+            f'<details><summary>Input {_e(source.index)}: '
+            f'<code>{_e(source.path or "?")}</code></summary>'
+            f'<p>sha256 <code>{_e(source.sha256 or "?")}</code></p>'
             f'<pre>{_pre(topics)}</pre></details>',
         )
-    parts.append(
-        '<details><summary>Environment</summary>'
-        f'<pre>{_pre(json.dumps(env, indent=2, ensure_ascii=False))}</pre></details>',
-    )
+    env = json.dumps(to_json(run.environment), indent=2, ensure_ascii=False)
+    parts.append(f'<details><summary>Environment</summary><pre>{_pre(env)}</pre></details>')
     return ''.join(parts)
 
 
 # --------------------------------------------------------------------------- page
 
 
-def _footer(run: Mapping[str, Any]) -> str:
-    tool = _dict(run.get('tool'))
+def _footer(run: RunResult) -> str:
     return (
-        f'<footer>Generated by {_e(tool.get("name", "replaybench"))} '
-        f'{_e(tool.get("version", ""))} from run.json (schema '
-        f'{_e(run.get("schema_version", "?"))}), frames.csv and samples/. '
+        f'<footer>Generated by {_e(run.tool.name)} '
+        f'{_e(run.tool.version)} from run.json (schema '
+        f'{_e(run.schema_version)}), frames.csv and samples/. '
         'Self-contained: no external resources.</footer>'
     )
 
@@ -986,19 +1011,19 @@ def render_html(data: RunData) -> str:
     rows = _summary_rows(run, frames)
     backends = _backend_order(run, frames)
     for row in rows:
-        backend = str(row.get('backend', '?'))
+        backend = row.backend or '?'
         if backend not in backends:
             backends.append(backend)
     colours = {b: colour(i) for i, b in enumerate(backends)}
     topics = _topic_order(frames, rows)
-    status = str(run.get('status', 'unknown'))
+    status = run.status
     body = [
         _header(run),
-        _banner(run, frames),
+        _banner(run, frames, rows),
         headline_html(run, rows, frames),
         '<div class="cards">',
         _inputs_card(run),
-        _environment_card(run),
+        _environment_card(run.environment),
         _settings_card(run),
         '</div>',
         '<h2 id="summary">Summary</h2>',
@@ -1029,41 +1054,17 @@ def render_report(run_dir: str | Path) -> Path:
 
 # --------------------------------------------------------------------------- peak.html
 
-#: Version of the peak.json layout (written by ``replaybench.replay.peak``).
-PEAK_SCHEMA_VERSION = 1
-
 _OK = '#2e7d32'
 _FAIL = '#c62828'
 
 
-def load_peak(out_dir: str | Path) -> dict[str, Any]:
+def load_peak(out_dir: str | Path) -> PeakResult:
     """Read ``out_dir/peak.json``; SourceError with the reason when it is not a readable one."""
     path = Path(out_dir) / 'peak.json'
-    try:
-        peak = json.loads(path.read_text(encoding='utf-8'))
-    except FileNotFoundError:
+    if not path.exists():
         msg = f'{out_dir}: no peak.json (not a replaybench peak folder, or the sweep did not end)'
-        raise SourceError(msg) from None
-    except (OSError, UnicodeDecodeError) as err:
-        msg = f'{path}: cannot read: {err}'
-        raise SourceError(msg) from None
-    except json.JSONDecodeError as err:
-        msg = f'{path}: invalid JSON at line {err.lineno} column {err.colno}: {err.msg}'
-        raise SourceError(msg) from None
-    version = peak.get('schema_version') if isinstance(peak, dict) else None
-    if not isinstance(peak, dict) or peak.get('kind') != 'peak':
-        msg = f'{path}: not a peak.json (expected an object with "kind": "peak")'
         raise SourceError(msg)
-    if not isinstance(version, int) or isinstance(version, bool) or version < 1:
-        msg = f'{path}: missing or invalid schema_version {version!r}'
-        raise SourceError(msg)
-    if version > PEAK_SCHEMA_VERSION:
-        msg = (
-            f'{path}: schema_version {version} is newer than this replaybench supports '
-            f'({PEAK_SCHEMA_VERSION}); upgrade replaybench to read it'
-        )
-        raise SourceError(msg)
-    return peak
+    return read_peak_result(path)
 
 
 def _fmt_hz(value: Any) -> str:
@@ -1071,19 +1072,18 @@ def _fmt_hz(value: Any) -> str:
     return '–' if number is None else f'{number:g} Hz'
 
 
-def _peak_verdict(peak: Mapping[str, Any]) -> str:
-    settings = _dict(peak.get('settings'))
-    max_drop = _num(settings.get('max_drop'))
-    bound = _num(settings.get('p99_bound_ms'))
+def _peak_verdict(peak: PeakResult) -> str:
+    settings = peak.settings
+    max_drop = _num(settings.max_drop)
+    bound = _num(settings.p99_bound_ms)
     rule = f'at most {100 * (max_drop or 0):g} % of the frames dropped'
     if bound is not None:
         rule += f' and p99 latency at most {bound:g} ms'
-    best = _num(peak.get('peak_hz'))
-    failing = _num(peak.get('first_failing_hz'))
+    best = _num(peak.peak_hz)
+    failing = _num(peak.first_failing_hz)
     if best is None:
-        lowest = _num(settings.get('min_hz'))
         return (
-            f'<p><strong>No tested rate passed</strong>, down to {_e(_fmt_hz(lowest))} '
+            f'<p><strong>No tested rate passed</strong>, down to {_e(_fmt_hz(settings.min_hz))} '
             f'({_e(rule)}).</p>'
         )
     text = (
@@ -1094,28 +1094,27 @@ def _peak_verdict(peak: Mapping[str, Any]) -> str:
         text += f' The lowest failing rate tested was {_e(_fmt_hz(failing))}'
         resolution = failing - best
         text += f' (resolution {resolution:.3g} Hz).' if resolution > 0 else '.'
-    if peak.get('limit_reached'):
+    if peak.limit_reached:
         text += ' Every rate up to the search limit passed: the backend may keep up with more.'
     return text + '</p>'
 
 
-def _peak_trials(peak: Mapping[str, Any]) -> str:
-    trials = [_dict(t) for t in _list(peak.get('trials'))]
-    best = _num(peak.get('peak_hz'))
+def _peak_trials(peak: PeakResult) -> str:
+    best = _num(peak.peak_hz)
     body = []
-    for number, trial in enumerate(trials, 1):
-        ok = bool(trial.get('ok'))
-        rate = _num(trial.get('rate_hz'))
+    for number, trial in enumerate(peak.trial_rows, 1):
+        ok = trial.ok
+        rate = _num(trial.rate_hz)
         marker = ' class="peak"' if best is not None and rate == best else ''
         verdict = f'<span style="color:{_OK if ok else _FAIL}">{"pass" if ok else "fail"}</span>'
         body.append(
             f'<tr{marker}><td class="n">{number}</td>'
             f'<td class="n">{_e(_fmt_hz(rate))}</td>'
-            f'<td class="n">{_e(_fmt_value(trial.get("frames")))}</td>'
-            f'<td class="n">{_e(_fmt_value(trial.get("dropped")))}</td>'
-            f'<td class="n">{_e(_fmt_frac(trial.get("drop_fraction")))}</td>'
-            f'<td class="n">{_e(_fmt_ms(trial.get("p99_ms")))}</td>'
-            f'<td>{verdict}</td><td><code>{_e(trial.get("run_dir", ""))}</code></td></tr>',
+            f'<td class="n">{_e(_fmt_value(trial.frames))}</td>'
+            f'<td class="n">{_e(_fmt_value(trial.dropped))}</td>'
+            f'<td class="n">{_e(_fmt_frac(trial.drop_fraction))}</td>'
+            f'<td class="n">{_e(_fmt_ms(trial.p99_ms))}</td>'
+            f'<td>{verdict}</td><td><code>{_e(trial.run_dir)}</code></td></tr>',
         )
     return (
         '<div class="table-wrap"><table><thead><tr><th class="n">#</th><th class="n">rate</th>'
@@ -1127,26 +1126,23 @@ def _peak_trials(peak: Mapping[str, Any]) -> str:
     )
 
 
-def _peak_charts(peak: Mapping[str, Any]) -> str:
-    trials = sorted(
-        (t for t in (_dict(x) for x in _list(peak.get('trials'))) if _num(t.get('rate_hz'))),
-        key=lambda t: _num(t.get('rate_hz')) or 0.0,
-    )
+def _peak_charts(peak: PeakResult) -> str:
+    trials = sorted((t for t in peak.trial_rows if _num(t.rate_hz)), key=lambda t: t.rate_hz)
     if not trials:
         return ''
-    settings = _dict(peak.get('settings'))
-    best = _num(peak.get('peak_hz'))
+    settings = peak.settings
+    best = _num(peak.peak_hz)
     rules_x = [Rule('x', best, f'peak {best:g} Hz', _OK)] if best is not None else []
     charts = []
-    for key, title, y_label, bound, scale in (
-        ('drop_fraction', 'Dropped frames vs rate', 'dropped (%)', 'max_drop', 100.0),
-        ('p99_ms', 'p99 latency vs rate', 'p99 latency (ms)', 'p99_bound_ms', 1.0),
+    for key, title, y_label, limit, scale in (
+        ('drop_fraction', 'Dropped frames vs rate', 'dropped (%)', settings.max_drop, 100.0),
+        ('p99_ms', 'p99 latency vs rate', 'p99 latency (ms)', settings.p99_bound_ms, 1.0),
     ):
         points: list[tuple[float, float, bool]] = []
         for t in trials:
-            x, y = _num(t.get('rate_hz')), _num(t.get(key))
+            x, y = _num(t.rate_hz), _num(getattr(t, key))
             if x is not None and y is not None:
-                points.append((x, y * scale, bool(t.get('ok'))))
+                points.append((x, y * scale, t.ok))
         if not points:
             continue
         series = [Series('all trials', '#999', [p[0] for p in points], [p[1] for p in points])]
@@ -1157,8 +1153,7 @@ def _peak_charts(peak: Mapping[str, Any]) -> str:
                     Series(name, fill, [p[0] for p in chosen], [p[1] for p in chosen], 'dots'),
                 )
         rules = list(rules_x)
-        limit = _num(settings.get(bound))
-        if limit is not None:
+        if limit is not None and _num(limit) is not None:
             label = f'max {limit * scale:g} %' if key == 'drop_fraction' else f'bound {limit:g} ms'
             rules.append(Rule('y', limit * scale, label, _FAIL))
         charts.append(
@@ -1174,41 +1169,37 @@ def _peak_charts(peak: Mapping[str, Any]) -> str:
     return f'<div class="charts">{"".join(charts)}</div>'
 
 
-def render_peak_html(peak: Mapping[str, Any]) -> str:
+def render_peak_html(peak: PeakResult) -> str:
     """The page of a peak.json (``replaybench peak``)."""
-    status = str(peak.get('status', 'unknown'))
-    tool = _dict(peak.get('tool'))
-    source = _dict(peak.get('input'))
-    start = _dict(peak.get('start'))
+    status = peak.status
+    tool, source, start = peak.tool, peak.input, peak.start
     meta = [
         f'<span class="badge {_e(status)}">{_e(status)}</span>',
-        f'backend {_e(peak.get("backend", "?"))}',
-        f'started {_e(peak.get("started_at", "?"))}',
+        f'backend {_e(peak.backend or "?")}',
+        f'started {_e(peak.started_at or "?")}',
     ]
-    wall = _num(peak.get('wall_s'))
+    wall = _num(peak.wall_s)
     if wall is not None:
         meta.append(f'wall time {wall:.1f} s')
-    meta.append(f'{_e(tool.get("name", "replaybench"))} {_e(tool.get("version", "?"))}')
-    settings = _dict(peak.get('settings'))
+    meta.append(f'{_e(tool.name)} {_e(tool.version or "?")}')
     items: list[tuple[str, Any]] = [
-        ('input', source.get('path')),
-        ('sha256', source.get('sha256')),
-        ('start rate', f'{_fmt_hz(start.get("hz"))} (from the {start.get("from", "?")})'),
-        ('max-rate probe', f'{_fmt(start.get("probe_fps"))} frames/s per topic'),
-        ('recorded rate', _fmt_hz(start.get('recorded_hz'))),
+        ('input', source.path or None),
+        ('sha256', source.sha256),
+        ('start rate', f'{_fmt_hz(start.hz)} (from the {start.source or "?"})'),
+        ('max-rate probe', f'{_fmt(start.probe_fps)} frames/s per topic'),
+        ('recorded rate', _fmt_hz(start.recorded_hz)),
     ]
-    items += [(str(k), v) for k, v in settings.items()]
+    items += list(to_json(peak.settings).items())
     banner = ''
     if status == 'interrupted':
         banner = (
             '<div class="banner" role="alert"><strong>Warnings</strong><ul><li>The sweep was '
             'interrupted: the result covers only the trials that finished.</li></ul></div>'
         )
-    command = [str(c) for c in _list(peak.get('command'))]
     footer = (
-        f'<footer>Generated by {_e(tool.get("name", "replaybench"))} '
-        f'{_e(tool.get("version", ""))} from peak.json (schema '
-        f'{_e(peak.get("schema_version", "?"))}). Self-contained: no external resources.'
+        f'<footer>Generated by {_e(tool.name)} '
+        f'{_e(tool.version)} from peak.json (schema '
+        f'{_e(peak.schema_version)}). Self-contained: no external resources.'
         '</footer>'
     )
     body = [
@@ -1217,18 +1208,18 @@ def render_peak_html(peak: Mapping[str, Any]) -> str:
         _peak_verdict(peak),
         '<div class="cards">',
         f'<div class="card"><h3>Sweep</h3>{_dl(items)}</div>',
-        _environment_card(peak),
+        _environment_card(peak.environment),
         '</div>',
         '<h2 id="trials">Trials</h2>',
         _peak_trials(peak),
         _peak_charts(peak),
-        f'<h3>Command</h3><pre>{_e(shlex.join(command))}</pre>' if command else '',
+        f'<h3>Command</h3><pre>{_e(shlex.join(peak.command))}</pre>' if peak.command else '',
         footer,
     ]
     return (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
         '<meta name="viewport" content="width=device-width, initial-scale=1">'
-        f'<title>replaybench peak rate · {_e(peak.get("backend", "?"))}</title>'
+        f'<title>replaybench peak rate · {_e(peak.backend or "?")}</title>'
         f'<style>{_CSS}</style></head><body><main>{"".join(body)}</main></body></html>\n'
     )
 

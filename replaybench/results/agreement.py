@@ -23,7 +23,18 @@ if TYPE_CHECKING:
 
     from replaybench.types import Detection
 
-__all__ = ['MAX_DISAGREEING_FRAMES', 'Agreement', 'FrameKey', 'agreement', 'agreement_table']
+__all__ = [
+    'AGREEMENT_IOU',
+    'MAX_DISAGREEING_FRAMES',
+    'Agreement',
+    'FrameKey',
+    'agreement',
+    'agreement_table',
+]
+
+#: IoU at which two backends' detections of the same label count as one (run.json records it
+#: as ``settings.agreement_iou``).
+AGREEMENT_IOU = 0.5
 
 #: How many of the worst disagreeing frames an ``Agreement`` lists.
 MAX_DISAGREEING_FRAMES = 20
@@ -161,7 +172,7 @@ def agreement(
     backend_a: str,
     backend_b: str,
     topic: str,
-    iou: float = 0.5,
+    iou: float = AGREEMENT_IOU,
 ) -> Agreement:
     """Match ``a``'s and ``b``'s detections on the frames both have (see the module text)."""
     keys = sorted(k for k in a if k in b)
@@ -205,7 +216,7 @@ def agreement(
 def agreement_table(
     detections: Mapping[tuple[str, str], Mapping[FrameKey, Sequence[Detection]]],
     *,
-    iou: float = 0.5,
+    iou: float = AGREEMENT_IOU,
 ) -> list[Agreement]:
     """``agreement`` for every pair of backends on every topic.
 

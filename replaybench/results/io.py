@@ -43,6 +43,7 @@ from replaybench.results.runfile import json_text, write_text_atomic
 __all__ = [
     'CHECK_SCHEMAS_ENV',
     'check_version',
+    'from_document',
     'from_json',
     'load_schema',
     'read_comparison_result',
@@ -87,6 +88,8 @@ def to_json(value: Any) -> Any:
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         out: dict[str, Any] = {}
         for f in dataclasses.fields(value):
+            if f.metadata.get('json_skip'):
+                continue
             item = getattr(value, f.name)
             if item is None and f.metadata.get('omit_none'):
                 continue
@@ -139,7 +142,7 @@ def _hints(cls: type[Any]) -> dict[str, Any]:
     return typing.get_type_hints(cls)
 
 
-def _decode(tp: Any, value: Any, where: str) -> Any:
+def _decode(tp: Any, value: Any, where: str, strict: bool = False) -> Any:
     if tp is Any:
         return value
     origin = typing.get_origin(tp)
@@ -148,11 +151,11 @@ def _decode(tp: Any, value: Any, where: str) -> Any:
         if value is None:
             return None
         (inner,) = options
-        return _decode(inner, value, where)
+        return _decode(inner, value, where, strict)
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
             raise _fail(where, 'an object', value)
-        return _build(typing.cast('type[Any]', tp), value, where)
+        return _build(typing.cast('type[Any]', tp), value, where, strict)
     if tp is bool:
         if not isinstance(value, bool):
             raise _fail(where, 'true or false', value)
@@ -174,41 +177,59 @@ def _decode(tp: Any, value: Any, where: str) -> Any:
         if not isinstance(value, list):
             raise _fail(where, 'an array', value)
         if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_decode(args[0], v, f'{where}[{i}]') for i, v in enumerate(value))
+            return tuple(_decode(args[0], v, f'{where}[{i}]', strict) for i, v in enumerate(value))
         if len(value) != len(args):
             raise _fail(where, f'an array of {len(args)}', value)
         return tuple(
-            _decode(a, v, f'{where}[{i}]') for i, (a, v) in enumerate(zip(args, value, strict=True))
+            _decode(a, v, f'{where}[{i}]', strict)
+            for i, (a, v) in enumerate(zip(args, value, strict=True))
         )
     if origin is Mapping:
         _, inner = typing.get_args(tp)
         if not isinstance(value, dict):
             raise _fail(where, 'an object', value)
-        return {str(k): _decode(inner, v, _at(where, k)) for k, v in value.items()}
+        return {str(k): _decode(inner, v, _at(where, k), strict) for k, v in value.items()}
     msg = f'{where.rstrip(":")}: no reader for {tp!r}'
     raise TypeError(msg)
 
 
-def _build(cls: type[_T], data: Mapping[str, Any], where: str) -> _T:
+def _build(cls: type[_T], data: Mapping[str, Any], where: str, strict: bool) -> _T:
     hints = _hints(typing.cast('Any', cls))
+    fields = [
+        f for f in dataclasses.fields(typing.cast('Any', cls)) if not f.metadata.get('json_skip')
+    ]
+    if strict:
+        unknown = set(data) - {_key(f) for f in fields}
+        if unknown:
+            msg = f'{where.rstrip(":")}: no field for {", ".join(sorted(map(str, unknown)))}'
+            raise TypeError(msg)
     values: dict[str, Any] = {}
-    for f in dataclasses.fields(typing.cast('Any', cls)):
+    for f in fields:
         key = _key(f)
         if key in data:
-            values[f.name] = _decode(hints[f.name], data[key], _at(where, key))
+            values[f.name] = _decode(hints[f.name], data[key], _at(where, key), strict)
     return cls(**values)
 
 
-def from_json(cls: type[_T], data: Any, *, where: str = '') -> _T:
+def from_json(cls: type[_T], data: Any, *, where: str = '', strict: bool = False) -> _T:
     """The ``cls`` instance (a model dataclass) that the JSON value ``data`` describes.
 
     Missing keys take the field's default and unknown keys are ignored; a value of the wrong
     type raises ``SourceError`` naming where it is (``where`` is the prefix, e.g. the file).
+    With ``strict`` (for a document built in this process, about to be written) a key the
+    model has no field for raises ``TypeError`` instead of being left out.
     """
     where = f'{where or cls.__name__}:'
     if not isinstance(data, dict):
         raise _fail(where, 'an object', data)
-    return _build(cls, data, where)
+    return _build(cls, data, where, strict)
+
+
+def from_document(cls: type[_T], document: Any) -> _T:
+    """The ``cls`` instance of a document built in this process (dicts, lists or tuples, NaN,
+    numpy scalars): made plain JSON first (``to_json``), then read strictly (a key the model
+    has no field for raises ``TypeError``, so nothing a writer puts in is left out unseen)."""
+    return from_json(cls, to_json(document), where=cls.__name__, strict=True)
 
 
 def run_result_from_json(data: Any, *, where: str = 'run.json') -> RunResult:

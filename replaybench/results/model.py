@@ -21,7 +21,12 @@ A field's JSON key is its name, except where ``metadata['json']`` says otherwise
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from replaybench.results.records import FrameRecord
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = [
     'COMPARISON_SCHEMA_VERSION',
@@ -74,6 +79,8 @@ PEAK_SCHEMA_VERSION = 1
 COMPARISON_SCHEMA_VERSION = 2
 
 _OMIT_NONE: Mapping[str, Any] = {'omit_none': True}
+#: A field that is not in the file (``metadata['json_skip']``): data the Python API carries.
+_NOT_IN_FILE: Mapping[str, Any] = {'json_skip': True}
 
 
 def _empty() -> dict[str, Any]:
@@ -215,7 +222,9 @@ class RunSettings:
     annotations: bool = False
     copy_images: bool = False
     detections_format: str = 'mcap'
-    agreement_iou: float | None = None
+    #: IoU at which backends' detections are paired (``results.agreement.AGREEMENT_IOU``; every
+    #: run used it before run.json recorded it)
+    agreement_iou: float = 0.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -254,6 +263,15 @@ class ResourceSummary:
     gpu_uuid: str | None = None
     gpu_pci_bus_id: str | None = None
     gpu_match: str | None = None
+    #: highest current CPU frequency of the process's CPUs, over samples with >= 50 % of a core
+    cpu_mhz_min: float | None = None
+    cpu_mhz_max: float | None = None
+    #: 'cpufreq', or None where no CPU frequency could be read
+    cpu_freq_source: str | None = None
+    #: thermal throttle events the kernel counted during the replay (None: no counters)
+    cpu_throttle_events: int | None = None
+    #: NVML clock throttle reasons seen (None: NVML gave none)
+    gpu_throttle_reasons: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -268,6 +286,9 @@ class ResourcePoint:
     gpu_util: float | None = None
     gpu_mem_mb: float | None = None
     gpu_power_w: float | None = None
+    cpu_mhz: float | None = None
+    #: NVML clock event reason bits seen in the span of the point
+    gpu_throttle: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -368,6 +389,15 @@ class SummaryRow:
     gpu_util_mean: float | None = None
     gpu_mem_mb_peak: float | None = None
     gpu_power_w_mean: float | None = None
+    #: 95 % block-bootstrap intervals (None below 20 measured frames)
+    latency_ms_p50_ci_low: float | None = None
+    latency_ms_p50_ci_high: float | None = None
+    latency_ms_p99_ci_low: float | None = None
+    latency_ms_p99_ci_high: float | None = None
+    throughput_fps_ci_low: float | None = None
+    throughput_fps_ci_high: float | None = None
+    #: stability warnings (too few frames, CV, drift, throttling)
+    warnings: tuple[str, ...] = ()
     accuracy: Accuracy | None = None
 
 
@@ -434,6 +464,29 @@ class RunResult:
     outputs: RunOutputs = RunOutputs()
     #: ``replaybench sweep`` adds the cell's section to the run.json of each of its cells
     sweep: Mapping[str, Any] | None = field(default=None, metadata=_OMIT_NONE)
+    #: frames.csv's rows as the file holds them (not in run.json): set by ``replaybench.run``
+    #: and ``replaybench.load_run``, None on a RunResult read from run.json alone
+    frame_records: tuple[FrameRecord, ...] | None = field(
+        default=None, compare=False, repr=False, metadata=_NOT_IN_FILE
+    )
+
+    @property
+    def frames(self) -> 'pd.DataFrame':
+        """frames.csv as a pandas DataFrame (``replaybench.results.tables``); ValueError when
+        the result carries no frames (read from run.json alone)."""
+        from replaybench.results.tables import frames_table
+
+        if self.frame_records is None:
+            msg = 'this RunResult carries no frames: read it with replaybench.load_run(folder)'
+            raise ValueError(msg)
+        return frames_table(self.frame_records)
+
+    @property
+    def summary(self) -> 'pd.DataFrame':
+        """summary.csv as a pandas DataFrame, made from ``summary_rows``."""
+        from replaybench.results.tables import summary_table
+
+        return summary_table(self.summary_rows)
 
     def backend(self, label: str) -> BackendRun | None:
         """The backend with this label (or name), None when the run has none."""
@@ -512,6 +565,13 @@ class PeakResult:
     warnings: tuple[str, ...] = ()
     trial_rows: tuple[PeakTrial, ...] = field(default=(), metadata={'json': 'trials'})
     environment: Environment = Environment()
+
+    @property
+    def trials(self) -> 'pd.DataFrame':
+        """The trials as a pandas DataFrame (``rate_hz``, ``ok``, ...; run order)."""
+        from replaybench.results.tables import trials_table
+
+        return trials_table(self.trial_rows)
 
 
 # --------------------------------------------------------------------------- comparison.json
@@ -666,6 +726,9 @@ class Comparison:
     runs: tuple[ComparisonRun, ...] = ()
     rows: tuple[ComparisonRow, ...] = ()
     gate: ComparisonGate | None = None
+    #: comparison.csv's rows as a pandas DataFrame (not in comparison.json): set by
+    #: ``replaybench.compare``, None on a Comparison read from comparison.json
+    table: Any = field(default=None, compare=False, repr=False, metadata=_NOT_IN_FILE)
 
     @property
     def verdict(self) -> str | None:

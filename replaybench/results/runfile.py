@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 from replaybench._version import __version__
 from replaybench.errors import SourceError
+from replaybench.results.model import RUN_SCHEMA_VERSION
 from replaybench.results.records import FrameRecord, csv_writer, read_frames_csv
 from replaybench.results.runfolder import with_filename
 from replaybench.results.stats import SUMMARY_CSV_COLUMNS, summary_row
@@ -25,6 +26,7 @@ from replaybench.textsafe import csv_text
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
+    from replaybench.results.model import RunResult
     from replaybench.results.stats import Summary
 
 __all__ = [
@@ -39,8 +41,8 @@ __all__ = [
     'write_text_atomic',
 ]
 
-#: Version of the run.json layout; readers refuse files with a newer one.
-SCHEMA_VERSION = 1
+#: Version of the run.json layout (``RUN_SCHEMA_VERSION``); readers refuse files with a newer one.
+SCHEMA_VERSION = RUN_SCHEMA_VERSION
 
 _DISTRIBUTIONS: dict[str, tuple[str, ...]] = {
     'numpy': ('numpy',),
@@ -56,9 +58,9 @@ _DISTRIBUTIONS: dict[str, tuple[str, ...]] = {
 
 
 class RunData(NamedTuple):
-    """A run folder as read back: run.json, frames.csv rows and the folder."""
+    """A run folder as read back: run.json (typed), frames.csv rows and the folder."""
 
-    run: dict[str, Any]
+    run: RunResult
     frames: list[FrameRecord]
     dir: Path
 
@@ -147,6 +149,7 @@ def environment() -> dict[str, Any]:
     except OSError:
         load = None
     return {
+        'hostname': platform.node() or None,
         'cpu': {
             'model': _cpu_model(),
             'logical_cores': os.cpu_count(),
@@ -263,40 +266,19 @@ def write_summary_csv(path: str | Path, summaries: Iterable[Summary]) -> None:
 
 def load_run(run_dir: str | Path) -> RunData:
     """Read a run folder; SourceError with the reason when it is not a readable run."""
+    from replaybench.results.io import read_run_result
+
     run_dir = Path(run_dir)
     run_json = run_dir / 'run.json'
     if not run_dir.is_dir():
         msg = f'{run_dir}: not a directory (expected a replaybench run folder)'
         raise SourceError(msg) from None
-    try:
-        text = run_json.read_text(encoding='utf-8')
-    except FileNotFoundError:
+    if not run_json.exists():
         msg = f'{run_dir}: no run.json (not a replaybench run folder, or the run did not finish)'
         raise SourceError(msg) from None
-    except (OSError, UnicodeDecodeError) as err:
-        msg = f'{run_json}: cannot read: {err}'
-        raise SourceError(msg) from None
-    try:
-        run = json.loads(text)
-    except json.JSONDecodeError as err:
-        msg = f'{run_json}: invalid JSON at line {err.lineno} column {err.colno}: {err.msg}'
-        raise SourceError(msg) from None
-    if not isinstance(run, dict):
-        msg = f'{run_json}: expected a JSON object, found {type(run).__name__}'
-        raise SourceError(msg) from None
-    version = run.get('schema_version')
-    if not isinstance(version, int) or isinstance(version, bool) or version < 1:
-        msg = f'{run_json}: missing or invalid schema_version {version!r}'
-        raise SourceError(msg) from None
-    if version > SCHEMA_VERSION:
-        msg = (
-            f'{run_json}: schema_version {version} is newer than this replaybench supports '
-            f'({SCHEMA_VERSION}); upgrade replaybench to read it'
-        )
-        raise SourceError(msg) from None
-    outputs = run.get('outputs')
-    name = outputs.get('frames_csv') if isinstance(outputs, dict) else None
-    frames_csv = run_dir / (name if isinstance(name, str) and name else 'frames.csv')
+    run = read_run_result(run_json)
+    name = run.outputs.frames_csv
+    frames_csv = run_dir / (name or 'frames.csv')
     if not frames_csv.resolve().is_relative_to(run_dir.resolve()):
         msg = f'{run_json}: outputs.frames_csv {name!r} points outside the run folder'
         raise SourceError(msg) from None

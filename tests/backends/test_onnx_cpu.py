@@ -265,9 +265,9 @@ def test_a_replay_through_onnx_cpu_writes_its_detections(tmp_path):
     assert len(written) == 3
     for dets in written:
         assert [(d.label, _box(d)) for d in dets] == [('ball', (16.0, 16.0, 48.0, 32.0))]
-    (backend,) = outcome.run['backends']
-    assert backend['name'] == 'onnx-cpu'
-    assert backend['info']['providers'] == ['CPUExecutionProvider']
+    (backend,) = outcome.run.backends
+    assert backend.name == 'onnx-cpu'
+    assert backend.info['providers'] == ['CPUExecutionProvider']
 
 
 # --- the real YOLOX-Nano ---------------------------------------------------------------------
@@ -324,7 +324,7 @@ def test_yolox_nano_finds_the_astronaut_through_the_replay(tmp_path, real):
     assert len(people) == 1
     assert people[0].score >= 0.9
     assert _iou(_box(people[0]), ASTRONAUT_BOX) >= 0.9
-    info = outcome.run['backends'][0]['info']
+    info = outcome.run.backends[0].info
     assert info['model_sha256'] == hashlib.sha256(YOLOX.read_bytes()).hexdigest()
 
 

@@ -51,18 +51,20 @@ def test_recorded_detections_are_scored_like_a_backend_without_latency(tmp_path)
             inputs=[bag], backends=['recorded', 'null'], out_dir=tmp_path / 'run', report=False
         )
     )
-    summary = {s['backend']: s for s in outcome.run['summary']}
-    recorded = summary['recorded']['accuracy']
-    assert recorded['precision50'] == pytest.approx(1.0)
-    n_gt = recorded['n_gt']
-    assert recorded['n_det'] == n_gt - 6  # one box per frame was not recorded
-    assert recorded['recall50'] == pytest.approx((n_gt - 6) / n_gt)
-    assert summary['recorded']['latency_ms_p50'] is None
+    summary = {s.backend: s for s in outcome.run.summary_rows}
+    recorded = summary['recorded'].accuracy
+    assert recorded is not None
+    assert recorded.precision50 == pytest.approx(1.0)
+    n_gt = recorded.n_gt
+    assert n_gt is not None
+    assert recorded.n_det == n_gt - 6  # one box per frame was not recorded
+    assert recorded.recall50 == pytest.approx((n_gt - 6) / n_gt)
+    assert summary['recorded'].latency_ms_p50 is None
     with (outcome.run_dir / 'frames.csv').open(newline='') as f:
         rows = [r for r in csv.DictReader(f) if r['backend'] == 'recorded']
     assert len(rows) == 6
     assert all(r['latency_ms'] == '' and r['infer_ms'] == '' for r in rows)
-    info = next(b for b in outcome.run['backends'] if b['name'] == 'recorded')['info']
+    info = next(b for b in outcome.run.backends if b.name == 'recorded').info
     assert info['topic'] == '/detector/detections'
     assert info['frames_matched'] == 6
 

@@ -77,12 +77,12 @@ def test_point_estimates_are_those_of_summary_csv(tmp_path: Path) -> None:
     series = latencies(300, 7.0, seed=4)
     comparison = compare_runs(_pair(tmp_path, series, series * 2), n_boot=100)
     run = comparison.runs[1].data.run
-    summary = run['summary'][0]
+    summary = run.summary_rows[0]
     metrics = comparison.rows[1].metrics
     # frames.csv keeps 4 decimals of each latency; run.json was summarised before rounding
-    assert metrics['median_ms'].value == pytest.approx(summary['latency_ms_p50'], abs=1e-3)
-    assert metrics['p99_ms'].value == pytest.approx(summary['latency_ms_p99'], abs=1e-3)
-    assert metrics['fps'].value == pytest.approx(summary['throughput_fps'], rel=1e-4)
+    assert metrics['median_ms'].value == pytest.approx(summary.latency_ms_p50, abs=1e-3)
+    assert metrics['p99_ms'].value == pytest.approx(summary.latency_ms_p99, abs=1e-3)
+    assert metrics['fps'].value == pytest.approx(summary.throughput_fps, rel=1e-4)
     assert metrics['median_ms'].baseline == pytest.approx(np.median(series), abs=1e-4)  # 4 decimals
 
 

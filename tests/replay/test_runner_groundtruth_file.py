@@ -62,8 +62,8 @@ def test_a_coco_file_scores_like_the_ground_truth_topic(
     assert _accuracy(from_file)[LEFT] == _accuracy(from_topic)[LEFT]
     assert _accuracy(from_file)[LEFT]['frames'] == 10
     assert _accuracy(from_file)['/cam_right/image_raw/compressed'] is None
-    settings = from_file.run['settings']
-    assert (settings['ground_truth_file'], settings['ground_truth_match']) == (str(gt), match)
+    settings = from_file.run.settings
+    assert (settings.ground_truth_file, settings.ground_truth_match) == (str(gt), match)
 
 
 def test_a_file_that_does_not_name_its_topic_needs_one_with_two_cameras(tmp_path: Path) -> None:

@@ -95,8 +95,8 @@ def test_the_headline_names_the_fastest_detector_and_the_most_accurate_one_per_t
 def test_the_intervals_are_the_ones_compare_gives_for_the_same_run(make_run: MakeRun) -> None:
     run_dir = make_run(backends=('hsv', 'onnx-cpu'), frames=150)
     data = load_run(run_dir)
-    [head] = topic_headlines(data.run, data.run['summary'], data.frames)
-    fps = {r['backend']: r['throughput_fps'] for r in data.run['summary']}
+    [head] = topic_headlines(data.run, data.run.summary_rows, data.frames)
+    fps = {r.backend: r.throughput_fps for r in data.run.summary_rows}
     assert head.fastest == max(fps, key=fps.__getitem__)
     rows = compare_runs([run_dir]).rows
     mine = next(r for r in rows if r.backend == head.fastest)
@@ -116,7 +116,7 @@ def test_the_intervals_are_the_ones_compare_gives_for_the_same_run(make_run: Mak
 def test_a_short_run_shows_no_interval_rather_than_a_made_up_one(make_run: MakeRun) -> None:
     run_dir = make_run(frames=15)  # 12 measured frames after 3 of warm-up: under 20
     data = load_run(run_dir)
-    [head] = topic_headlines(data.run, data.run['summary'], data.frames)
+    [head] = topic_headlines(data.run, data.run.summary_rows, data.frames)
     assert head.fps is not None
     assert (head.fps_ci, head.p50_ci, head.p99_ci) == (None, None, None)
     html = render_report(run_dir).read_text(encoding='utf-8')
@@ -130,14 +130,12 @@ def test_several_topics_say_what_a_topics_fps_is_next_to_the_number(make_run: Ma
     topics = ('/cam/left/image_raw', '/cam/right/image_raw')
     run_dir = make_run(topics=topics, backends=('hsv', 'onnx-cpu'), frames=60)
     data = load_run(run_dir)
-    heads = topic_headlines(data.run, data.run['summary'], data.frames)
+    heads = topic_headlines(data.run, data.run.summary_rows, data.frames)
     html = render_report(run_dir).read_text(encoding='utf-8')
     rows = _headline_rows(html)
     assert [r[0] for r in rows] == list(topics)
     for head, row in zip(heads, rows, strict=True):
-        total = sum(
-            r['throughput_fps'] for r in data.run['summary'] if r['backend'] == head.fastest
-        )
+        total = sum(r.throughput_fps for r in data.run.summary_rows if r.backend == head.fastest)
         assert head.fps_all == pytest.approx(total)
         assert row[2].endswith(f'of {total:.1f} in all')
     assert 'The topics are replayed together, interleaved, so they share that window' in html

@@ -32,9 +32,9 @@ def test_report_shows_the_summary_numbers_and_the_charts(make_run: MakeRun) -> N
     assert path == run_dir / 'report.html'
     text = path.read_text(encoding='utf-8')
     run = load_run(run_dir).run
-    for row in run['summary']:
-        assert f'<td class="n">{row["latency_ms_p50"]:.2f}</td>' in text
-        assert f'<td class="n">{row["throughput_fps"]:.1f}</td>' in text
+    for row in run.summary_rows:
+        assert f'<td class="n">{row.latency_ms_p50:.2f}</td>' in text
+        assert f'<td class="n">{row.throughput_fps:.1f}</td>' in text
     svgs = _svgs(text)
     # per topic: latency over time, CDF, detections; plus throughput and stage bars
     assert len(svgs) == 2 * 3 + 2

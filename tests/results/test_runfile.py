@@ -130,7 +130,7 @@ def test_summary_csv_has_one_row_per_group(tmp_path: Path) -> None:
 def test_load_run_reads_run_json_and_frames(tmp_path: Path) -> None:
     run_dir = _run_folder(tmp_path, outputs={'frames_csv': 'frames.csv'})
     data = load_run(run_dir)
-    assert data.run['status'] == 'complete'
+    assert data.run.status == 'complete'
     assert [r.latency_ms for r in data.frames] == [10.0, 11.0, 12.0, 13.0, 14.0]
     assert [r.warmup for r in data.frames] == [True, False, False, False, False]
     assert data.dir == run_dir

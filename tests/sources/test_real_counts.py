@@ -103,7 +103,7 @@ def test_a_null_run_replays_every_frame_the_official_reader_counts(
             copy_images=True,
         )
     )
-    assert {s['topic']: s['frames'] for s in outcome.run['summary']} == official
+    assert {s.topic: s.frames for s in outcome.run.summary_rows} == official
     with (outcome.run_dir / 'detections.mcap').open('rb') as stream:
         summary = make_reader(stream).get_summary()
     assert summary is not None and summary.statistics is not None

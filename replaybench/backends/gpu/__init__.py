@@ -8,21 +8,24 @@ See docs/gpu.md.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from replaybench.results.model import RunResult
 
 __all__ = ['engine_lines']
 
 
-def engine_lines(run: dict[str, Any]) -> list[str]:
+def engine_lines(run: RunResult) -> list[str]:
     """One line per backend of a run.json that chose an engine: which engine ran and why, and
     the precision it ran in (``replaybench run`` prints them after the summary)."""
     lines = []
-    for entry in run.get('backends') or []:
-        facts = entry.get('info') or {}
-        if not isinstance(facts, dict) or not facts.get('engine_requested'):
+    for entry in run.backends:
+        facts = entry.info
+        if not facts.get('engine_requested'):
             continue
         why = facts.get('engine_choice') or f'--engine {facts["engine_requested"]}'
-        line = f'{entry.get("label") or entry.get("name")}: engine {facts.get("engine")} ({why})'
+        line = f'{entry.label or entry.name}: engine {facts.get("engine")} ({why})'
         if facts.get('precision'):
             line += f', precision {facts["precision"]}'
         if facts.get('precision_note'):

@@ -19,6 +19,8 @@ from replaybench.backends.gpu.availability import check_placement, ep_node_count
 from replaybench.backends.gpu.cuda import CudaBackend
 from replaybench.backends.gpu.tensorrt import TensorrtBackend
 from replaybench.errors import BackendUnavailableError
+from replaybench.results.io import from_json
+from replaybench.results.model import RunResult
 
 torch = pytest.importorskip('torch')
 GPU_SESSION = ['CUDAExecutionProvider', 'CPUExecutionProvider']
@@ -139,32 +141,35 @@ def test_auto_picks_torch_up_front_when_onnxruntime_lacks_the_provider(
 
 
 def test_the_engine_that_ran_is_printed_from_run_json():
-    run = {
-        'backends': [
-            {'name': 'hsv', 'label': 'hsv', 'info': {'engine': 'opencv'}},
-            {
-                'name': 'cuda',
-                'label': 'cuda',
-                'info': {
-                    'engine': 'ort',
-                    'engine_requested': 'auto',
-                    'engine_choice': 'auto: onnxruntime has CUDAExecutionProvider',
-                    'precision': 'fp32',
+    run = from_json(
+        RunResult,
+        {
+            'backends': [
+                {'name': 'hsv', 'label': 'hsv', 'info': {'engine': 'opencv'}},
+                {
+                    'name': 'cuda',
+                    'label': 'cuda',
+                    'info': {
+                        'engine': 'ort',
+                        'engine_requested': 'auto',
+                        'engine_choice': 'auto: onnxruntime has CUDAExecutionProvider',
+                        'precision': 'fp32',
+                    },
                 },
-            },
-            {
-                'name': 'tensorrt',
-                'label': 'tensorrt',
-                'info': {
-                    'engine': 'ort',
-                    'engine_requested': 'auto',
-                    'engine_choice': 'auto: onnxruntime has TensorrtExecutionProvider',
-                    'precision': 'tf32',
-                    'precision_note': 'TensorRT builds fp32 layers with TF32',
+                {
+                    'name': 'tensorrt',
+                    'label': 'tensorrt',
+                    'info': {
+                        'engine': 'ort',
+                        'engine_requested': 'auto',
+                        'engine_choice': 'auto: onnxruntime has TensorrtExecutionProvider',
+                        'precision': 'tf32',
+                        'precision_note': 'TensorRT builds fp32 layers with TF32',
+                    },
                 },
-            },
-        ]
-    }
+            ]
+        },
+    )
     assert engine_lines(run) == [
         'cuda: engine ort (auto: onnxruntime has CUDAExecutionProvider), precision fp32',
         (

@@ -1,9 +1,15 @@
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 from hypothesis import settings
+
+# Every run.json, peak.json and comparison.json the tests write is checked against its JSON
+# Schema as it is written (replaybench.results.io), in this process and in the CLI subprocesses
+# that inherit the environment.
+os.environ['REPLAYBENCH_CHECK_SCHEMAS'] = '1'
 
 # Reproducible property tests: the same examples on every run (CI included).
 settings.register_profile('repro', derandomize=True, database=None)

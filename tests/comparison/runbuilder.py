@@ -1,4 +1,5 @@
-"""Run folders for the comparison tests, written with the real frames.csv / run.json writers."""
+"""Run folders for the comparison tests, written with the real frames.csv / run.json writers
+(a run.json is made a ``RunResult`` first: what it leaves out takes the model's defaults)."""
 
 from __future__ import annotations
 
@@ -12,8 +13,9 @@ from replaybench.results import (
     FramesCsvWriter,
     summarize,
     summary_json,
-    write_json_atomic,
 )
+from replaybench.results.io import from_document, write_run_result
+from replaybench.results.model import RunResult
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -22,6 +24,32 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
 TOPIC = '/cam/image_raw'
+#: A machine as ``environment()`` describes one (the tests name the host, CPU and GPUs).
+MACHINE: dict[str, Any] = {
+    'hostname': None,
+    'os': {'system': 'Linux', 'platform': 'Linux-6.8-x86_64'},
+    'python': {'version': '3.11.7', 'implementation': 'CPython'},
+    'packages': {'replaybench': '0.1.0'},
+}
+#: The accuracy entry of a row before the test's own figures (a figure it leaves out: 0).
+UNSCORED: dict[str, Any] = {
+    'frames': 0,
+    'precision50': 0.0,
+    'recall50': 0.0,
+    'map50': None,
+    'map50_95': None,
+    'ap50': {},
+    'ap50_95': {},
+    'n_gt': 0,
+    'n_det': 0,
+}
+#: A resource summary of a backend that was sampled no time (the tests do not read it).
+RESOURCES: dict[str, Any] = {
+    'samples': 0,
+    'interval_s': 0.05,
+    'duration_s': 0.0,
+    'cpu_source': 'process_time',
+}
 SHA = 'ab' * 32
 WARMUP = 5
 
@@ -82,7 +110,7 @@ def write_run(
     for row in rows:
         acc = (accuracy or {}).get((row['backend'], row['topic']))
         if acc is not None:
-            row['accuracy'] = dict(acc)
+            row['accuracy'] = {**UNSCORED, 'frames': row['measured'], **acc}
             row.update(acc)
     backends = list(dict.fromkeys(b for b, _ in series))
     run: dict[str, Any] = {
@@ -112,10 +140,14 @@ def write_run(
                 'sha256': sha256,
                 'truncated': False,
                 'warnings': [],
-                'topics': [{'name': t} for t in dict.fromkeys(t for _, t in series)],
+                'topics': [
+                    {'name': t, 'msgtype': 'sensor_msgs/msg/Image'}
+                    for t in dict.fromkeys(t for _, t in series)
+                ],
             },
         ],
         'environment': {
+            **MACHINE,
             'cpu': {
                 'model': 'Intel(R) Xeon(R) Gold 6130 CPU @ 2.10GHz',
                 'logical_cores': 8,
@@ -127,10 +159,23 @@ def write_run(
             'gpus': [{'name': g, 'driver_version': '550', 'memory_total': '1 MiB'} for g in gpus],
         },
         'backends': [
-            {'name': b, 'label': b, 'info': dict((info or {}).get(b, {}))} for b in backends
+            {
+                'name': b,
+                'label': b,
+                'info': dict((info or {}).get(b, {})),
+                'resources': {'summary': RESOURCES, 'series': []},
+                'record_s': 0.01,
+            }
+            for b in backends
         ],
         'summary': rows,
+        'counts': {
+            'frames': len(records),
+            'processed': sum(1 for r in records if r.status == 'ok'),
+            'dropped': sum(1 for r in records if r.status == 'dropped'),
+            'skipped': sum(1 for r in records if r.status == 'skipped'),
+        },
         'outputs': {'frames_csv': 'frames.csv'},
     }
-    write_json_atomic(path / 'run.json', run)
+    write_run_result(path / 'run.json', from_document(RunResult, run))
     return path

@@ -15,8 +15,9 @@ from replaybench.results import (
     FramesCsvWriter,
     summarize,
     summary_json,
-    write_json_atomic,
 )
+from replaybench.results.io import from_document, write_run_result
+from replaybench.results.model import RunResult
 from replaybench.types import Detection
 
 if TYPE_CHECKING:
@@ -24,6 +25,15 @@ if TYPE_CHECKING:
     from pathlib import Path
 
 HOSTILE = '<script>alert(1)</script>'
+
+
+def _counts(records: Sequence[FrameRecord]) -> dict[str, int]:
+    return {
+        'frames': len(records),
+        'processed': sum(1 for r in records if r.status == 'ok'),
+        'dropped': sum(1 for r in records if r.status == 'dropped'),
+        'skipped': sum(1 for r in records if r.status == 'skipped'),
+    }
 
 
 class MakeRun(Protocol):
@@ -105,6 +115,7 @@ def make_run(tmp_path: Path) -> MakeRun:
         rows = [summary_json(s) for s in summarize(records)]
         if accuracy:
             rows[0]['accuracy'] = {
+                'frames': rows[0]['measured'],
                 'precision50': 0.875,
                 'recall50': 0.625,
                 'map50': 0.5432,
@@ -171,12 +182,35 @@ def make_run(tmp_path: Path) -> MakeRun:
             ],
             'environment': {
                 'cpu': {'model': f'CPU {HOSTILE}', 'logical_cores': 8, 'governor': 'performance'},
+                'os': {'system': 'Linux', 'platform': 'Linux-6.8-x86_64'},
                 'python': {'version': '3.11.7', 'implementation': 'CPython'},
-                'packages': {'numpy': '2.0', 'opencv': {'version': '4.10', 'threads': 8}},
+                'packages': {
+                    'replaybench': '0.1.0',
+                    'numpy': '2.0',
+                    'opencv': {'version': '4.10', 'threads': 8},
+                },
                 'gpus': [],
             },
-            'backends': [{'name': b, 'label': b, 'info': {'note': HOSTILE}} for b in backends],
+            'backends': [
+                {
+                    'name': b,
+                    'label': b,
+                    'info': {'note': HOSTILE},
+                    'resources': {
+                        'summary': {
+                            'samples': 0,
+                            'interval_s': 0.05,
+                            'duration_s': 0.0,
+                            'cpu_source': 'process_time',
+                        },
+                        'series': [],
+                    },
+                    'record_s': 0.01,
+                }
+                for b in backends
+            ],
             'summary': rows,
+            'counts': _counts(records),
             'skipped': {f'bad jpeg {HOSTILE}': skipped} if skipped else {},
             'outputs': {
                 'detections_mcap': 'detections.mcap',
@@ -186,7 +220,7 @@ def make_run(tmp_path: Path) -> MakeRun:
                 'samples': sample_paths,
             },
         }
-        write_json_atomic(run_dir / 'run.json', run)
+        write_run_result(run_dir / 'run.json', from_document(RunResult, run))
         return run_dir
 
     return make

@@ -76,22 +76,15 @@ def _frames() -> list[npt.NDArray[np.uint8]]:
 
 @contextmanager
 def _threads_restored() -> Iterator[None]:
-    """Undo what ``RunConfig(threads=...)`` sets (cv2 threads, BLAS variables) afterwards."""
+    """OpenCV's thread count put back afterwards (a run restores it itself; this guards the
+    measurements of this item against any backend that does not)."""
     import cv2
 
-    from replaybench.replay.runner import THREAD_VARS
-
     before = cv2.getNumThreads()
-    env = {var: os.environ.get(var) for var in THREAD_VARS}
     try:
         yield
     finally:
         cv2.setNumThreads(before)
-        for var, value in env.items():
-            if value is None:
-                os.environ.pop(var, None)
-            else:
-                os.environ[var] = value
 
 
 def _session(*, spinning: bool = False) -> Any:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import sys
+import threading
+import time
 from pathlib import Path  # noqa: TC003 - typer reads the annotations at run time
 from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
@@ -11,12 +13,12 @@ from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
 from replaybench._version import __version__
 from replaybench.errors import ReplaybenchError, RunAborted
-from replaybench.textsafe import visible
+from replaybench.textsafe import visible, visible_lines
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
-    from replaybench.backends.base import BackendOptions
+    from replaybench.replay.runner import RunConfig, RunOutcome
     from replaybench.results.stats import Summary
 
 __all__ = ['app', 'main']
@@ -178,7 +180,19 @@ def _echo(text: str, *, err: bool = False) -> None:
     typer.echo(visible(text), err=err)
 
 
+class _Debug:
+    """``--debug``: set by the root callback on every invocation, read by ``_fail``."""
+
+    on = False
+
+
 def _fail(err: ReplaybenchError) -> typer.Exit:
+    """The error's one line on stderr (after, with ``--debug``, the traceback of the error and
+    of the exceptions it was raised from); the exit to raise."""
+    if _Debug.on:
+        import traceback
+
+        sys.stderr.write(visible_lines(''.join(traceback.format_exception(err))))
     _echo(f'replaybench: error: {err}', err=True)
     return typer.Exit(err.exit_code)
 
@@ -194,11 +208,19 @@ def _root(
     version: Annotated[
         bool, typer.Option('--version', callback=_version, is_eager=True, help='Print the version.')
     ] = False,
+    debug: Annotated[
+        bool,
+        typer.Option(
+            '--debug',
+            help='On an error, print the traceback of its cause before the one-line message.',
+        ),
+    ] = False,
 ) -> None:
     """Replay camera logs through detectors and measure latency, FPS and accuracy.
 
     Example: replaybench run bag.mcap --backend hsv --backend null
     """
+    _Debug.on = debug
 
 
 class _Progress:
@@ -224,6 +246,45 @@ class _Progress:
     def close(self) -> None:
         if self.enabled and self.last >= 0:
             sys.stderr.write('\n')
+
+    def notice(self, line: str) -> None:
+        """A line for a person (the hashing of a large input), on its own line of stderr."""
+        if self.enabled and 0 <= self.last < 100:
+            sys.stderr.write('\n')
+        _echo(line, err=True)
+
+
+class _FixtureProgress:
+    """Progress of ``replaybench fixtures`` on ``stream``: on a terminal one line per bag,
+    redrawn as its frames are written; elsewhere (a log, a pipe) a line every ``every_s``
+    seconds while the generation lasts, none for a short one."""
+
+    def __init__(
+        self,
+        stream: Any,
+        *,
+        every_s: float = 10.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.stream = stream
+        self.terminal = bool(getattr(stream, 'isatty', lambda: False)())
+        self.every_s = every_s
+        self.clock = clock
+        self.began = self.last_line = clock()
+        self.last_draw = -1.0
+
+    def __call__(self, name: str, done: int, total: int) -> None:
+        now = self.clock()
+        text = f'replaybench: writing {visible(name)}: {done}/{total} frames'
+        if self.terminal:
+            if done == total or now - self.last_draw >= 0.1:
+                self.last_draw = now
+                self.stream.write(f'\r{text}' + ('\n' if done == total else ''))
+                self.stream.flush()
+        elif now - self.last_line >= self.every_s:
+            self.last_line = now
+            self.stream.write(f'{text} ({now - self.began:.0f} s)\n')
+            self.stream.flush()
 
 
 def _fmt(value: float | None, digits: int = 2) -> str:
@@ -447,42 +508,47 @@ def run(
         ),
     ] = 'mcap',
     no_report: Annotated[bool, typer.Option('--no-report', help='Skip report.html.')] = False,
+    no_hash: Annotated[
+        bool,
+        typer.Option(
+            '--no-hash',
+            help="Do not compute the inputs' sha256 (run.json records null; compare cannot "
+            'check the inputs).',
+        ),
+    ] = False,
 ) -> None:
     """Replay bags through backends and write detections, CSVs, run.json and a report.
 
     Example: replaybench run fixtures/bags/rgb8_raw.mcap --backend hsv --backend null --out runs/a
     """
-    from replaybench.backends.gpu import engine_lines
-    from replaybench.replay.rate import parse_rate
-    from replaybench.replay.runner import (
-        DEFAULT_GROUND_TRUTH_TOPIC,
-        RunConfig,
-        new_run_dir,
-        run_benchmark,
-    )
+    from replaybench.app.run import run_config
+    from replaybench.replay.runner import new_run_dir
 
     progress = _Progress()
     try:
-        run_config = RunConfig(
-            inputs=bags,
+        settings = run_config(
+            bags,
             backends=backend,
-            out_dir=out if out is not None else new_run_dir(),
+            out=out if out is not None else new_run_dir(),
             force=force,
-            rate=parse_rate(rate),
+            rate=rate,
             queue_depth=queue_depth,
             warmup=warmup,
             threads=threads,
             max_frames=max_frames,
-            start_s=start,
-            duration_s=duration,
-            topics=topic or None,
-            ground_truth_topic=ground_truth or DEFAULT_GROUND_TRUTH_TOPIC,
-            ground_truth_explicit=ground_truth is not None,
-            options=_backend_options(
-                threads, config, model, model_family, labels, conf, iou, device, engine, precision
-            ),
-            command=['replaybench', *sys.argv[1:]],
-            report=not no_report,
+            start=start,
+            duration=duration,
+            topics=topic,
+            ground_truth=ground_truth,
+            config=config,
+            model=model,
+            model_family=model_family,
+            labels=labels,
+            conf=conf,
+            iou=iou,
+            device=device,
+            engine=engine,
+            precision=precision,
             recorded_topic=recorded_topic,
             ground_truth_file=ground_truth_file,
             ground_truth_match=ground_truth_match,
@@ -491,50 +557,77 @@ def run(
             annotations=annotations,
             copy_images=copy_images,
             detections_format=detections_format,
+            report=not no_report,
+            hash_inputs=not no_hash,
+            command=['replaybench', *sys.argv[1:]],
         )
-        outcome = run_benchmark(run_config, progress=progress)
+        outcome = _run_until_stopped(settings, progress)
     except ReplaybenchError as err:
         progress.close()
         raise _fail(err) from None
+    code = _show_run(outcome)
+    if code:
+        raise typer.Exit(code)
+
+
+def _run_until_stopped(config: RunConfig, progress: _Progress) -> RunOutcome:
+    """The run, Ctrl-C and SIGTERM ending it as interrupted (a second one: at once)."""
+    from replaybench.app.run import run_benchmark
+    from replaybench.app.signals import stop_on_signals
+
+    token = threading.Event()
+    with stop_on_signals(token):
+        return run_benchmark(config, progress=progress, stop=token, notice=progress.notice)
+
+
+def _show_run(outcome: RunOutcome) -> int:
+    """Print a finished run (the table, its warnings, the folder); its exit status."""
+    from replaybench.backends.gpu import engine_lines
+
     _print_summary(outcome.summaries)
-    for warning in (w for inp in outcome.run['inputs'] for w in inp['warnings']):
+    for s in outcome.summaries:  # stability of each (backend, topic): intervals need not hold
+        where = f'{s.backend} {s.topic}'
+        for warning in s.warnings:
+            _echo(f'replaybench: warning: {where}: {warning}', err=True)
+    for warning in (w for inp in outcome.run.inputs for w in inp.warnings):
         _echo(f'replaybench: warning: {warning}', err=True)
-    skipped = outcome.run.get('skipped') or {}
-    for reason, count in skipped.items():
+    for reason, count in outcome.run.skipped.items():
         _echo(f'replaybench: warning: skipped {count} message(s): {reason}', err=True)
-    for warning in outcome.run.get('warnings') or []:
+    for warning in outcome.run.warnings:
         _echo(f'replaybench: warning: {warning}', err=True)
-    for entry in outcome.run.get('backends') or []:
-        facts = entry.get('info') or {}
+    for entry in outcome.run.backends:
+        facts = entry.info
         if facts.get('nonfinite_dropped'):
             _echo(
-                f'replaybench: warning: {entry["name"]}: left out {facts["nonfinite_dropped"]} '
+                f'replaybench: warning: {entry.name}: left out {facts["nonfinite_dropped"]} '
                 f'candidate(s) with NaN or inf model outputs in {facts["nonfinite_frames"]} '
                 'frame(s)',
                 err=True,
             )
     for line in engine_lines(outcome.run):
         _echo(line)
+    assert outcome.run_dir is not None  # the command line always writes a folder
     report = outcome.run_dir / 'report.html'
     _echo(f'Run folder: {outcome.run_dir}')
     if report.exists():
         _echo(f'Report: {report}')
     if outcome.status == 'interrupted':
         typer.echo('replaybench: interrupted: outputs hold the frames done so far', err=True)
-        raise typer.Exit(EXIT_INTERRUPTED)
+        return EXIT_INTERRUPTED
     if outcome.status == 'partial':
         failed = '; '.join(
-            f'backend {b["name"]!r} raised on input {b["error"]["input"]} {b["error"]["topic"]} '
-            f'seq {b["error"]["seq"]}: {b["error"]["message"]}'
-            for b in outcome.run['backends']
-            if b.get('status') == 'failed'
+            f'backend {b.name!r} raised on input {b.error.input} {b.error.topic} '
+            f'seq {b.error.seq}: {b.error.message}'
+            for b in outcome.run.backends
+            if b.status == 'failed' and b.error is not None
         )
         _echo(
             f'replaybench: error: {failed}; it was stopped there and the other backends '
             'finished (run.json status partial)',
             err=True,
         )
-        raise typer.Exit(EXIT_FAILURE)
+        return EXIT_FAILURE
+    return 0
 
 
 @app.command()
@@ -646,55 +739,13 @@ def fixtures(
         if not (w.isdigit() and h.isdigit() and int(w) >= 32 and int(h) >= 32):
             msg = f'invalid --size {size!r}: use WxH with both at least 32, e.g. 640x480'
             raise UsageError(msg)
-        paths = generate_fixtures(out, frames=frames, size=(int(w), int(h)))
+        paths = generate_fixtures(
+            out, frames=frames, size=(int(w), int(h)), progress=_FixtureProgress(sys.stderr)
+        )
     except ReplaybenchError as err:
         raise _fail(err) from None
     for path in paths:
         typer.echo(str(path))
-
-
-def _backend_options(
-    threads: int | None,
-    config: Path | None,
-    model: Path | None,
-    model_family: str | None,
-    labels: str | None,
-    conf: float | None,
-    iou: float | None,
-    device: int,
-    engine: str,
-    precision: str,
-) -> BackendOptions:
-    from replaybench.backends.base import BackendOptions
-
-    _check_gpu_options(engine, precision)
-    return BackendOptions(
-        threads=threads,
-        config=config,
-        model=model,
-        model_family=model_family,
-        labels=labels,
-        conf=conf,
-        iou=iou,
-        device=device,
-        engine=engine,
-        precision=precision,
-    )
-
-
-def _check_gpu_options(engine: str, precision: str) -> None:
-    """Refuse an --engine or --precision no backend knows, whichever backends run: a typo must
-    not pass silently because this run happens to use only CPU backends."""
-    from replaybench.backends.gpu.cuda import ENGINES, PRECISIONS
-    from replaybench.errors import UsageError
-
-    for option, value, known in (
-        ('--engine', engine, ENGINES),
-        ('--precision', precision, PRECISIONS),
-    ):
-        if value not in known:
-            msg = f'invalid {option} {value!r}: use {", ".join(known[:-1])} or {known[-1]}'
-            raise UsageError(msg)
 
 
 @app.command()
@@ -749,7 +800,9 @@ def peak(
 
     Example: replaybench peak fixtures/bags/jpeg.mcap --backend hsv --max-drop 0.05 --out runs/peak
     """
-    from replaybench.replay.peak import find_peak_rate
+    from replaybench.app.peak import find_peak_rate
+    from replaybench.app.run import backend_options
+    from replaybench.app.signals import stop_on_signals
     from replaybench.replay.runner import new_run_dir
 
     def show(trial: Any) -> None:
@@ -761,27 +814,39 @@ def peak(
         )
 
     folder = out if out is not None else new_run_dir()
+    token = threading.Event()
     try:
-        result = find_peak_rate(
-            bag,
-            backend,
-            folder,
-            options=_backend_options(
-                threads, config, model, model_family, labels, conf, iou, device, engine, precision
-            ),
-            topics=topic or None,
-            max_drop=max_drop,
-            p99_bound_ms=p99_ms,
-            trial_frames=trial_frames,
-            min_hz=min_hz,
-            max_hz=max_hz,
-            refine_steps=refine_steps,
-            force=force,
-            report=not no_report,
-            threads=threads,
-            command=['replaybench', *sys.argv[1:]],
-            progress=show,
-        )
+        with stop_on_signals(token):
+            result = find_peak_rate(
+                bag,
+                backend,
+                folder,
+                options=backend_options(
+                    threads=threads,
+                    config=config,
+                    model=model,
+                    model_family=model_family,
+                    labels=labels,
+                    conf=conf,
+                    iou=iou,
+                    device=device,
+                    engine=engine,
+                    precision=precision,
+                ),
+                topics=topic or None,
+                max_drop=max_drop,
+                p99_bound_ms=p99_ms,
+                trial_frames=trial_frames,
+                min_hz=min_hz,
+                max_hz=max_hz,
+                refine_steps=refine_steps,
+                force=force,
+                report=not no_report,
+                threads=threads,
+                command=['replaybench', *sys.argv[1:]],
+                progress=show,
+                stop=token,
+            )
     except ReplaybenchError as err:
         raise _fail(err) from None
     typer.echo(f'{"rate Hz":>10}  {"frames":>6}  {"dropped":>7}  {"p99 ms":>8}  verdict')
@@ -899,44 +964,49 @@ def sweep(
 
     Example: replaybench sweep fixtures/bags/*.mcap --backend hsv --backend null --out sweeps/s1
     """
+    from replaybench.app.run import check_gpu_options
+    from replaybench.app.signals import stop_on_signals
     from replaybench.app.sweep import progress_bar, result_lines
     from replaybench.app.sweep import sweep as run_sweep
 
     bar = progress_bar(sys.stderr)
+    token = threading.Event()
     try:
-        _check_gpu_options(engine, precision)
-        result = run_sweep(
-            bags,
-            backends=backend,
-            out=out,
-            params=param,
-            address=address,
-            pack=pack,
-            max_retries=max_retries,
-            rate=rate,
-            queue_depth=queue_depth,
-            warmup=warmup,
-            threads=threads,
-            max_frames=max_frames,
-            start=start,
-            duration=duration,
-            topics=topic,
-            ground_truth=ground_truth,
-            config=config,
-            model=model,
-            model_family=model_family,
-            labels=labels,
-            conf=conf,
-            iou=iou,
-            engine=engine,
-            precision=precision,
-            recorded_topic=recorded_topic,
-            annotations=annotations,
-            copy_images=copy_images,
-            report=not no_report,
-            command=['replaybench', *sys.argv[1:]],
-            progress=bar,
-        )
+        check_gpu_options(engine, precision)
+        with stop_on_signals(token):
+            result = run_sweep(
+                bags,
+                backends=backend,
+                out=out,
+                params=param,
+                address=address,
+                pack=pack,
+                max_retries=max_retries,
+                rate=rate,
+                queue_depth=queue_depth,
+                warmup=warmup,
+                threads=threads,
+                max_frames=max_frames,
+                start=start,
+                duration=duration,
+                topics=topic,
+                ground_truth=ground_truth,
+                config=config,
+                model=model,
+                model_family=model_family,
+                labels=labels,
+                conf=conf,
+                iou=iou,
+                engine=engine,
+                precision=precision,
+                recorded_topic=recorded_topic,
+                annotations=annotations,
+                copy_images=copy_images,
+                report=not no_report,
+                command=['replaybench', *sys.argv[1:]],
+                progress=bar,
+                stop=token,
+            )
     except ReplaybenchError as err:
         raise _fail(err) from None
     finally:
@@ -984,9 +1054,11 @@ def compare(
 ) -> None:
     """Compare runs across backends, machines or GPUs, with confidence intervals and a CI gate.
 
+    Prints the table on stdout; with --out, also writes comparison.html, .csv and .json there.
+
     Exit status: 0 passed, 1 a condition failed, 2 bad input, 3 a condition inconclusive.
 
-    Example: replaybench compare runs/baseline runs/candidate --out cmp --fail-if "p99_ms > +10%"
+    Example: replaybench compare runs/main runs/branch --fail-if "p99_ms > +10%"
     """
     from replaybench.comparison import main_compare
 

@@ -11,7 +11,7 @@ Placement (measurement validity first):
 
 * a CPU cell holds one unit of the custom resource ``replaybench_timed_slot``, of which each
   node offers one: at most one timed CPU cell runs on a node at a time;
-* a GPU cell (``cuda``, ``tensorrt``, ``hsv-cuda``) holds one GPU (``num_gpus=1``): a node runs
+* a GPU cell (its backend declares ``device = 'cuda'``) holds one GPU (``num_gpus=1``): a node runs
   as many GPU cells as it has GPUs, one per GPU, and the cell records which one;
 * ``pack=True`` drops the node slot: CPU cells fill every core (for accuracy-only sweeps).
 
@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import functools
 import hashlib
 import itertools
 import json
@@ -35,7 +36,6 @@ import os
 import re
 import secrets
 import shutil
-import signal
 import socket
 import stat
 import sys
@@ -51,16 +51,17 @@ from replaybench.backends.base import BackendOptions
 from replaybench.errors import EngineError, ReplaybenchError, SourceError, UsageError
 
 if TYPE_CHECKING:
+    import threading
     from collections.abc import Callable, Iterator, Mapping, Sequence
 
     import pandas as pd
 
     from replaybench.replay.runner import RunConfig
+    from replaybench.results.model import RunResult
 
 __all__ = [
     'CSV_COLUMNS',
     'DEFAULT_MAX_RETRIES',
-    'GPU_BACKENDS',
     'LOCAL_NODE_IP',
     'NODE_SLOT',
     'SWEEP_SCHEMA_VERSION',
@@ -89,8 +90,6 @@ __all__ = [
 SWEEP_SCHEMA_VERSION = 1
 #: The custom Ray resource a timed CPU cell holds: each node offers one unit.
 NODE_SLOT = 'replaybench_timed_slot'
-#: Backends whose cells hold one GPU.
-GPU_BACKENDS = frozenset({'cuda', 'tensorrt', 'hsv-cuda'})
 #: Address the local Ray instance listens on: loopback only (Ray maps 127.0.0.1 itself to the
 #: machine's network address, so another loopback address is used on Linux).
 LOCAL_NODE_IP = '127.0.0.2' if sys.platform.startswith('linux') else None
@@ -305,6 +304,15 @@ def input_identity(path: Path, given: str | None = None) -> InputId:
     )
 
 
+@functools.cache
+def _on_gpu(backend: str) -> bool:
+    """Whether ``backend`` declares that it runs on a CUDA GPU (the registry's class)."""
+    from replaybench.backends import get_backend
+    from replaybench.backends.base import backend_traits
+
+    return backend_traits(get_backend(backend)).device == 'cuda'
+
+
 @dataclass(frozen=True, slots=True)
 class Cell:
     """One (input, backend, parameter combination): one run."""
@@ -319,8 +327,8 @@ class Cell:
 
     @property
     def gpu(self) -> bool:
-        """Whether the cell holds a GPU."""
-        return self.backend in GPU_BACKENDS
+        """Whether the cell holds a GPU: its backend runs on one (``Backend.device``)."""
+        return _on_gpu(self.backend)
 
     @property
     def params_text(self) -> str:
@@ -467,7 +475,7 @@ def execute_cell(
         _check_input(cell.input, str(where['hostname']))
         with tempfile.TemporaryDirectory(prefix='replaybench-cell-') as tmp:
             out = Path(tmp) / 'run'
-            from replaybench.replay.runner import run_benchmark
+            from replaybench.app.run import run_benchmark
 
             outcome = run_benchmark(_run_config(cell, settings, out, command))
             files = {
@@ -738,19 +746,20 @@ def cell_metrics(run_dir: Path, key: str) -> dict[str, Any]:
     import numpy as np
 
     from replaybench.comparison.bootstrap import replicates
+    from replaybench.results.io import read_run_result
     from replaybench.results.records import read_frames_csv
     from replaybench.results.stats import summarize
 
-    run = json.loads((run_dir / 'run.json').read_text(encoding='utf-8'))
+    run = read_run_result(run_dir / 'run.json')
     records = read_frames_csv(run_dir / 'frames.csv')
-    rows = run.get('summary') or []
+    rows = run.summary_rows
     if len(rows) == 1:  # one topic: the run's own figures (frames.csv rounds its times)
         only = rows[0]
         point = {
-            'frames': only.get('measured') or 0,
-            'fps': only.get('throughput_fps'),
-            'p50_ms': only.get('latency_ms_p50'),
-            'p99_ms': only.get('latency_ms_p99'),
+            'frames': only.measured,
+            'fps': only.throughput_fps,
+            'p50_ms': only.latency_ms_p50,
+            'p99_ms': only.latency_ms_p99,
         }
     else:
         pooled = summarize([r._replace(topic='*') for r in records])
@@ -773,9 +782,9 @@ def cell_metrics(run_dir: Path, key: str) -> dict[str, Any]:
         rng=np.random.default_rng(seed),
     )
     maps = [
-        row['accuracy']['map50']
+        row.accuracy.map50
         for row in rows
-        if isinstance(row.get('accuracy'), dict) and row['accuracy'].get('map50') is not None
+        if row.accuracy is not None and row.accuracy.map50 is not None
     ]
     return {
         'frames': point['frames'],
@@ -798,31 +807,35 @@ def _read_json(path: Path) -> dict[str, Any] | None:
     return found if isinstance(found, dict) else None
 
 
-def _complete_cell(out: Path, cell: Cell) -> dict[str, Any] | None:
+def _complete_cell(out: Path, cell: Cell) -> RunResult | None:
     """The run.json of a complete earlier run of this very cell, or None."""
-    run = _read_json(out / CELLS_DIR / cell.name / 'run.json')
-    if run is None or run.get('status') != 'complete':
+    from replaybench.results.io import read_run_result
+
+    path = out / CELLS_DIR / cell.name / 'run.json'
+    if not path.is_file():
         return None
-    section = run.get('sweep')
-    if not isinstance(section, dict) or section.get('key') != cell.key:
+    try:
+        run = read_run_result(path)
+    except SourceError:
+        return None
+    if run.status != 'complete' or run.sweep is None or run.sweep.get('key') != cell.key:
         return None
     return run
 
 
-def _conditions(run: Mapping[str, Any], gpu: bool) -> dict[str, Any]:
-    env = run.get('environment') or {}
-    cpu = env.get('cpu') or {}
-    section = run.get('sweep') or {}
-    gpus = env.get('gpus') or []
+def _conditions(run: RunResult, gpu: bool) -> dict[str, Any]:
+    env = run.environment
+    cpu = env.cpu
+    section = run.sweep or {}
+    gpus = env.gpus
     gpu_name = None
-    if gpu and isinstance(gpus, list) and gpus:
+    if gpu and gpus:
         ids = section.get('gpu_ids') or []
         at = int(ids[0]) if ids and str(ids[0]).isdigit() and int(ids[0]) < len(gpus) else 0
-        found = gpus[at]  # the GPU Ray gave the cell, in nvidia-smi's order
-        gpu_name = found.get('name') if isinstance(found, dict) else str(found)
+        gpu_name = gpus[at].name  # the GPU Ray gave the cell, in nvidia-smi's order
     concurrency = section.get('concurrency') or {}
     return {
-        'cpu': f'{cpu.get("model")} x{cpu.get("logical_cores")}',
+        'cpu': f'{cpu.model} x{cpu.logical_cores}',
         'gpu': gpu_name,
         'placement': section.get('placement'),
         'max_cells_on_node': concurrency.get('max_cells_on_node'),
@@ -888,6 +901,7 @@ class _Sweep:
         max_retries: int,
         command: list[str],
         progress: Callable[[SweepProgress], None] | None,
+        stop: threading.Event | None = None,
     ) -> None:
         self.out = out
         self.cells = cells
@@ -899,6 +913,7 @@ class _Sweep:
         self.max_retries = max_retries
         self.command = command
         self.progress = progress
+        self.stop = stop
         self.started = dt.datetime.now(dt.UTC)
         self.t0 = time.perf_counter()
         self.status: dict[int, str] = {}
@@ -996,27 +1011,30 @@ class _Sweep:
             pending[ref] = cell
             self.status[cell.index] = 'pending'
         interrupted = False
-        with _sigterm_as_interrupt():
-            try:
-                while pending:
-                    ready, _ = ray.wait(list(pending), num_returns=1, timeout=0.5)
-                    for ref in ready:
-                        cell = pending.pop(ref)
-                        try:
-                            report = ray.get(ref)
-                        except RayError as err:
-                            line = _error_line(err)
-                            self._failed(cell, f'{line} (Ray retried {self.max_retries} time(s))')
-                            continue
-                        self._collect(cell, report)
-                    self._show(ray, board, pending)
-            except KeyboardInterrupt:
-                interrupted = True
-                for ref in pending:
-                    with contextlib.suppress(Exception):
-                        ray.cancel(ref)
-                for cell in pending.values():
-                    self.status[cell.index] = 'interrupted'
+        try:
+            while pending:
+                if self.stop is not None and self.stop.is_set():
+                    interrupted = True
+                    break
+                ready, _ = ray.wait(list(pending), num_returns=1, timeout=0.5)
+                for ref in ready:
+                    cell = pending.pop(ref)
+                    try:
+                        report = ray.get(ref)
+                    except RayError as err:
+                        line = _error_line(err)
+                        self._failed(cell, f'{line} (Ray retried {self.max_retries} time(s))')
+                        continue
+                    self._collect(cell, report)
+                self._show(ray, board, pending)
+        except KeyboardInterrupt:
+            interrupted = True
+        if interrupted:
+            for ref in pending:
+                with contextlib.suppress(Exception):
+                    ray.cancel(ref)
+            for cell in pending.values():
+                self.status[cell.index] = 'interrupted'
         if board is not None:
             with contextlib.suppress(Exception):
                 ray.kill(board)
@@ -1085,7 +1103,7 @@ class _Sweep:
 
     def _store(self, cell: Cell, files: Mapping[str, bytes]) -> None:
         """Write the cell's folder next to its final place, then swap it in."""
-        from replaybench.results.runfile import write_json_atomic
+        from replaybench.results.io import read_run_result, write_run_result
 
         cells = self.out / CELLS_DIR
         final = cells / cell.name
@@ -1098,28 +1116,27 @@ class _Sweep:
                 continue
             target.parent.mkdir(parents=True, exist_ok=True)
             target.write_bytes(data)
-        run = _read_json(tmp / 'run.json') or {}
-        run['sweep'] = self._section(cell)
-        write_json_atomic(tmp / 'run.json', run)
+        run = read_run_result(tmp / 'run.json')
+        write_run_result(tmp / 'run.json', replace(run, sweep=self._section(cell)))
         if final.exists():
             shutil.rmtree(final)
         tmp.rename(final)
 
     def finish_concurrency(self) -> None:
         """Cells run now: their run.json gets the concurrency seen over the whole sweep."""
-        from replaybench.results.runfile import write_json_atomic
+        from replaybench.results.io import read_run_result, write_run_result
 
         for cell in self.cells:
             if cell.index in self.resumed or self.status.get(cell.index) != 'complete':
                 continue
             path = self.out / CELLS_DIR / cell.name / 'run.json'
-            run = _read_json(path)
-            if run is None:
+            if not path.is_file():
                 continue
-            section = self._section(cell)
-            if run.get('sweep', {}).get('concurrency') != section['concurrency']:
-                run['sweep']['concurrency'] = section['concurrency']
-                write_json_atomic(path, run)
+            run = read_run_result(path)
+            concurrency = self._section(cell)['concurrency']
+            if run.sweep is not None and run.sweep.get('concurrency') != concurrency:
+                section = {**run.sweep, 'concurrency': concurrency}
+                write_run_result(path, replace(run, sweep=section))
 
     # -- outputs
 
@@ -1159,7 +1176,7 @@ class _Sweep:
                 }
             run = _complete_cell(self.out, cell) if status == 'complete' else None
             if run is not None:
-                section = run['sweep']
+                section = run.sweep or {}
                 folder = self.out / CELLS_DIR / cell.name
                 if cell.index not in self.metrics:
                     self.metrics[cell.index] = cell_metrics(folder, cell.key)
@@ -1295,23 +1312,6 @@ def _csv_text(rows: Sequence[Mapping[str, Any]]) -> str:
     return buffer.getvalue()
 
 
-@contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """SIGTERM ends the sweep like Ctrl-C (main thread only)."""
-
-    def handler(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt
-
-    previous = None
-    with contextlib.suppress(ValueError):
-        previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-
-
 def _check_backend_options(cells: Sequence[Cell], settings: SweepSettings) -> None:
     """UsageError for options a locally available backend refuses (before any cell runs)."""
     from replaybench.backends import get_backend
@@ -1367,6 +1367,7 @@ def sweep(
     report: bool = True,
     command: Sequence[str] | None = None,
     progress: Callable[[SweepProgress], None] | None = None,
+    stop: threading.Event | None = None,
 ) -> SweepResult:
     """Run every (input, backend, ``params`` combination) as one run on Ray; write ``out``.
 
@@ -1374,8 +1375,10 @@ def sweep(
     Ray instance is started and shut down at the end (an already initialised Ray connection is
     used as it is); with it, that cluster is joined. Re-running with the same ``out`` resumes.
     Raises ``ReplaybenchError`` subclasses for bad options (nothing run); a failing cell is
-    recorded and the others go on (``status`` 'failed'); Ctrl-C gives ``status``
-    'interrupted' with the complete cells kept.
+    recorded and the others go on (``status`` 'failed'); setting ``stop`` (the command line
+    does on Ctrl-C and SIGTERM, ``replaybench.app.signals``), or a ``KeyboardInterrupt``,
+    gives ``status`` 'interrupted' with the complete cells kept. No signal handler is
+    installed.
     """
     from replaybench.replay.rate import parse_rate
 
@@ -1434,8 +1437,9 @@ def sweep(
         settings,
         pack,
         max_retries,
-        list(command) if command is not None else list(sys.argv),
+        list(command or ()),
         progress,
+        stop,
     )
     todo = driver.prepare()
     finished = True

@@ -5,13 +5,26 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple, Protocol, runtime_checkable
 
+from replaybench.errors import BackendUnavailableError
+
 if TYPE_CHECKING:
     from collections.abc import Mapping
     from pathlib import Path
 
-    from replaybench.types import BackendResult, Frame
+    from replaybench.types import BackendResult, Detection, Frame
 
-__all__ = ['Availability', 'Backend', 'BackendOptions']
+__all__ = [
+    'DEVICES',
+    'Availability',
+    'Backend',
+    'BackendOptions',
+    'BackendTraits',
+    'RecordedDetections',
+    'backend_traits',
+]
+
+#: Where a backend's ``detect`` runs (``Backend.device``): the CPU, or one CUDA GPU.
+DEVICES: tuple[str, ...] = ('cpu', 'cuda')
 
 
 class Availability(NamedTuple):
@@ -42,21 +55,45 @@ class BackendOptions:
     extra: Mapping[str, str] = field(default_factory=dict)
 
 
+class RecordedDetections(NamedTuple):
+    """What a backend with ``uses_recorded_detections`` is given before ``open()``.
+
+    ``topic``: the Detection2DArray topic(s) read (``--recorded-topic``, or the only candidate
+    of each input); ``table``: their detections keyed by (input index, frame_id, stamp_ns).
+    """
+
+    topic: str
+    table: Mapping[tuple[int, str, int], tuple[Detection, ...]]
+
+
 @runtime_checkable
 class Backend(Protocol):
     """A detector the replay drives one frame at a time.
 
     Lifecycle: ``available()`` (class level, cheap, imports nothing heavy when it can) ->
-    ``__init__(options)`` -> ``open()`` (load models, pick devices; may raise BackendError /
-    BackendUnavailableError) -> ``detect(frame)`` per frame -> ``close()``.
+    ``__init__(options)`` -> [``prepare(recorded)``] -> ``open()`` (load models, pick devices;
+    may raise BackendError / BackendUnavailableError) -> ``detect(frame)`` per frame ->
+    ``close()``.
 
     ``detect`` must time its own stages (``StageTimes``), synchronising any device first, and
     return boxes in source-image pixels. It must be deterministic: the same frame gives the same
     detections in the same order.
 
-    Optional: ``forget_warmup()``: the runner calls it after detects that are neither timed nor
-    recorded (the warm-up detect of a topic too short for warm-up frames); counters that
-    ``info()`` reports (e.g. non-finite model outputs) start again from there.
+    What the runner needs to know besides the methods, a backend class states in class
+    attributes; one it leaves out takes the default (``backend_traits`` reads them):
+
+    * ``device``: ``'cpu'`` (default) or ``'cuda'``: ``detect`` runs on the GPU
+      ``options.device``; the runner samples that GPU's use and a sweep cell holds one GPU.
+    * ``measures_latency``: True (default); False for detections made elsewhere (``recorded``):
+      its frames get no latency or stage times, and it gets no warm-up detect.
+    * ``uses_recorded_detections``: False (default); True: before ``open()`` the runner reads
+      the recorded Detection2DArray topic (``--recorded-topic``) of every input and calls
+      ``prepare(RecordedDetections)``.
+
+    Optional methods: ``prepare(recorded)`` (above); ``forget_warmup()``: the runner calls it
+    after detects that are neither timed nor recorded (the warm-up detect of a topic too short
+    for warm-up frames); counters that ``info()`` reports (e.g. non-finite model outputs) start
+    again from there.
     """
 
     name: ClassVar[str]
@@ -74,3 +111,29 @@ class Backend(Protocol):
         ...
 
     def close(self) -> None: ...
+
+
+class BackendTraits(NamedTuple):
+    """A backend's declared traits (see ``Backend``), defaults filled in."""
+
+    device: str = 'cpu'
+    measures_latency: bool = True
+    uses_recorded_detections: bool = False
+
+
+def backend_traits(backend: object) -> BackendTraits:
+    """The traits a backend class (or instance) declares; ``BackendUnavailableError`` naming
+    the backend when one has a value of the wrong kind."""
+    name = getattr(backend, 'name', type(backend).__name__)
+    device = getattr(backend, 'device', 'cpu')
+    if device not in DEVICES:
+        msg = f'backend {name!r} declares device {device!r}; use one of {", ".join(DEVICES)}'
+        raise BackendUnavailableError(msg)
+    flags: list[bool] = []
+    for trait in ('measures_latency', 'uses_recorded_detections'):
+        value = getattr(backend, trait, BackendTraits._field_defaults[trait])
+        if not isinstance(value, bool):
+            msg = f'backend {name!r} declares {trait} {value!r}; it must be True or False'
+            raise BackendUnavailableError(msg)
+        flags.append(value)
+    return BackendTraits(str(device), *flags)

@@ -16,6 +16,7 @@ from replaybench.types import BackendResult, Detection, StageTimes
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
+    from replaybench.backends.base import RecordedDetections
     from replaybench.types import Frame
 
 __all__ = ['RecordedBackend']
@@ -33,6 +34,8 @@ class RecordedBackend:
     )
     #: The runner leaves latency and stage columns empty for this backend.
     measures_latency: ClassVar[bool] = False
+    #: The runner reads the recorded topic and calls ``prepare`` with it.
+    uses_recorded_detections: ClassVar[bool] = True
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()
@@ -45,13 +48,13 @@ class RecordedBackend:
     def available(cls) -> Availability:
         return Availability(ok=True)
 
-    def bind(self, topic: str, table: Mapping[tuple[int, str, int], tuple[Detection, ...]]) -> None:
-        """Give the recorded detections, keyed by (input index, frame_id, stamp_ns)."""
-        self.topic = topic
-        self._table = table
+    def prepare(self, recorded: RecordedDetections) -> None:
+        """Take the recorded detections, keyed by (input index, frame_id, stamp_ns)."""
+        self.topic = recorded.topic
+        self._table = recorded.table
 
     def open(self) -> None:
-        """Nothing to load: the runner binds the recorded messages."""
+        """Nothing to load: ``prepare`` gave the recorded messages."""
 
     def detect(self, frame: Frame) -> BackendResult:
         found = self._table.get((frame.input_index, frame.frame_id, frame.stamp_ns))

@@ -146,6 +146,7 @@ def main_compare(
         csv_path, html_path = written
         echo(f'Comparison: {html_path}')
         echo(f'CSV: {csv_path}')
+        echo(f'JSON: {html_path.with_name("comparison.json")}')
     verdict = gate_verdict(gate)
     if verdict == 'inconclusive' and allow_inconclusive:
         return 0

@@ -1,4 +1,4 @@
-"""Replay: rates, clocks, the queueing scheduler and the run orchestration."""
+"""The replay engine: rates, clocks, the queueing scheduler, thread limits and the run."""
 
 from replaybench.replay.clock import Clock, MonotonicClock, VirtualClock
 from replaybench.replay.rate import Rate, parse_rate

@@ -17,7 +17,7 @@ import inspect
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, ParamSpec, cast
+from typing import TYPE_CHECKING, NamedTuple, ParamSpec, cast
 
 import numpy as np
 
@@ -25,12 +25,23 @@ from replaybench._version import __version__
 from replaybench.errors import OutputError, SourceError, UsageError
 from replaybench.replay.rate import Rate
 from replaybench.replay.runner import RunConfig, default_warmup, run_benchmark
-from replaybench.report.render import PEAK_SCHEMA_VERSION
-from replaybench.results.records import read_frames_csv
-from replaybench.results.runfile import environment, write_json_atomic
+from replaybench.results.io import from_document, write_peak_result
+from replaybench.results.model import (
+    PEAK_SCHEMA_VERSION,
+    Environment,
+    InputInfo,
+    PeakSettings,
+    PeakStart,
+    PeakTrial,
+    Tool,
+)
+from replaybench.results.model import PeakResult as PeakRecord
+from replaybench.results.records import as_written, read_frames_csv
+from replaybench.results.runfile import environment
 from replaybench.results.runfolder import RunFolder
 
 if TYPE_CHECKING:
+    import threading
     from collections.abc import Callable, Sequence
 
     from replaybench.backends.base import Backend, BackendOptions
@@ -98,6 +109,8 @@ class PeakResult(NamedTuple):
     status: str = 'complete'  # 'interrupted' when Ctrl-C / SIGTERM stopped the sweep
     confirmed: bool = True
     warnings: tuple[str, ...] = ()
+    #: peak.json's contents (written into the peak folder unless the search ran in memory)
+    record: PeakRecord | None = None
 
 
 def trial_verdict(
@@ -185,6 +198,8 @@ def _in_run_folder(sweep: Callable[_P, PeakResult]) -> Callable[_P, PeakResult]:
     def staged(*args: _P.args, **kwargs: _P.kwargs) -> PeakResult:
         bound = signature.bind(*args, **kwargs)
         bound.apply_defaults()
+        if bound.arguments['out_dir'] is None:  # in memory: no folder
+            return cast('Callable[..., PeakResult]', sweep)(*bound.args, **bound.kwargs)
         folder = RunFolder(
             Path(bound.arguments['out_dir']),
             force=bool(bound.arguments['force']),
@@ -237,13 +252,14 @@ class _Sweep:
     def __init__(
         self,
         base: RunConfig,
-        out_dir: Path,
+        out_dir: Path | None,
         *,
         max_drop: float,
         p99_bound_ms: float | None,
         clock: Clock | None,
         backend_factory: Callable[[str, BackendOptions], Backend] | None,
         progress: Callable[[Trial], None] | None,
+        stop: threading.Event | None = None,
     ) -> None:
         self.base = base
         self.out_dir = out_dir
@@ -252,22 +268,27 @@ class _Sweep:
         self.clock = clock
         self.backend_factory = backend_factory
         self.progress = progress
+        self.stop = stop
         self.trials: list[Trial] = []
         self.by_rate: dict[float, list[Trial]] = {}
         self.interrupted = False
         self.cut: Trial | None = None  # the trial an interruption cut short
-        self.input_meta: dict[str, Any] | None = None
+        self.input_meta: InputInfo | None = None
 
     def run(self, rate: Rate, rel: str) -> RunOutcome:
         outcome = run_benchmark(
-            replace(self.base, rate=rate, out_dir=self.out_dir / rel),
+            replace(self.base, rate=rate, out_dir=self.out_dir / rel if self.out_dir else None),
             clock=self.clock,
             backend_factory=self.backend_factory,
+            stop=self.stop,
         )
         if outcome.status == 'interrupted':
             self.interrupted = True
-        if self.input_meta is None and outcome.run.get('inputs'):
-            self.input_meta = outcome.run['inputs'][0]
+        if self.input_meta is None and outcome.run.inputs:
+            self.input_meta = outcome.run.inputs[0]
+            # the later trials replay the same bytes: their runs record this sha256 instead of
+            # hashing the input again beside their measurement
+            self.base = replace(self.base, input_sha256=(self.input_meta.sha256,))
         return outcome
 
     def probe(self) -> float | None:
@@ -287,7 +308,10 @@ class _Sweep:
         attempt = len(done) + 1
         rel = f'trials/{hz:.3f}hz' if attempt == 1 else f'trials/{hz:.3f}hz-{attempt}'
         outcome = self.run(Rate('fixed', hz=hz), rel)
-        records = read_frames_csv(outcome.run_dir / 'frames.csv')
+        if outcome.run_dir is not None:
+            records = read_frames_csv(outcome.run_dir / 'frames.csv')
+        else:  # in memory: the rows as frames.csv would hold them
+            records = [as_written(r) for r in outcome.records]
         frames, dropped, p99, ok = trial_verdict(
             records, max_drop=self.max_drop, p99_bound_ms=self.p99_bound_ms
         )
@@ -441,7 +465,7 @@ def _warnings(
 def find_peak_rate(
     bag: Path,
     backend: str,
-    out_dir: Path,
+    out_dir: Path | None,
     *,
     options: BackendOptions,
     topics: Sequence[str] | None = None,
@@ -459,6 +483,8 @@ def find_peak_rate(
     threads: int | None = None,
     command: Sequence[str] = (),
     progress: Callable[[Trial], None] | None = None,
+    stop: threading.Event | None = None,
+    render_report: Callable[[Path], object] | None = None,
 ) -> PeakResult:
     """Find the highest fixed rate at which ``backend`` keeps up with ``bag``; write peak.json.
 
@@ -469,10 +495,14 @@ def find_peak_rate(
     confirmation trials (``peak_rule``: the peak passed ``confirm_trials`` trials, all it had,
     and lies below every rate that failed one; a failed confirmation moves it down). The
     rate applies to each selected topic. ``out_dir`` gets peak.json, peak.html (``report``) and
-    ``trials/``: the probe's run folder (``trials/max``) and one per tested rate.
+    ``trials/``: the probe's run folder (``trials/max``) and one per tested rate; peak.html is
+    drawn by ``render_report(folder)`` (the application's, ``replaybench.app.peak``).
+    ``out_dir`` None: every trial runs in memory and nothing is written. Setting
+    ``stop`` (a cancellation token) ends the trial under way and the search (status
+    ``interrupted``).
     """
     bag = Path(bag)
-    out_dir = Path(out_dir)
+    out_dir = Path(out_dir) if out_dir is not None else None
     _check(max_drop, p99_bound_ms, trial_frames, min_hz, max_hz, refine_steps)
     if confirm_trials < 1:
         msg = f'confirmation trials must be 1 or more, not {confirm_trials}'
@@ -484,7 +514,8 @@ def find_peak_rate(
     n = facts.frames if facts.frames else (trial_frames or DEFAULT_TRIAL_FRAMES)
     n = min(n, trial_frames if trial_frames is not None else DEFAULT_TRIAL_FRAMES)
     warmup = default_warmup(n)
-    _prepare(out_dir, force)
+    if out_dir is not None:
+        _prepare(out_dir, force)
     started = dt.datetime.now(dt.UTC)
     t_start = time.perf_counter()
     base = RunConfig(
@@ -509,6 +540,7 @@ def find_peak_rate(
         clock=clock,
         backend_factory=backend_factory,
         progress=progress,
+        stop=stop,
     )
     state = _State()
     probe_fps: float | None = None
@@ -546,49 +578,48 @@ def find_peak_rate(
         confirmed=confirmed,
         warnings=tuple(warnings),
     )
-    record = {
-        'schema_version': PEAK_SCHEMA_VERSION,
-        'kind': 'peak',
-        'tool': {'name': 'replaybench', 'version': __version__},
-        'status': status,
-        'command': list(command),
-        'started_at': started.isoformat(),
-        'finished_at': dt.datetime.now(dt.UTC).isoformat(),
-        'wall_s': time.perf_counter() - t_start,
-        'backend': backend,
-        'input': sweep.input_meta or {'path': str(bag)},
-        'settings': {
-            'max_drop': max_drop,
-            'p99_bound_ms': p99_bound_ms,
-            'trial_frames': n,
-            'warmup': warmup,
-            'queue_depth': 1,
-            'min_hz': min_hz,
-            'max_hz': max_hz,
-            'refine_steps': refine_steps,
-            'confirm_trials': confirm_trials,
-            'topics': list(topics) if topics else None,
-            'threads': threads,
-        },
-        'start': {
-            'hz': start,
-            'from': source,
-            'probe_fps': probe_fps,
-            'recorded_hz': facts.recorded_hz,
-            'probe_run_dir': _PROBE_DIR,
-        },
-        'peak_hz': best,
-        'peak_confirmed': confirmed,
-        'first_failing_hz': failing,
-        'resolution_hz': failing - best if best is not None and failing is not None else None,
-        'limit_reached': limit_reached,
-        'warnings': warnings,
-        'trials': [t._asdict() for t in sweep.trials],
-        'environment': environment(),
-    }
-    write_json_atomic(out_dir / 'peak.json', record)
-    if report:
-        from replaybench.report import render_peak_report
-
-        render_peak_report(out_dir)
-    return result
+    record = PeakRecord(
+        schema_version=PEAK_SCHEMA_VERSION,
+        kind='peak',
+        tool=Tool(name='replaybench', version=__version__),
+        status=status,
+        command=tuple(command),
+        started_at=started.isoformat(),
+        finished_at=dt.datetime.now(dt.UTC).isoformat(),
+        wall_s=time.perf_counter() - t_start,
+        backend=backend,
+        input=sweep.input_meta or InputInfo(path=str(bag)),
+        settings=PeakSettings(
+            max_drop=max_drop,
+            p99_bound_ms=p99_bound_ms,
+            trial_frames=n,
+            warmup=warmup,
+            queue_depth=1,
+            min_hz=min_hz,
+            max_hz=max_hz,
+            refine_steps=refine_steps,
+            confirm_trials=confirm_trials,
+            topics=tuple(topics) if topics else None,
+            threads=threads,
+        ),
+        start=PeakStart(
+            hz=start,
+            source=source,
+            probe_fps=probe_fps,
+            recorded_hz=facts.recorded_hz,
+            probe_run_dir=_PROBE_DIR,
+        ),
+        peak_hz=best,
+        peak_confirmed=confirmed,
+        first_failing_hz=failing,
+        resolution_hz=failing - best if best is not None and failing is not None else None,
+        limit_reached=limit_reached,
+        warnings=tuple(warnings),
+        trial_rows=tuple(from_document(PeakTrial, t._asdict()) for t in sweep.trials),
+        environment=from_document(Environment, environment()),
+    )
+    if out_dir is not None:
+        write_peak_result(out_dir / 'peak.json', record)
+        if report and render_report is not None:
+            render_report(out_dir)
+    return result._replace(record=record)

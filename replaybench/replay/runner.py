@@ -1,30 +1,26 @@
-"""Run a benchmark: inputs x backends -> run folder (detections.mcap, frames.csv, summary.csv,
-run.json, samples/, report.html).
+"""The replay engine: inputs x backends -> run folder (detections.mcap, frames.csv,
+summary.csv, run.json), or a run held in memory.
 
 Backends run one after another over the same frames; each (backend, input) pass reads the bag
-again, so every backend is measured on the same path from container to detections.
+again, so every backend is measured on the same path from container to detections. The sample
+pictures and report.html are drawn by the application's ``Renderer``
+(``replaybench.app.run``); the run stops on a cancellation token, not on a signal handler.
 """
 
 from __future__ import annotations
 
 import contextlib
 import datetime as dt
-import hashlib
-import json
 import math
-import os
-import signal
-import sys
 import time
 from dataclasses import dataclass, field
 from itertools import islice
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, cast
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, cast
 
 from replaybench._version import __version__
 from replaybench.backends import get_backend
-from replaybench.backends.base import BackendOptions
-from replaybench.backends.recorded import RecordedBackend
+from replaybench.backends.base import BackendOptions, RecordedDetections, backend_traits
 from replaybench.decode import (
     decode_detections,
     decode_image,
@@ -39,33 +35,45 @@ from replaybench.errors import (
     BackendUnavailableError,
     DecodeError,
     ReplaybenchError,
-    RunAborted,
     SourceError,
     UsageError,
 )
 from replaybench.replay.clock import Clock, MonotonicClock
+from replaybench.replay.hashing import ANNOUNCE_MIN_BYTES, InputHash, describe_size
 from replaybench.replay.prefetch import Prefetched, Prefetcher
 from replaybench.replay.rate import Rate
 from replaybench.replay.resources import ResourceSampler
 from replaybench.replay.scheduler import replay_timed
-from replaybench.results.agreement import Agreement, agreement_table
-from replaybench.results.records import FrameRecord, FramesCsvWriter, read_frames_csv
+from replaybench.replay.threads import thread_limits
+from replaybench.results.agreement import AGREEMENT_IOU, Agreement, agreement_table
+from replaybench.results.intervals import with_intervals
+from replaybench.results.io import from_document, write_run_result
+from replaybench.results.model import (
+    RUN_SCHEMA_VERSION,
+    AgreementRow,
+    BackendRun,
+    Environment,
+    InputInfo,
+    RunCounts,
+    RunOutputs,
+    RunResult,
+    RunSettings,
+    SummaryRow,
+    Tool,
+)
+from replaybench.results.records import FrameRecord, FramesCsvWriter
 from replaybench.results.runfile import (
-    SCHEMA_VERSION,
-    RunData,
     environment,
-    json_text,
-    write_json_atomic,
     write_summary_csv,
-    write_text_atomic,
 )
 from replaybench.results.runfolder import RunFolder, check_out_dir, with_filename
-from replaybench.results.stats import Summary, summarize, summary_row
+from replaybench.results.stats import Summary, summarize, summary_json
 from replaybench.sources import Source, open_source
 from replaybench.types import BackendResult, Detection, Frame, StageTimes, TopicInfo
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterator, Sequence
+    import threading
+    from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 
     from replaybench.backends.base import Backend
     from replaybench.results.groundtruth import ExternalGroundTruth, MatchMode
@@ -73,7 +81,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     'DEFAULT_GROUND_TRUTH_TOPIC',
-    'THREAD_VARS',
     'RunConfig',
     'RunOutcome',
     'default_warmup',
@@ -117,7 +124,7 @@ class RunConfig:
 
     inputs: Sequence[Path]
     backends: Sequence[str]
-    out_dir: Path
+    out_dir: Path | None  # None: in memory, no file written
     force: bool = False
     rate: Rate = field(default_factory=lambda: Rate('max'))
     queue_depth: int = 1
@@ -141,15 +148,45 @@ class RunConfig:
     annotations: bool = False
     copy_images: bool = False
     detections_format: str = 'mcap'  # 'rosbag2': also a metadata.yaml, the run folder is a bag
+    #: False (--no-hash): the inputs' sha256 is not computed; run.json records null and says so
+    hash_inputs: bool = True
+    #: the inputs' sha256 when already known (a peak search's later trials): not hashed again
+    input_sha256: tuple[str | None, ...] | None = None
+
+
+class SampleImage(NamedTuple):
+    """The sample frame of one topic, read again after the passes, with every backend's
+    detections on it (by backend label, in run order)."""
+
+    input: int
+    topic: str
+    image: Any  # BGR8 ndarray
+    detections: Mapping[str, tuple[Detection, ...]]
+    title: str
+
+
+class Renderer(Protocol):
+    """What the application draws into the run folder besides the engine's files: the sample
+    pictures and report.html (``replaybench.app.run.ReportRenderer``). The engine calls it in
+    the temporary folder, before run.json is written."""
+
+    def samples(self, out: Path, samples: Iterable[SampleImage]) -> list[str]:
+        """Draw each sample into ``out``; the files written, relative to ``out``."""
+        ...
+
+    def report(self, out: Path, run: RunResult) -> None:
+        """Write report.html into ``out`` from ``run`` (run.json to be) and its frames.csv."""
+        ...
 
 
 class RunOutcome(NamedTuple):
     """What a finished (or interrupted) run left behind."""
 
-    run_dir: Path
+    run_dir: Path | None  # None: a run made in memory
     status: str
     summaries: list[Summary]
-    run: dict[str, Any]
+    run: RunResult
+    records: tuple[FrameRecord, ...] = ()  # frames.csv's rows, in the order written
 
 
 class _Input(NamedTuple):
@@ -166,6 +203,7 @@ class _Input(NamedTuple):
     recorded_topic: str | None
     external: ExternalGroundTruth | None = None  # --ground-truth-file; replaces ground_truth
     notes: tuple[str, ...] = ()  # warnings found while opening (detections left out)
+    sha256: InputHash | None = None  # started when the input opened (``_start_hash``)
 
 
 class _Sample:
@@ -181,13 +219,64 @@ class _Sample:
         self.detections: dict[str, tuple[Detection, ...]] = {}
 
 
-def _sha256(paths: Sequence[Path]) -> str:
-    digest = hashlib.sha256()
-    for path in paths:
-        with path.open('rb') as f:
-            while chunk := f.read(1 << 20):
-                digest.update(chunk)
-    return digest.hexdigest()
+def _start_hash(
+    inp: _Input,
+    config: RunConfig,
+    hasher: Callable[[Sequence[Path]], InputHash] | None,
+    notice: Callable[[str], None] | None,
+) -> InputHash | None:
+    """The input's sha256, started now: in a thread for a large input, announced on the
+    terminal (``notice``) over ``ANNOUNCE_MIN_BYTES``; None when not computed here (--no-hash,
+    or known already)."""
+    if not config.hash_inputs or config.input_sha256 is not None:
+        return None
+    found = (hasher or InputHash)(list(inp.source.files))
+    if notice is not None and found.size_bytes > ANNOUNCE_MIN_BYTES:
+        size = describe_size(found.size_bytes)
+        notice(f'replaybench: hashing {inp.path.name} ({size}, sha256) in the background')
+    return found.start()
+
+
+def _record_hash(
+    inp: _Input,
+    meta: dict[str, Any],
+    config: RunConfig,
+    *,
+    passes_began: float,
+    interrupted: bool,
+    notice: Callable[[str], None] | None,
+) -> None:
+    """Put the input's sha256 into its run.json entry once the passes have ended; a hash that
+    ran while frames were measured, was cut short or failed is a warning of the input."""
+    if not config.hash_inputs:
+        meta['sha256'] = None
+        meta['warnings'].append(
+            'not hashed (--no-hash): sha256 is null, so compare cannot check that other runs '
+            'replayed the same input'
+        )
+        return
+    if config.input_sha256 is not None:
+        meta['sha256'] = config.input_sha256[inp.number]
+        return
+    found = inp.sha256
+    if found is None:  # pragma: no cover - started for every input that is hashed
+        return
+    if interrupted and not found.done:
+        found.cancel()
+        meta['sha256'] = None
+        meta['warnings'].append('sha256 not computed: the run was interrupted before it ended')
+        return
+    if not found.done and notice is not None:
+        notice(f'replaybench: waiting for the sha256 of {inp.path.name}')
+    meta['sha256'] = found.wait()
+    if found.error is not None:
+        meta['warnings'].append(f'sha256 not computed: {found.error}')
+    overlap = found.overlap_s(passes_began)
+    if found.background and overlap > 0:
+        meta['warnings'].append(
+            f'its sha256 was computed during the first {overlap:.1f} s of the measured passes, '
+            'sharing the CPU and the disk with them (--no-hash leaves it out)'
+        )
 
 
 def _select_topics(
@@ -227,8 +316,15 @@ def _select_topics(
 
 
 def _open_input(
-    index: int, path: Path, config: RunConfig, external: ExternalGroundTruth | None = None
+    index: int,
+    path: Path,
+    config: RunConfig,
+    external: ExternalGroundTruth | None = None,
+    *,
+    recorded_detections: bool = False,
 ) -> _Input:
+    """Open and probe one input; ``recorded_detections``: a backend replays the recorded
+    Detection2DArray topic (``Backend.uses_recorded_detections``), which is read here."""
     source = open_source(path)
     try:
         skipped = source.skipped_topics()
@@ -259,7 +355,7 @@ def _open_input(
             ground_truth = _read_detections(source, gt_topic, notes)
         recorded: dict[tuple[str, int], tuple[Detection, ...]] = {}
         recorded_topic = None
-        if 'recorded' in config.backends:
+        if recorded_detections:
             recorded_topic = _recorded_topic(path, all_topics, config)
             recorded = _read_detections(source, recorded_topic, notes)
         # the frame drawn in samples/: the middle one of the replayed frames (the first one when
@@ -385,6 +481,32 @@ def _decoder(inp: _Input) -> Callable[[RawMessage], Frame]:
     return decode
 
 
+class _Discard:
+    """The frames.csv and detections.mcap writers of a run made in memory: nothing is kept."""
+
+    def __enter__(self) -> _Discard:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def write(self, *args: object) -> None:
+        """A frames.csv row: dropped."""
+
+    def add(self, *args: object) -> None:
+        """A detections message: dropped."""
+
+    def add_camera_info(self, *args: object) -> None:
+        """A camera info message: dropped."""
+
+    def add_raw(self, *args: object) -> None:
+        """A copied image message: dropped."""
+
+
+class _Stopped(Exception):  # noqa: N818 - a signal between the loops, not an error
+    """The cancellation token was set: the replay ends here (status ``interrupted``)."""
+
+
 class _DetectError(Exception):
     """A backend's ``detect`` raised: the pass stops there, and the backend with it."""
 
@@ -424,7 +546,7 @@ class _Pass:
         self.record_s = 0.0  # spent by finalize (wall clock)
         self.decode = _decoder(inp)
         self.taken: dict[str, int] = {}
-        self.measures_latency = bool(getattr(backend, 'measures_latency', True))
+        self.measures_latency = backend_traits(backend).measures_latency
         # at max rate: whether frames were read ahead in a thread, and why (run.json)
         self.read_ahead: dict[str, Any] | None = None
 
@@ -504,7 +626,7 @@ class _Pass:
 
     def inline_all(self, messages: Iterator[RawMessage]) -> None:
         while self.inline(messages, PROGRESS_EVERY, PROGRESS_S):
-            pass
+            self.run.check_stop()
 
     def inline(self, messages: Iterator[RawMessage], limit: int, seconds: float = math.inf) -> int:
         """Read, decode and detect up to ``limit`` frames in this thread, stopping early once
@@ -548,7 +670,10 @@ class _Pass:
         detect = self.backend.detect
         append = self.log.append
         advance = self.run.advance
+        stop = self.run.stop
         for raw, decoded, release, read_decode_s in frames:
+            if stop is not None and stop.is_set():
+                raise _Stopped
             start = now()
             if isinstance(decoded, DecodeError):
                 append((_raw_key(raw), decoded, release, start, 0.0, read_decode_s, start, start))
@@ -607,6 +732,7 @@ class _Pass:
             per_topic: dict[str, int] = {}
             last = 0.0
             for raw in self.messages():
+                self.run.check_stop()
                 if rate.mode == 'fixed':
                     k = per_topic.get(raw.topic, 0)
                     per_topic[raw.topic] = k + 1
@@ -782,10 +908,12 @@ class _Run:
         config: RunConfig,
         clock: Clock,
         progress: Callable[[int, int], None] | None,
+        stop: threading.Event | None = None,
     ) -> None:
         self.config = config
         self.clock = clock
         self.progress = progress
+        self.stop = stop
         self.records: list[FrameRecord] = []
         self.processed: dict[tuple[str, str], int] = {}
         self.scored: dict[tuple[str, str], dict[tuple[int, str, int], tuple[Detection, ...]]] = {}
@@ -801,7 +929,7 @@ class _Run:
         self.environment = environment()
         self.done = 0
         self.total = 0
-        self.frames_csv: FramesCsvWriter
+        self.frames_csv: FramesCsvWriter | _Discard
         self.detections_out: Any
         self.warnings: list[str] = []
         self.warmups: dict[str, int] = {}
@@ -834,6 +962,11 @@ class _Run:
         short = reason.split(':', 1)[0] if len(reason) > 80 else reason
         self.skipped[short] = self.skipped.get(short, 0) + 1
 
+    def check_stop(self) -> None:
+        """``_Stopped`` once the cancellation token is set."""
+        if self.stop is not None and self.stop.is_set():
+            raise _Stopped
+
     def advance(self, frames: int) -> None:
         self.done += frames
         if self.progress is not None:
@@ -853,21 +986,34 @@ def run_benchmark(
     clock: Clock | None = None,
     progress: Callable[[int, int], None] | None = None,
     backend_factory: Callable[[str, BackendOptions], Backend] | None = None,
+    stop: threading.Event | None = None,
+    render: Renderer | None = None,
+    hasher: Callable[[Sequence[Path]], InputHash] | None = None,
+    notice: Callable[[str], None] | None = None,
 ) -> RunOutcome:
     """Replay every input through every backend and write the run folder.
 
     Order of work: the options and ``config.out_dir`` are checked (nothing read or created
     yet); the folder is locked (``RunFolder``); the inputs are opened and probed; every
-    backend is opened (models loaded); only then are the inputs hashed and replayed. The run is
+    backend is opened (models loaded); then the inputs are replayed. Each input's sha256 is
+    computed beside the rest from the moment it is opened (``replaybench.replay.hashing``;
+    ``hasher`` makes the ``InputHash``, ``config.hash_inputs`` False skips it) and recorded when
+    the passes have ended; ``notice`` gets the lines a person should see while it lasts (the
+    hashing of an input over 1 GB, a wait for it at the end). The run is
     written into a temporary folder beside ``out_dir`` and swapped in when it has ended, with
     run.json as its last file: whatever fails leaves ``out_dir`` as it was and nothing else.
 
     Raises ``ReplaybenchError`` subclasses: bad inputs and options, and a run that measured no
     frame (exit code 2); ``BackendFailedError`` when every backend raised in ``detect`` and
     ``OutputError`` when an output cannot be written (1). A backend that raises while others
-    finish gives status ``partial``. A ``KeyboardInterrupt`` (Ctrl-C, or SIGTERM while this
-    runs) finalises every output with the frames done so far and returns with status
-    ``interrupted``.
+    finish gives status ``partial``. Setting ``stop`` (a cancellation token; the command line
+    sets it on Ctrl-C or SIGTERM, ``replaybench.app.signals``) ends the replay at the next
+    frame: every output is finalised with the frames done so far and the run returns with
+    status ``interrupted``; so does a ``KeyboardInterrupt`` raised while frames replay. No
+    signal handler is installed. ``render`` draws the samples and report.html
+    (``config.report``); without it the folder holds neither, and run.json says so.
+    ``config.threads`` limits OpenCV's and the native thread pools'
+    threads for the run (``thread_limits``); they are restored when it returns.
     """
     if not config.backends:
         msg = 'no backend given: add --backend NAME (see `replaybench backends`)'
@@ -889,42 +1035,57 @@ def run_benchmark(
             if not status.ok:
                 msg = f'backend {name!r} is not available here: {status.reason}'
                 raise BackendUnavailableError(msg)
-    check_out_dir(config.out_dir, force=config.force)
-    if config.threads is not None:
-        _set_threads(config.threads)
+    if config.out_dir is not None:
+        check_out_dir(config.out_dir, force=config.force)
 
     external = _load_external(config)
     started = dt.datetime.now(dt.UTC)
     t_start = time.perf_counter()
-    folder = RunFolder(config.out_dir, force=config.force)
+    # in memory (no out_dir): no folder, no file
+    folder = RunFolder(config.out_dir, force=config.force) if config.out_dir is not None else None
     inputs: list[_Input] = []
     opened: list[_OpenBackend] = []
+    limits = contextlib.ExitStack()
+    limits.enter_context(thread_limits(config.threads))
     try:
-        with folder:
+        with folder if folder is not None else contextlib.nullcontext():
+            made = _make_backends(config, factory)
+            recorded = any(backend_traits(b).uses_recorded_detections for _, b in made)
             for index, path in enumerate(config.inputs):
-                inputs.append(_open_input(index, Path(path), config, external))
-            # models are loaded before the inputs are hashed: a bad --model costs no reading
-            opened = _open_backends(config, factory, inputs)
+                inp = _open_input(index, Path(path), config, external, recorded_detections=recorded)
+                # hashed beside the model loading and the replay; joined when the passes end
+                inputs.append(inp._replace(sha256=_start_hash(inp, config, hasher, notice)))
+            opened = _open_backends(made, inputs, notice)
             input_meta = [_input_meta(inp) for inp in inputs]
             outcome = _execute(
                 config,
                 clock or MonotonicClock(),
                 progress,
+                stop,
+                render,
                 opened,
                 inputs,
                 input_meta,
                 started,
                 t_start,
-                folder.path,
+                folder.path if folder is not None else None,
+                notice=notice,
             )
-            folder.commit()
+            if folder is not None:
+                folder.commit()
     except OSError as err:
+        if folder is None:
+            raise
         raise folder.output_error(err) from None
     finally:
+        for inp in inputs:
+            if inp.sha256 is not None:
+                inp.sha256.cancel()  # a failed run does not wait for its hash
         for entry in opened:
             entry.close()  # those a failure left open
         for inp in inputs:
             inp.source.close()
+        limits.close()
     return outcome._replace(run_dir=config.out_dir)
 
 
@@ -1010,28 +1171,80 @@ class _OpenBackend:
         return None
 
 
+def _make_backends(
+    config: RunConfig, factory: Callable[[str, BackendOptions], Backend]
+) -> list[tuple[str, Backend]]:
+    """Every backend made (not opened yet), with its traits checked (``backend_traits``)."""
+    made: list[tuple[str, Backend]] = []
+    for name in config.backends:
+        try:
+            backend = factory(name, config.options)
+            backend_traits(backend)
+        except ReplaybenchError:
+            raise
+        except Exception as err:  # a plugin's own exception: one line, not a traceback
+            first = f'{type(err).__name__}: {err}'.splitlines()[0]
+            msg = f'backend {name!r} could not be opened: {first}'
+            raise BackendError(msg) from None
+        made.append((name, backend))
+    return made
+
+
+#: A backend still opening after this many seconds is announced through ``notice``.
+SLOW_OPEN_S = 2.0
+
+
+@contextlib.contextmanager
+def _announced_if_slow(notice: Callable[[str], None] | None, line: str) -> Iterator[None]:
+    """``notice(line)`` from a timer thread if the block is still running after
+    ``SLOW_OPEN_S``."""
+    from threading import Timer
+
+    if notice is None:
+        yield
+        return
+    timer = Timer(SLOW_OPEN_S, notice, (line,))
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+
+
 def _open_backends(
-    config: RunConfig,
-    factory: Callable[[str, BackendOptions], Backend],
+    made: list[tuple[str, Backend]],
     inputs: list[_Input],
+    notice: Callable[[str], None] | None = None,
 ) -> list[_OpenBackend]:
-    """Every backend made and opened (models loaded) before anything is measured or hashed;
-    on failure those already opened are closed again."""
+    """Every backend prepared and opened (models loaded) before anything is measured; one
+    still opening after ``SLOW_OPEN_S`` (a model conversion, an engine build) is announced
+    through ``notice``. On failure those already opened are closed again."""
     opened: list[_OpenBackend] = []
     try:
-        for name in config.backends:
+        for name, backend in made:
             try:
-                backend = factory(name, config.options)
-                if isinstance(backend, RecordedBackend):
-                    backend.bind(
-                        ', '.join(sorted({i.recorded_topic or '' for i in inputs})),
-                        {
-                            (inp.number, *key): dets
-                            for inp in inputs
-                            for key, dets in inp.recorded.items()
-                        },
+                if backend_traits(backend).uses_recorded_detections:
+                    prepare = getattr(backend, 'prepare', None)
+                    if not callable(prepare):
+                        msg = f'backend {name!r} uses recorded detections but has no prepare()'
+                        raise BackendError(msg)
+                    prepare(
+                        RecordedDetections(
+                            ', '.join(sorted({i.recorded_topic or '' for i in inputs})),
+                            {
+                                (inp.number, *key): dets
+                                for inp in inputs
+                                for key, dets in inp.recorded.items()
+                            },
+                        )
                     )
-                backend.open()
+                slow = (
+                    f'replaybench: opening backend {name} (loading its model; a conversion or '
+                    'an engine build can take minutes)'
+                )
+                with _announced_if_slow(notice, slow):
+                    backend.open()
             except ReplaybenchError:
                 raise
             except Exception as err:  # a plugin's own exception: one line, not a traceback
@@ -1050,21 +1263,26 @@ def _execute(
     config: RunConfig,
     clock: Clock,
     progress: Callable[[int, int], None] | None,
+    stop: threading.Event | None,
+    render: Renderer | None,
     opened: list[_OpenBackend],
     inputs: list[_Input],
     input_meta: list[dict[str, Any]],
     started: dt.datetime,
     t_start: float,
-    out: Path,
+    out: Path | None,
+    *,
+    notice: Callable[[str], None] | None = None,
 ) -> RunOutcome:
-    """Replay into the (temporary) folder ``out``; run.json is its last file.
+    """Replay into the (temporary) folder ``out``; run.json is its last file. ``out`` None:
+    in memory, nothing is written.
 
     Raises ``BackendFailedError`` when every backend raised, and a ``ReplaybenchError`` saying
     why when no frame was measured (``_nothing_measured``).
     """
     from replaybench.sinks.mcap_writer import DetectionsWriter
 
-    run = _Run(config, clock, progress)
+    run = _Run(config, clock, progress, stop)
     for inp in inputs:
         for (frame_id, stamp), dets in inp.ground_truth.items():
             run.ground_truth[(inp.number, frame_id, stamp)] = dets
@@ -1077,41 +1295,50 @@ def _execute(
     backend_meta: list[dict[str, Any]] = []
     copy_problems: dict[int, str] = {}
     status = 'complete'
-    interrupts = _Interrupts()
-    previous = interrupts.install()
     try:
         with (
-            FramesCsvWriter(out / 'frames.csv') as frames_csv,
+            FramesCsvWriter(out / 'frames.csv') if out is not None else _Discard() as frames_csv,
             DetectionsWriter(
                 out / 'detections.mcap',
                 annotations=config.annotations,
                 backends=[name.replace('-', '_') for name in config.backends],
-            ) as detections_out,
+            )
+            if out is not None
+            else _Discard() as detections_out,
         ):
             run.frames_csv = frames_csv
             run.detections_out = detections_out
             _copy_camera_infos(inputs, detections_out)
+            passes_began = time.perf_counter()
             try:
                 for entry in opened:
                     label = entry.name.replace('-', '_')
-                    with ResourceSampler(gpu_index=_gpu_index(entry.name, config)) as sampler:
+                    with ResourceSampler(gpu_index=_gpu_index(entry.backend, config)) as sampler:
                         _run_backend(run, entry, label, inputs, sampler, backend_meta)
                 if config.copy_images:
                     copy_problems = _copy_images(inputs, config, detections_out)
-            except KeyboardInterrupt:
+            except (KeyboardInterrupt, _Stopped):
                 status = 'interrupted'
     except OSError as err:
+        if out is None:
+            raise
         # frames.csv names its own errors: one that names no file is detections.mcap's
         raise with_filename(err, out / 'detections.mcap') from None
-    finally:
-        interrupts.restore(previous)
-    if config.detections_format == 'rosbag2':
+    if config.detections_format == 'rosbag2' and out is not None:
         from replaybench.sinks.rosbag2 import write_rosbag2_metadata
 
         write_rosbag2_metadata(out / 'detections.mcap')
     for inp, meta in zip(inputs, input_meta, strict=True):
         meta['truncated'] = inp.source.truncated
         meta['warnings'] = [*inp.source.warnings, *inp.notes]
+        _record_hash(
+            inp,
+            meta,
+            config,
+            passes_began=passes_began,
+            interrupted=status == 'interrupted',
+            notice=notice,
+        )
         if inp.number in copy_problems:
             meta['warnings'].append(copy_problems[inp.number])
         if inp.external is not None:
@@ -1137,17 +1364,31 @@ def _execute(
 
     summaries = _summaries(run)
     if len(config.backends) > 1:
-        run.agreements = agreement_table(run.detections)
-    write_summary_csv(out / 'summary.csv', summaries)
-    sample_paths = _write_samples(out, run, inputs)
+        run.agreements = agreement_table(run.detections, iou=AGREEMENT_IOU)
+    if out is not None:
+        write_summary_csv(out / 'summary.csv', summaries)
+    drawn = render if out is not None else None
+    sample_paths = drawn.samples(out, _sample_images(run, inputs)) if drawn and out else []
+    reported = config.report and drawn is not None
     record = _run_record(
-        config, run, status, input_meta, backend_meta, summaries, started, t_start, sample_paths
+        config,
+        run,
+        status,
+        input_meta,
+        backend_meta,
+        summaries,
+        started,
+        t_start,
+        sample_paths,
+        report=reported,
     )
-    if config.report:
-        _write_report(out, record)
+    if out is None:
+        return RunOutcome(None, status, summaries, record, tuple(run.records))
+    if render is not None and reported:
+        render.report(out, record)
     # last: a run.json never points at a file that is not there yet
-    write_json_atomic(out / 'run.json', record)
-    return RunOutcome(out, status, summaries, record)
+    write_run_result(out / 'run.json', record)
+    return RunOutcome(out, status, summaries, record, tuple(run.records))
 
 
 def _failures(failed: Sequence[dict[str, Any]]) -> str:
@@ -1194,21 +1435,9 @@ def _nothing_measured(run: _Run, inputs: Sequence[_Input], config: RunConfig) ->
     )
 
 
-def _write_report(out: Path, record: dict[str, Any]) -> None:
-    """report.html from the record about to become run.json and the frames.csv written."""
-    from replaybench.report import render_html
-
-    run = json.loads(json_text(record))  # exactly what run.json will hold
-    data = RunData(run=run, frames=read_frames_csv(out / 'frames.csv'), dir=out)
-    write_text_atomic(out / 'report.html', render_html(data))
-
-
-def _gpu_index(name: str, config: RunConfig) -> int | None:
+def _gpu_index(backend: Backend, config: RunConfig) -> int | None:
     """The GPU whose utilisation is sampled: --device for the GPU backends, none otherwise."""
-    return config.options.device if name in _GPU_BACKENDS else None
-
-
-_GPU_BACKENDS = frozenset({'cuda', 'tensorrt', 'hsv-cuda'})
+    return config.options.device if backend_traits(backend).device == 'cuda' else None
 
 
 def _run_backend(
@@ -1231,6 +1460,7 @@ def _run_backend(
             p = _Pass(run, label, backend, inp)
             passes.append(p)
             try:
+                run.check_stop()
                 p.warm_short_topics()
                 if config.rate.timed:
                     p.run_timed(config.rate)
@@ -1272,51 +1502,10 @@ def _run_backend(
         )
 
 
-class _Interrupts:
-    """Ctrl-C and SIGTERM while the backends replay: the first one ends the replay (as a
-    ``KeyboardInterrupt``: the outputs are finalized with the frames done so far); another one,
-    while that finalization runs, ends the run at once (``RunAborted``)."""
-
-    def __init__(self) -> None:
-        self.count = 0
-
-    def __call__(self, signum: int, frame: object) -> None:
-        self.count += 1
-        if self.count == 1:
-            raise KeyboardInterrupt
-        raise RunAborted
-
-    def install(self) -> dict[int, Any]:
-        """Handle SIGINT and SIGTERM (main thread only); the handlers replaced."""
-        previous: dict[int, Any] = {}
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            with contextlib.suppress(ValueError):  # not the main thread: signals stay as they are
-                previous[sig] = signal.signal(sig, self)
-        return previous
-
-    @staticmethod
-    def restore(previous: dict[int, Any]) -> None:
-        for sig, handler in previous.items():
-            if handler is not None:
-                signal.signal(sig, handler)
-
-
 def _make_backend(name: str, options: BackendOptions) -> Backend:
     cls = get_backend(name)
     backend: Backend = cls(options)  # type: ignore[call-arg]
     return backend
-
-
-#: Environment variables ``--threads`` sets, besides OpenCV's thread count.
-THREAD_VARS = ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')
-
-
-def _set_threads(threads: int) -> None:
-    import cv2
-
-    cv2.setNumThreads(threads)
-    for var in THREAD_VARS:
-        os.environ[var] = str(threads)
 
 
 def _copy_camera_infos(inputs: list[_Input], writer: Any) -> None:
@@ -1337,7 +1526,7 @@ def _input_meta(inp: _Input) -> dict[str, Any]:
         'path': str(inp.path),
         'format': inp.source.format,
         'size_bytes': sum(f.stat().st_size for f in files),
-        'sha256': _sha256(files),
+        'sha256': None,  # when the passes have ended (_record_hash)
         'truncated': inp.source.truncated,
         'warnings': list(inp.source.warnings),
         'ground_truth_frames': len(inp.ground_truth),
@@ -1384,27 +1573,16 @@ def _summaries(run: _Run) -> list[Summary]:
             'n_det': result.n_det,
         }
         out.append(replace(s, accuracy=accuracy))
-    return [replace(s, resources=run.resources.get(s.backend)) for s in out]
+    out = [replace(s, resources=run.resources.get(s.backend)) for s in out]
+    return with_intervals(out, run.records)
 
 
-def _write_samples(out: Path, run: _Run, inputs: Sequence[_Input]) -> list[str]:
-    """Each sample frame, read and decoded again, with every backend's boxes drawn on it."""
-    from replaybench.report import sample_relpath, write_sample
-
-    paths: list[str] = []
-    folder = out / 'samples'
-    folder.mkdir(exist_ok=True)
+def _sample_images(run: _Run, inputs: Sequence[_Input]) -> Iterator[SampleImage]:
+    """Each sample frame, read and decoded again, with every backend's detections."""
     for (index, topic), sample in sorted(run.samples.items()):
         image = _sample_image(inputs[index].source, topic, sample)
-        if image is None:
-            continue
-        rel = sample_relpath(index, topic)
-        try:
-            write_sample(out / rel, image, sample.detections, sample.title)
-        except OSError as err:
-            raise with_filename(err, out / rel) from None
-        paths.append(rel)
-    return paths
+        if image is not None:
+            yield SampleImage(index, topic, image, sample.detections, sample.title)
 
 
 def _sample_image(source: Source, topic: str, sample: _Sample) -> Any:
@@ -1420,16 +1598,6 @@ def _sample_image(source: Source, topic: str, sample: _Sample) -> Any:
     return None
 
 
-def _clean(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_clean(v) for v in value]
-    return value
-
-
 def _run_record(
     config: RunConfig,
     run: _Run,
@@ -1440,65 +1608,65 @@ def _run_record(
     started: dt.datetime,
     t_start: float,
     samples: list[str] | None = None,
-) -> dict[str, Any]:
+    *,
+    report: bool = False,
+) -> RunResult:
     """What run.json holds (written by the caller, last)."""
     rows = []
     for s in summaries:
-        row = summary_row(s)
-        row['accuracy'] = s.accuracy
-        rows.append(row)
-    counts = {
-        'frames': len(run.records),
-        'processed': sum(1 for r in run.records if r.status == 'ok'),
-        'dropped': sum(1 for r in run.records if r.status == 'dropped'),
-        'skipped': sum(1 for r in run.records if r.status == 'skipped'),
-    }
-    record: dict[str, Any] = {
-        'schema_version': SCHEMA_VERSION,
-        'tool': {'name': 'replaybench', 'version': __version__},
-        'status': status,
-        'command': list(config.command) or sys.argv,
-        'started_at': started.isoformat(),
-        'finished_at': dt.datetime.now(dt.UTC).isoformat(),
-        'wall_s': time.perf_counter() - t_start,
-        'settings': {
-            'rate': str(config.rate),
-            'queue_depth': config.queue_depth,
-            'warmup': config.warmup,
-            'warmup_per_topic': {t: run.warmup_for(t) for t in run.topic_frames},
-            'threads': config.threads,
-            'max_frames': config.max_frames,
-            'start_s': config.start_s,
-            'duration_s': config.duration_s,
-            'topics': list(config.topics) if config.topics else None,
-            'ground_truth_topic': config.ground_truth_topic
+        row = summary_json(s)
+        rows.append(from_document(SummaryRow, row))
+    return RunResult(
+        schema_version=RUN_SCHEMA_VERSION,
+        tool=Tool(name='replaybench', version=__version__),
+        status=status,
+        command=tuple(config.command),
+        started_at=started.isoformat(),
+        finished_at=dt.datetime.now(dt.UTC).isoformat(),
+        wall_s=time.perf_counter() - t_start,
+        settings=RunSettings(
+            rate=str(config.rate),
+            queue_depth=config.queue_depth,
+            warmup=config.warmup,
+            warmup_per_topic={t: run.warmup_for(t) for t in run.topic_frames},
+            threads=config.threads,
+            max_frames=config.max_frames,
+            start_s=config.start_s,
+            duration_s=config.duration_s,
+            topics=tuple(config.topics) if config.topics else None,
+            ground_truth_topic=config.ground_truth_topic
             if config.ground_truth_file is None
             and any(m['ground_truth_frames'] for m in input_meta)
             else None,
-            'ground_truth_file': str(config.ground_truth_file)
+            ground_truth_file=str(config.ground_truth_file)
             if config.ground_truth_file is not None
             else None,
-            'ground_truth_match': config.ground_truth_match
+            ground_truth_match=config.ground_truth_match
             if config.ground_truth_file is not None
             else None,
-            'annotations': config.annotations,
-            'copy_images': config.copy_images,
-            'detections_format': config.detections_format,
-        },
-        'inputs': input_meta,
-        'environment': run.environment,
-        'backends': backend_meta,
-        'summary': rows,
-        'agreement': [a._asdict() for a in run.agreements],
-        'counts': counts,
-        'skipped': dict(run.skipped),
-        'warnings': list(run.warnings),
-        'outputs': {
-            'detections_mcap': 'detections.mcap',
-            'frames_csv': 'frames.csv',
-            'summary_csv': 'summary.csv',
-            'report': 'report.html' if config.report else None,
-            'samples': samples or [],
-        },
-    }
-    return cast('dict[str, Any]', _clean(record))
+            annotations=config.annotations,
+            copy_images=config.copy_images,
+            detections_format=config.detections_format,
+            agreement_iou=AGREEMENT_IOU,
+        ),
+        inputs=tuple(from_document(InputInfo, meta) for meta in input_meta),
+        environment=from_document(Environment, run.environment),
+        backends=tuple(from_document(BackendRun, meta) for meta in backend_meta),
+        summary_rows=tuple(rows),
+        agreement=tuple(from_document(AgreementRow, a._asdict()) for a in run.agreements),
+        counts=RunCounts(
+            frames=len(run.records),
+            processed=sum(1 for r in run.records if r.status == 'ok'),
+            dropped=sum(1 for r in run.records if r.status == 'dropped'),
+            skipped=sum(1 for r in run.records if r.status == 'skipped'),
+        ),
+        skipped=dict(run.skipped),
+        warnings=tuple(run.warnings),
+        outputs=RunOutputs(
+            detections_mcap='detections.mcap',
+            frames_csv='frames.csv',
+            summary_csv='summary.csv',
+            report='report.html' if report else None,
+            samples=tuple(samples or ()),
+        ),
+    )

@@ -23,6 +23,7 @@ __all__ = [
     'FrameRecord',
     'FrameStatus',
     'FramesCsvWriter',
+    'as_written',
     'csv_writer',
     'read_frames_csv',
 ]
@@ -250,6 +251,24 @@ def _line(record: FrameRecord) -> str:
     buffer = io.StringIO()
     csv_writer(buffer).writerow(_row(record))
     return buffer.getvalue()
+
+
+def as_written(record: FrameRecord) -> FrameRecord:
+    """``record`` as frames.csv holds it: times rounded to the file's decimals (6 for ``*_s``,
+    4 for ``*_ms``), non-finite ones None; what ``read_frames_csv`` reads back."""
+    values = list(record)
+    for index, cell in _ROUNDED:
+        value = values[index]
+        if value is not None:
+            text = cell(value)
+            values[index] = float(text) if text else None
+    return FrameRecord(*values)  # type: ignore[arg-type]
+
+
+#: (index, cell formatter) of each float column of frames.csv
+_ROUNDED: tuple[tuple[int, Callable[[object], str]], ...] = tuple(
+    (i, _CELLS[i]) for i, name in enumerate(FRAMES_CSV_COLUMNS) if name in _FLOAT_FORMAT
+)
 
 
 def _parse_bool(text: str) -> bool:

@@ -136,12 +136,17 @@ def test_main_prints_the_summary_and_warnings(tmp_path: Path) -> None:
     assert out[0].startswith('baseline: a (')
     assert any(re.search(r'· hsv · .*: median ×1\.[45]\d\d \[', line) for line in out)
     assert err[0].startswith('replaybench: warning: INPUTS DIFFER')
-    assert out[-2] == f'Comparison: {tmp_path / "out" / "comparison.html"}'
+    # every file written is named
+    assert out[-3:] == [
+        f'Comparison: {tmp_path / "out" / "comparison.html"}',
+        f'CSV: {tmp_path / "out" / "comparison.csv"}',
+        f'JSON: {tmp_path / "out" / "comparison.json"}',
+    ]
 
 
 @pytest.fixture(scope='module')
 def real_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    from replaybench.replay.runner import RunConfig, run_benchmark
+    from replaybench.app.run import RunConfig, run_benchmark
 
     bag = REPO / 'fixtures' / 'bags' / 'rgb8_raw.mcap'
     if not bag.is_file():

@@ -14,16 +14,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bagtools import image_msg, noise_frames, write_mcap
 
-from replaybench.backends.base import Availability, BackendOptions
-from replaybench.errors import UsageError
-from replaybench.replay import VirtualClock
-from replaybench.replay.peak import (
+from replaybench.app.peak import (
     PEAK_SCHEMA_VERSION,
     PeakResult,
     Trial,
     find_peak_rate,
     trial_verdict,
 )
+from replaybench.backends.base import Availability, BackendOptions
+from replaybench.errors import UsageError
+from replaybench.replay import VirtualClock
 from replaybench.results.records import FrameRecord
 from replaybench.types import BackendResult, Frame, StageTimes
 

@@ -14,17 +14,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bagtools import image_msg, noise_frames, write_mcap
 
-from replaybench.backends.base import Availability, BackendOptions
-from replaybench.backends.busywait import spin_options
-from replaybench.errors import UsageError
-from replaybench.replay import VirtualClock
-from replaybench.replay.peak import (
+from replaybench.app.peak import (
     CONFIRM_TRIALS,
     MIN_TRIAL_FRAMES,
     Trial,
     find_peak_rate,
     peak_rule,
 )
+from replaybench.backends.base import Availability, BackendOptions
+from replaybench.backends.busywait import spin_options
+from replaybench.errors import UsageError
+from replaybench.replay import VirtualClock
 from replaybench.types import BackendResult, Frame, StageTimes
 
 NS = 1_000_000_000

@@ -21,12 +21,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bagtools import TS, Header, Time, image_msg, noise_frames, write_mcap
 
+from replaybench.app.run import RunConfig, run_benchmark
 from replaybench.backends.base import BackendOptions
 from replaybench.backends.null import NullBackend
 from replaybench.errors import BackendError, BackendFailedError, DecodeError, UsageError
 from replaybench.replay import Rate, VirtualClock
-from replaybench.replay import runner as runner_module
-from replaybench.replay.runner import RunConfig, run_benchmark
 
 if TYPE_CHECKING:
     from replaybench.types import BackendResult, Frame
@@ -255,10 +254,10 @@ def test_an_explicit_warmup_of_every_frame_is_clamped_so_one_frame_is_measured(t
         RunConfig(inputs=[bag], backends=['null'], out_dir=tmp_path / 'run', warmup=50)
     )
     run = outcome.run
-    assert run['settings']['warmup'] == 50
-    assert run['settings']['warmup_per_topic'] == {TOPIC: 4}
-    assert [s['measured'] for s in run['summary']] == [1]
-    assert any('--warmup 50' in w and TOPIC in w for w in run['warnings'])
+    assert run.settings.warmup == 50
+    assert run.settings.warmup_per_topic == {TOPIC: 4}
+    assert [s.measured for s in run.summary_rows] == [1]
+    assert any('--warmup 50' in w and TOPIC in w for w in run.warnings)
     rows = _rows(outcome.run_dir)
     assert [r['warmup'] for r in rows] == ['1', '1', '1', '1', '0']
 
@@ -268,8 +267,8 @@ def test_a_warmup_that_leaves_a_frame_to_measure_is_kept_without_a_warning(tmp_p
     outcome = run_benchmark(
         RunConfig(inputs=[bag], backends=['null'], out_dir=tmp_path / 'run', warmup=4)
     )
-    assert outcome.run['settings']['warmup_per_topic'] == {TOPIC: 4}
-    assert outcome.run['warnings'] == []
+    assert outcome.run.settings.warmup_per_topic == {TOPIC: 4}
+    assert outcome.run.warnings == ()
 
 
 # -- a backend that raises is recorded; the others finish ---------------------------------------
@@ -327,29 +326,8 @@ def test_a_backend_that_raises_is_stopped_and_recorded_while_the_others_finish(
 # -- order of work ------------------------------------------------------------------------------
 
 
-def test_models_are_loaded_before_the_inputs_are_hashed(tmp_path, monkeypatch):
-    bag = _bag(tmp_path / 'cam.mcap', n=3)
-    model = tmp_path / 'model.onnx'
-    model.write_bytes(b'\x00' * 64)
-    hashed: list[list[Path]] = []
-    real = runner_module._sha256
-
-    def recording_sha256(paths: Any) -> str:
-        hashed.append(list(paths))
-        return real(paths)
-
-    monkeypatch.setattr(runner_module, '_sha256', recording_sha256)
-    with pytest.raises(BackendError, match='cannot load'):
-        run_benchmark(
-            RunConfig(
-                inputs=[bag],
-                backends=['null', 'onnx-cpu'],
-                out_dir=tmp_path / 'run',
-                options=BackendOptions(model=model),
-            )
-        )
-    assert hashed == []
-    assert sorted(p.name for p in tmp_path.iterdir()) == ['cam.mcap', 'model.onnx']
+# the inputs are hashed while the models load, and a model that cannot load stops the
+# hashing at once: tests/replay/test_input_hashing.py
 
 
 _RENAMES: list[tuple[str, str]] = []
@@ -399,7 +377,7 @@ def test_a_ctrl_c_during_the_swap_is_acted_on_once_the_swap_is_done() -> None:
 
 
 def test_a_forced_peak_sweep_that_fails_leaves_the_previous_peak_folder_byte_for_byte(tmp_path):
-    from replaybench.replay.peak import find_peak_rate
+    from replaybench.app.peak import find_peak_rate
 
     bag = _bag(tmp_path / 'cam.mcap', n=12)
     out = tmp_path / 'peak'

@@ -18,6 +18,8 @@ from replaybench.backends.base import Availability, BackendOptions
 from replaybench.errors import DecodeError, SourceError, UsageError
 from replaybench.replay import Rate, VirtualClock
 from replaybench.replay.runner import RunConfig, default_warmup, run_benchmark
+from replaybench.results.io import to_json
+from replaybench.results.model import ReadAhead
 from replaybench.types import BackendResult, Detection, Frame, StageTimes
 
 NS = 1_000_000_000
@@ -101,9 +103,9 @@ def test_recorded_rate_with_a_slow_backend_drops_exactly_the_frames_it_should(tm
     assert dropped == [1, 3, 4, 6, 7]
     assert backend.seen == [0, 2, 5, 8, 9]
     assert [r['seq'] for r in rows] == [str(i) for i in range(10)]
-    summary = outcome.run['summary'][0]
-    assert summary['dropped'] == 5
-    assert summary['measured'] == 5
+    summary = outcome.run.summary_rows[0]
+    assert summary.dropped == 5
+    assert summary.measured == 5
     waits = {int(r['seq']): float(r['queue_wait_ms']) for r in rows if r['status'] == 'ok'}
     assert waits == pytest.approx({0: 0.0, 2: 70.0, 5: 40.0, 8: 10.0, 9: 180.0}, abs=1e-3)
     latencies = {int(r['seq']): float(r['latency_ms']) for r in rows if r['status'] == 'ok'}
@@ -129,9 +131,9 @@ def test_a_fast_backend_at_recorded_rate_drops_nothing_and_latency_is_its_servic
     assert [r['status'] for r in rows] == ['ok'] * 12
     assert [r['warmup'] for r in rows] == ['1', '1'] + ['0'] * 10
     assert {round(float(r['latency_ms']), 6) for r in rows} == {10.0}
-    summary = outcome.run['summary'][0]
-    assert summary['measured'] == 10
-    assert summary['latency_ms_p99'] == pytest.approx(10.0)
+    summary = outcome.run.summary_rows[0]
+    assert summary.measured == 10
+    assert summary.latency_ms_p99 == pytest.approx(10.0)
 
 
 def test_a_fixed_rate_releases_frames_at_that_rate_whatever_the_log_times(tmp_path):
@@ -166,8 +168,9 @@ def test_one_undecodable_message_is_skipped_counted_and_kept_in_frames_csv(tmp_p
     rows = _rows(outcome.run_dir)
     assert [r['status'] for r in rows] == ['ok', 'ok', 'ok', 'skipped', 'ok', 'ok']
     assert rows[3]['note']
-    assert outcome.run['counts']['skipped'] == 1
-    assert sum(outcome.run['skipped'].values()) == 1
+    assert outcome.run.counts is not None
+    assert outcome.run.counts.skipped == 1
+    assert sum(outcome.run.skipped.values()) == 1
 
 
 def test_a_bag_where_no_frame_decodes_fails_with_the_reason(tmp_path):
@@ -215,7 +218,8 @@ def test_a_depth_only_bag_names_the_topics_and_runs_when_they_are_selected(tmp_p
             report=False,
         )
     )
-    assert outcome.run['counts']['processed'] == 3
+    assert outcome.run.counts is not None
+    assert outcome.run.counts.processed == 3
 
 
 def test_a_non_empty_output_folder_is_refused_without_force(tmp_path):
@@ -299,8 +303,8 @@ def test_several_bags_are_separate_inputs_of_one_run(tmp_path):
         ('1', '1'),
         ('1', '2'),
     ]
-    assert [i['path'] for i in outcome.run['inputs']] == [str(a), str(b)]
-    assert all(len(i['sha256']) == 64 for i in outcome.run['inputs'])
+    assert [i.path for i in outcome.run.inputs] == [str(a), str(b)]
+    assert all(len(i.sha256 or '') == 64 for i in outcome.run.inputs)
 
 
 @pytest.mark.parametrize(
@@ -368,16 +372,17 @@ def _detections_by_frame(run_dir: Path) -> list[tuple[str, str, str]]:
 
 def test_at_max_rate_frames_cheap_to_read_are_read_inline_and_run_json_says_why(tmp_path):
     outcome = _max_rate_run(tmp_path, 'fast', SteppingClock(1e-6))
-    (decision,) = outcome.run['backends'][0]['read_ahead']
-    assert decision['used'] is False
-    assert decision['probe_frames'] == 15
-    assert decision['probe_read_decode_ms'] < decision['threshold_ms']
+    (decision,) = outcome.run.backends[0].read_ahead
+    assert decision.used is False
+    assert decision.probe_frames == 15
+    assert decision.probe_read_decode_ms is not None and decision.threshold_ms is not None
+    assert decision.probe_read_decode_ms < decision.threshold_ms
 
 
 def test_at_max_rate_frames_slow_to_read_are_read_ahead_with_the_same_results(tmp_path):
     slow = _max_rate_run(tmp_path, 'slow', SteppingClock(1e-3))
-    (decision,) = slow.run['backends'][0]['read_ahead']
-    assert decision == {
+    (decision,) = slow.run.backends[0].read_ahead
+    assert to_json(decision) == {
         'input': 0,
         'depth': 4,
         'used': True,
@@ -388,9 +393,9 @@ def test_at_max_rate_frames_slow_to_read_are_read_ahead_with_the_same_results(tm
     }
     fast = _max_rate_run(tmp_path, 'fast', SteppingClock(1e-6))
     serial = _max_rate_run(tmp_path, 'serial', SteppingClock(1e-3), prefetch=0)
-    assert serial.run['backends'][0]['read_ahead'] == [
-        {'input': 0, 'depth': 0, 'used': False, 'reason': 'prefetch=0'}
-    ]
+    assert serial.run.backends[0].read_ahead == (
+        ReadAhead(input=0, depth=0, used=False, reason='prefetch=0'),
+    )
     expected = _detections_by_frame(serial.run_dir)
     assert len(expected) == 40
     assert _detections_by_frame(slow.run_dir) == expected
@@ -407,9 +412,9 @@ def test_a_bag_shorter_than_the_probe_is_read_inline(tmp_path):
         ),
         clock=SteppingClock(1e-3),
     )
-    assert outcome.run['backends'][0]['read_ahead'] == [
-        {'input': 0, 'depth': 4, 'used': False, 'reason': 'input ended in the probe'}
-    ]
+    assert outcome.run.backends[0].read_ahead == (
+        ReadAhead(input=0, depth=4, used=False, reason='input ended in the probe'),
+    )
     assert len(_rows(outcome.run_dir)) == 5
 
 
@@ -445,20 +450,21 @@ def test_progress_is_reported_in_order_up_to_the_total(tmp_path):
 
 
 def test_the_sample_is_the_middle_frame_read_again_with_every_backends_boxes(tmp_path):
+    from replaybench.app.run import run_benchmark as run_with_report
     from replaybench.decode import decode_image, to_bgr8
     from replaybench.report import write_sample
     from replaybench.sources import open_source
 
     bag = _bag(tmp_path / 'cam.mcap', n=9)
     clock = VirtualClock()
-    outcome = run_benchmark(
+    outcome = run_with_report(
         RunConfig(inputs=[bag], backends=['service', 'null'], out_dir=tmp_path / 'run'),
         clock=clock,
         backend_factory=lambda name, options: (
             ServiceTimeBackend(clock, 0.01) if name == 'service' else _null(options)
         ),
     )
-    assert outcome.run['outputs']['samples'] == ['samples/input0_cam_image_raw.jpg']
+    assert outcome.run.outputs.samples == ('samples/input0_cam_image_raw.jpg',)
     with open_source(bag) as source:
         middle = next(m for m in source.messages() if m.seq == 4)
         frame = decode_image(middle)

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 
-from replaybench.replay.runner import RunConfig, run_benchmark
+from replaybench.app.run import RunConfig, run_benchmark
 
 if TYPE_CHECKING:
     from collections.abc import Iterator

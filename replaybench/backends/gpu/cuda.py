@@ -490,6 +490,8 @@ class CudaBackend:
     description: ClassVar[str] = (
         'ONNX detector on an NVIDIA GPU: onnxruntime-gpu (IO binding) or PyTorch (onnx2torch)'
     )
+    #: Runs on the GPU ``options.device`` (``Backend.device``).
+    device: ClassVar[str] = 'cuda'
     #: Engines this backend may use, in ``auto`` order.
     engines: ClassVar[tuple[str, ...]] = ('ort', 'torch')
     #: The onnxruntime provider the ``ort`` engine must run every node on.

@@ -150,6 +150,8 @@ class HsvCudaBackend:
     description: ClassVar[str] = (
         'hsv colour blobs on an NVIDIA GPU (CuPy: HSV, masks, open/close, labelling)'
     )
+    #: Runs on the GPU ``options.device`` (``Backend.device``).
+    device: ClassVar[str] = 'cuda'
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()

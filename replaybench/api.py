@@ -1,0 +1,250 @@
+"""The Python API: ``import replaybench as rb`` (docs/api.md).
+
+``rb.run`` replays bags through backends, ``rb.load_run`` reads a run folder back,
+``rb.compare`` compares runs with confidence intervals and a gate, ``rb.peak`` finds a
+backend's peak sustainable rate and ``rb.sweep`` runs a grid of runs on Ray. Each takes the
+options of the command of the same name, in snake_case, and returns a typed result
+(``replaybench.results.model``) whose tables are pandas DataFrames.
+
+Library calls install no signal handler (pass ``stop=``, a ``threading.Event``, to end a run
+early), leave ``os.environ``, OpenCV's thread count, ``sys.argv`` and the running threads as
+they found them, print nothing (pass ``progress=`` to follow a run) and, without ``out``, write
+nothing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import os
+    import threading
+    from collections.abc import Callable, Sequence
+
+    from replaybench.app.sweep import SweepProgress, SweepResult
+    from replaybench.replay.peak import Trial
+    from replaybench.results.model import Comparison, PeakResult, RunResult
+
+__all__ = ['compare', 'load_run', 'peak', 'run', 'sweep']
+
+
+def run(
+    input: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+    *,
+    backends: str | Sequence[str] = ('hsv',),
+    out: str | os.PathLike[str] | None = None,
+    rate: str | float = 'max',
+    topics: str | Sequence[str] | None = None,
+    threads: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    stop: threading.Event | None = None,
+    **options: Any,
+) -> RunResult:
+    """Replay ``input`` (a bag, a rosbag2 folder, or several) through ``backends``.
+
+    ``rate``: ``'max'``, ``'recorded'``, ``'2x'``, ``'30hz'`` or a number of Hz. ``out``: the
+    run folder to write, exactly the one ``replaybench run --out`` writes; None (default) keeps
+    everything in memory and writes nothing. ``options`` are ``replaybench run``'s other
+    options in snake_case (``max_frames=``, ``warmup=``, ``ground_truth=``, ``model=``,
+    ``force=``, ``report=False`` for ``--no-report``, ``detections_format=`` for
+    ``--format``; see ``replaybench.app.run.run_config``). ``progress(done, total)`` is called
+    as frames are replayed; setting ``stop`` ends the run at the next frame (status
+    ``interrupted``).
+
+    Returns the ``RunResult``: run.json's contents as typed attributes, with ``frames`` and
+    ``summary`` as pandas DataFrames (the frames.csv and summary.csv tables). Raises
+    ``ReplaybenchError`` subclasses for bad input and options and for a run that measured
+    nothing.
+    """
+    from replaybench.app.run import run_benchmark, run_config
+    from replaybench.results.io import from_json, to_json
+    from replaybench.results.model import RunResult
+    from replaybench.results.records import as_written
+
+    config = run_config(
+        input,
+        backends=backends,
+        out=out,
+        rate=rate,
+        topics=topics,
+        threads=threads,
+        **options,
+    )
+    outcome = run_benchmark(config, progress=progress, stop=stop)
+    if outcome.run_dir is not None:
+        return load_run(outcome.run_dir)
+    # in memory: what the files would hold (JSON values, times rounded as in frames.csv)
+    result = from_json(RunResult, to_json(outcome.run), where='run')
+    return dataclasses.replace(result, frame_records=tuple(as_written(r) for r in outcome.records))
+
+
+def load_run(path: str | os.PathLike[str]) -> RunResult:
+    """A run folder read back: run.json as a ``RunResult`` with its frames.csv (``frames``).
+
+    ``rb.load_run(folder)`` equals the ``RunResult`` that ``rb.run(..., out=folder)`` returned,
+    DataFrames included. Raises ``SourceError`` when the folder is not a readable run.
+    """
+    from replaybench.results.runfile import load_run as read_folder
+
+    data = read_folder(Path(path))
+    return dataclasses.replace(data.run, frame_records=tuple(data.frames))
+
+
+def compare(
+    *runs: RunResult | str | os.PathLike[str],
+    fail_if: str | Sequence[str] = (),
+    strict: bool = False,
+    allow_inconclusive: bool = False,
+    baseline: int = 0,
+    baseline_backend: str | None = None,
+    seed: int = 0,
+    out: str | os.PathLike[str] | None = None,
+) -> Comparison:
+    """Compare runs (run folders, or ``RunResult``s of ``rb.run``; the first is the baseline),
+    as ``replaybench compare`` does.
+
+    ``fail_if``: gate conditions such as ``'p99_ms > +10%'``; ``strict`` judges them on the
+    point estimate; ``allow_inconclusive`` makes an undecided gate pass. ``out``: also write
+    comparison.csv/.json/.html there. Returns the ``Comparison`` (comparison.json's contents)
+    with ``table``, the comparison.csv rows as a pandas DataFrame, and ``verdict``
+    (``passed``, ``failed``, ``inconclusive``; None without conditions).
+    """
+    import pandas as pd
+
+    from replaybench.comparison.core import compare_runs
+    from replaybench.comparison.gate import evaluate_gate, parse_condition
+    from replaybench.comparison.output import (
+        CSV_COLUMNS,
+        comparison_json,
+        csv_rows,
+        write_comparison,
+    )
+    from replaybench.errors import UsageError
+    from replaybench.results.io import from_json
+    from replaybench.results.model import Comparison, RunResult
+    from replaybench.results.runfile import RunData
+
+    conditions = [fail_if] if isinstance(fail_if, str) else list(fail_if)
+    for condition in conditions:
+        parse_condition(condition)
+    items: list[str | Path | RunData] = []
+    for index, item in enumerate(runs):
+        if isinstance(item, RunResult):
+            if item.frame_records is None:
+                msg = f'run {index} carries no frames: make it with rb.run or rb.load_run'
+                raise UsageError(msg)
+            items.append(RunData(item, list(item.frame_records), Path(f'run{index}')))
+        else:
+            items.append(Path(item))
+    comparison = compare_runs(
+        items, baseline=baseline, baseline_backend=baseline_backend, seed=seed
+    )
+    gate = evaluate_gate(comparison, conditions, strict=strict)
+    if out is not None:
+        write_comparison(
+            comparison,
+            Path(out),
+            gate=gate,
+            conditions=conditions,
+            strict=strict,
+            allow_inconclusive=allow_inconclusive,
+        )
+    document = comparison_json(
+        comparison,
+        gate=gate,
+        conditions=conditions,
+        strict=strict,
+        allow_inconclusive=allow_inconclusive,
+    )
+    result = from_json(Comparison, document, where='comparison')
+    table = pd.DataFrame.from_records(csv_rows(comparison, gate), columns=list(CSV_COLUMNS))
+    return dataclasses.replace(result, table=table)
+
+
+def peak(
+    input: str | os.PathLike[str],
+    *,
+    backend: str = 'hsv',
+    out: str | os.PathLike[str] | None = None,
+    max_drop: float = 0.05,
+    p99_ms: float | None = None,
+    trial_frames: int | None = None,
+    min_hz: float = 1.0,
+    max_hz: float | None = None,
+    refine_steps: int = 4,
+    topics: str | Sequence[str] | None = None,
+    threads: int | None = None,
+    force: bool = False,
+    report: bool = True,
+    progress: Callable[[Trial], None] | None = None,
+    stop: threading.Event | None = None,
+    **options: Any,
+) -> PeakResult:
+    """The highest fixed rate at which ``backend`` keeps up with ``input``, as ``replaybench
+    peak`` finds it (docs/peak.md).
+
+    ``out``: the peak folder (peak.json, peak.html unless ``report=False``, and the trial
+    runs); None keeps every trial in memory and writes nothing. ``options``: the backend
+    options of ``replaybench peak`` (``config=``, ``model=``, ``device=``, ...).
+    ``progress(trial)`` is called after each trial. Returns the ``PeakResult`` (peak.json's
+    contents) with ``peak_hz`` and ``trials``, a pandas DataFrame (``rate_hz``, ``ok``, ...).
+    """
+    from replaybench.app.peak import find_peak
+    from replaybench.app.run import backend_options
+    from replaybench.results.io import from_json, to_json
+    from replaybench.results.model import PeakResult
+
+    names = [topics] if isinstance(topics, str) else list(topics or ())
+    record = find_peak(
+        Path(input),
+        backend,
+        Path(out) if out is not None else None,
+        options=backend_options(threads=threads, **options),
+        topics=names or None,
+        max_drop=max_drop,
+        p99_bound_ms=p99_ms,
+        trial_frames=trial_frames,
+        min_hz=min_hz,
+        max_hz=max_hz,
+        refine_steps=refine_steps,
+        force=force,
+        report=report,
+        threads=threads,
+        progress=progress,
+        stop=stop,
+    )
+    # what peak.json holds (JSON values), whether or not it was written
+    return from_json(PeakResult, to_json(record), where='peak')
+
+
+def sweep(
+    inputs: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+    *,
+    backends: str | Sequence[str] = ('hsv',),
+    out: str | os.PathLike[str],
+    progress: Callable[[SweepProgress], None] | None = None,
+    stop: threading.Event | None = None,
+    **options: Any,
+) -> SweepResult:
+    """Every input x backend x ``params`` combination as one run on Ray, as ``replaybench
+    sweep`` does (docs/sweep.md; needs the ``sweep`` extra). ``out`` is the sweep folder
+    (the same ``out`` resumes); ``options`` are the command's other options in snake_case
+    (``params=['hsv.min_area=50,100']``, ``address=``, ``pack=``, ``max_frames=``, ...);
+    setting ``stop`` ends it as interrupted, the complete cells kept. Returns the
+    ``SweepResult``; its ``cells`` is a pandas DataFrame (sweep.csv).
+    """
+    from replaybench.app.run import input_paths
+    from replaybench.app.sweep import sweep as run_sweep
+
+    names = [backends] if isinstance(backends, str) else list(backends)
+    options.setdefault('command', ())
+    return run_sweep(
+        input_paths(inputs),
+        backends=names,
+        out=Path(out),
+        progress=progress,
+        stop=stop,
+        **options,
+    )

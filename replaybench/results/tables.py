@@ -1,0 +1,142 @@
+"""pandas DataFrames of the results: frames.csv, summary.csv and a peak search's trials.
+
+The frames and summary tables have exactly the CSV files' columns, in order, and hold what the
+files hold (times rounded to the file's decimals): ``RunResult.frames`` of a run made in memory
+equals the one read back from its folder. Column types: float columns ``float64`` (NaN where
+the cell is empty), integer columns ``Int64`` (``<NA>`` where empty), ``warmup`` / ``dropped``
+and ``ok`` ``bool``, text columns ``str``.
+
+pandas is imported when a table is made, never when this module is.
+"""
+
+from __future__ import annotations
+
+import csv
+import functools
+import math
+import types
+import typing
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from replaybench.errors import SourceError
+from replaybench.results.model import PeakTrial, SummaryRow
+from replaybench.results.records import FRAMES_CSV_COLUMNS, FrameRecord, as_written
+from replaybench.results.stats import SUMMARY_CSV_COLUMNS
+from replaybench.textsafe import from_csv
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Mapping, Sequence
+
+    import pandas as pd
+
+__all__ = [
+    'FRAMES_DTYPES',
+    'SUMMARY_DTYPES',
+    'TRIALS_COLUMNS',
+    'TRIALS_DTYPES',
+    'frames_table',
+    'read_summary_csv',
+    'summary_table',
+    'trials_table',
+]
+
+
+def _dtype(tp: Any) -> str:
+    """The pandas dtype of a field annotated ``tp``."""
+    if typing.get_origin(tp) in (types.UnionType, typing.Union):
+        (tp,) = [a for a in typing.get_args(tp) if a is not type(None)]
+    if tp is bool:
+        return 'bool'
+    if tp is int:
+        return 'Int64'
+    if tp is float:
+        return 'float64'
+    return 'str'  # str, and the tuple of texts (``warnings``) joined by '; '
+
+
+def _dtypes(cls: type[Any], columns: Sequence[str]) -> dict[str, str]:
+    hints = typing.get_type_hints(cls)
+    return {name: _dtype(hints[name]) for name in columns}
+
+
+#: frames.csv column -> pandas dtype (``RunResult.frames``)
+FRAMES_DTYPES: dict[str, str] = _dtypes(FrameRecord, FRAMES_CSV_COLUMNS)
+#: summary.csv column -> pandas dtype (``RunResult.summary``)
+SUMMARY_DTYPES: dict[str, str] = _dtypes(SummaryRow, SUMMARY_CSV_COLUMNS)
+#: ``PeakResult.trials`` columns, the fields of a peak.json trial
+TRIALS_COLUMNS: tuple[str, ...] = tuple(PeakTrial.__dataclass_fields__)
+#: ``PeakResult.trials`` column -> pandas dtype
+TRIALS_DTYPES: dict[str, str] = _dtypes(PeakTrial, TRIALS_COLUMNS)
+
+
+def _frame(columns: Mapping[str, list[Any]], dtypes: Mapping[str, str]) -> pd.DataFrame:
+    import pandas as pd
+
+    return pd.DataFrame(
+        {name: pd.array(values, dtype=dtypes[name]) for name, values in columns.items()}
+    )
+
+
+def frames_table(records: Iterable[FrameRecord]) -> pd.DataFrame:
+    """frames.csv as a DataFrame: one row per record, rounded as the file rounds."""
+    rows = [as_written(r) for r in records]
+    columns = {name: [r[i] for r in rows] for i, name in enumerate(FRAMES_CSV_COLUMNS)}
+    return _frame(columns, FRAMES_DTYPES)
+
+
+def _summary_value(value: Any) -> Any:
+    """One summary.csv cell's value as the file holds it (``write_summary_csv``)."""
+    if isinstance(value, float):
+        return float(format(value, '.4f')) if math.isfinite(value) else None
+    if isinstance(value, tuple):
+        return '; '.join(value)
+    return value
+
+
+def summary_table(rows: Sequence[SummaryRow]) -> pd.DataFrame:
+    """summary.csv as a DataFrame, from run.json's ``summary`` rows."""
+    columns = {
+        name: [_summary_value(getattr(row, name)) for row in rows] for name in SUMMARY_CSV_COLUMNS
+    }
+    return _frame(columns, SUMMARY_DTYPES)
+
+
+@functools.cache
+def _parsers() -> dict[str, Any]:
+    def number(kind: type[Any]) -> Any:
+        return lambda text: kind(text) if text else None
+
+    by_dtype = {'Int64': number(int), 'float64': number(float), 'bool': lambda t: t == '1'}
+    return {name: by_dtype.get(dtype, from_csv) for name, dtype in SUMMARY_DTYPES.items()}
+
+
+def read_summary_csv(path: str | Path) -> pd.DataFrame:
+    """A summary.csv file as the DataFrame ``summary_table`` makes; ``SourceError`` when the
+    file is not one."""
+    path = Path(path)
+    try:
+        with path.open(newline='', encoding='utf-8') as file:
+            reader = csv.reader(file)
+            header = tuple(next(reader, ()))
+            if header != SUMMARY_CSV_COLUMNS:
+                msg = f'{path}: not a summary.csv (header does not match the expected columns)'
+                raise SourceError(msg)
+            parsers = _parsers()
+            columns: dict[str, list[Any]] = {name: [] for name in header}
+            for cells in reader:
+                if len(cells) != len(header):
+                    msg = f'{path}:{reader.line_num}: {len(cells)} cells, not {len(header)}'
+                    raise SourceError(msg)
+                for name, text in zip(header, cells, strict=True):
+                    columns[name].append(parsers[name](text))
+    except (OSError, ValueError, csv.Error) as err:
+        msg = f'{path}: cannot read summary.csv: {err}'
+        raise SourceError(msg) from None
+    return _frame(columns, SUMMARY_DTYPES)
+
+
+def trials_table(trials: Sequence[PeakTrial]) -> pd.DataFrame:
+    """A peak search's trials, in run order: ``rate_hz``, ``ok`` and the other trial fields."""
+    columns = {name: [getattr(t, name) for t in trials] for name in TRIALS_COLUMNS}
+    return _frame(columns, TRIALS_DTYPES)

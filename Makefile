@@ -45,6 +45,7 @@ run: install-core
 lint: install
 	$(BIN)/ruff check replaybench tests benchmarks training
 	$(BIN)/ruff format --check replaybench tests benchmarks training
+	$(BIN)/lint-imports
 
 typecheck: install
 	$(BIN)/mypy

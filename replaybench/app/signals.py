@@ -38,7 +38,7 @@ def stop_on_signals(
         return
     count = 0
 
-    def handle(signum: int, frame: object) -> None:
+    def handle(_signum: int, _frame: object) -> None:
         nonlocal count
         count += 1
         if count == 1:

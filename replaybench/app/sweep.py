@@ -36,10 +36,12 @@ import os
 import re
 import secrets
 import shutil
+import signal
 import socket
 import stat
 import sys
 import tempfile
+import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field, replace
@@ -51,7 +53,6 @@ from replaybench.backends.base import BackendOptions
 from replaybench.errors import EngineError, ReplaybenchError, SourceError, UsageError
 
 if TYPE_CHECKING:
-    import threading
     from collections.abc import Callable, Iterator, Mapping, Sequence
 
     import pandas as pd
@@ -578,7 +579,8 @@ def _refresh_ray_auth(changed: bool) -> None:
 
 def _import_ray() -> Any:
     try:
-        import ray
+        with _as_found():  # importing Ray sets RAY_CLIENT_MODE
+            import ray
     except ImportError:
         msg = "replaybench sweep needs Ray: pip install 'replaybench[sweep]'"
         raise UsageError(msg) from None
@@ -637,15 +639,37 @@ def _joined_ray(address: str) -> Iterator[dict[str, Any]]:
 
 
 @contextlib.contextmanager
+def _as_found() -> Iterator[None]:
+    """``ray.init`` installs a SIGTERM handler and sets environment variables in this process:
+    a sweep that started or joined Ray puts the handlers and ``os.environ`` back as it found
+    them once Ray has shut down."""
+    environ = dict(os.environ)
+    handlers: dict[signal.Signals, Any] = {}
+    if threading.current_thread() is threading.main_thread():
+        handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in handlers.items():
+            if handler is not None:
+                signal.signal(sig, handler)
+        for key in set(os.environ) - set(environ):
+            del os.environ[key]
+        for key, value in environ.items():
+            if os.environ.get(key) != value:
+                os.environ[key] = value
+
+
+@contextlib.contextmanager
 def _engine(address: str | None) -> Iterator[dict[str, Any]]:
     ray = _import_ray()
     if ray.is_initialized():
         yield {'mode': 'connected', 'address': ray.get_runtime_context().gcs_address}
     elif address is not None:
-        with _joined_ray(address) as info:
+        with _as_found(), _joined_ray(address) as info:
             yield info
     else:
-        with local_ray() as info:
+        with _as_found(), local_ray() as info:
             yield info
 
 

@@ -24,15 +24,12 @@ import contextlib
 import os
 import re
 import shutil
-import signal
-import threading
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from replaybench.errors import OutputError, UsageError
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
     from types import TracebackType
     from typing import Self
 
@@ -120,24 +117,6 @@ def _alive(pid: int) -> bool:
     except OSError:  # EPERM: someone else's process
         return True
     return True
-
-
-@contextlib.contextmanager
-def _signals_held() -> Iterator[None]:
-    """Ctrl-C and SIGTERM arriving inside are acted on only when the block has ended."""
-    pending: list[int] = []
-    previous: dict[int, Any] = {}
-    if threading.current_thread() is threading.main_thread():
-        for held in (signal.SIGINT, signal.SIGTERM):
-            previous[held] = signal.signal(held, lambda signum, _frame: pending.append(signum))
-    try:
-        yield
-    finally:
-        for number, handler in previous.items():
-            if handler is not None:
-                signal.signal(number, handler)
-        if pending:
-            signal.raise_signal(pending[0])
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -265,19 +244,22 @@ class RunFolder:
     def commit(self) -> None:
         """Put the temporary folder in OUT's place; OUT's previous content is removed."""
         old: Path | None = None
+        # No signal handler is installed here (a library call leaves them alone): whatever
+        # stops the swap between its two renames (an error, Ctrl-C's KeyboardInterrupt) puts the
+        # previous run back; a kill -9 there leaves it as .NAME.old-PID, which the next run on
+        # OUT puts back (``_clean_leftovers``).
         try:
-            with _signals_held():
-                if os.path.lexists(self._target):
-                    old = self.parent / f'.{self._name}.old-{os.getpid()}'
-                    shutil.rmtree(old, ignore_errors=True)
-                    self._target.rename(old)
-                try:
-                    self.path.rename(self._target)
-                except OSError:
-                    if old is not None:
-                        old.rename(self._target)
-                    raise
-                self.committed = True
+            if os.path.lexists(self._target):
+                old = self.parent / f'.{self._name}.old-{os.getpid()}'
+                shutil.rmtree(old, ignore_errors=True)
+                self._target.rename(old)
+            try:
+                self.path.rename(self._target)
+            except BaseException:
+                if old is not None:
+                    old.rename(self._target)
+                raise
+            self.committed = True
         except OSError as err:
             msg = f'cannot move the run into {self.out}: {err.strerror or err}'
             raise OutputError(msg) from err

@@ -361,16 +361,35 @@ def test_run_json_is_written_last_after_the_report_and_the_folder_is_swapped_in_
     assert Path(_RENAMES[-1][0]).name.startswith('.run.tmp-')
 
 
-def test_a_ctrl_c_during_the_swap_is_acted_on_once_the_swap_is_done() -> None:
+def test_a_ctrl_c_between_the_two_renames_of_the_swap_puts_the_previous_run_back(
+    tmp_path, monkeypatch
+):
     import signal
 
-    from replaybench.results.runfolder import _signals_held
+    from replaybench.results.runfolder import RunFolder
 
-    steps: list[str] = []
-    with pytest.raises(KeyboardInterrupt), _signals_held():
-        signal.raise_signal(signal.SIGINT)
-        steps.append('renamed')
-    assert steps == ['renamed']
+    out = tmp_path / 'run'
+    out.mkdir()
+    (out / 'run.json').write_text('{"previous": true}', encoding='utf-8')
+    (out / 'frames.csv').write_text('old', encoding='utf-8')
+    handlers = (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM))
+    real = Path.rename
+
+    def interrupted(self, target):
+        if Path(target) == out and self.name.startswith('.run.tmp-'):
+            raise KeyboardInterrupt
+        return real(self, target)
+
+    with RunFolder(out, force=True) as folder:
+        (folder.path / 'run.json').write_text('{"new": true}', encoding='utf-8')
+        monkeypatch.setattr(Path, 'rename', interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            folder.commit()
+        monkeypatch.undo()
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == handlers
+    assert (out / 'run.json').read_text(encoding='utf-8') == '{"previous": true}'
+    assert (out / 'frames.csv').read_text(encoding='utf-8') == 'old'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['run']
 
 
 # -- peak: the same folder life cycle ------------------------------------------------------------

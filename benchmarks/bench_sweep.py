@@ -203,13 +203,13 @@ def run(ctx: Context) -> ItemResult:
         start = time.perf_counter()
         with two_nodes(temp) as (address, auth), _environ(auth):
             cluster_start = time.perf_counter() - start
-            for n in range(repeats):
-                packed.append(_sweep(paths, out / f'pack-{n}', address=address, pack=True))
+            packed.extend(
+                _sweep(paths, out / f'pack-{n}', address=address, pack=True) for n in range(repeats)
+            )
         start = time.perf_counter()
         with local_ray(temp_dir=temp):
             local_start = time.perf_counter() - start
-            for n in range(repeats):
-                single.append(_sweep(paths, out / f'single-{n}'))
+            single.extend(_sweep(paths, out / f'single-{n}') for n in range(repeats))
     finally:
         shutil.rmtree(temp, ignore_errors=True)
     workload = f'{len(paths)} bags x {", ".join(BACKENDS)}, {frames} frames {size[0]}x{size[1]}'

@@ -124,8 +124,7 @@ def run_suite(
     with tempfile.TemporaryDirectory(prefix='replaybench-bench-') as tmp:
         ctx = Context(settings, Path(tmp), free_bytes=shutil.disk_usage(tmp).free)
         _write_bags(ctx, {b for m in modules for b in getattr(m, 'BAGS', ())}, log)
-        for module in modules:
-            results.append(_run_item(module.run, ctx, log))
+        results.extend(_run_item(module.run, ctx, log) for module in modules)
         bags: list[Bag] = list(ctx.bags.values())
     return _document(settings, threads, bags, results, started, time.perf_counter() - t0)
 

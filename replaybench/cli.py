@@ -82,7 +82,7 @@ class _Argument(TyperArgument):
     def _rich_display_name(self) -> str:
         return self.display_name_raw + ('...' if self.nargs != 1 else '')
 
-    def display_type_rich(self, ctx: Any) -> str | None:
+    def display_type_rich(self, ctx: Any) -> str | None:  # noqa: ARG002  click's signature
         return None
 
 
@@ -205,7 +205,7 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def _root(
-    version: Annotated[
+    version: Annotated[  # noqa: ARG001  --version is handled by its eager callback
         bool, typer.Option('--version', callback=_version, is_eager=True, help='Print the version.')
     ] = False,
     debug: Annotated[

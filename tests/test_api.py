@@ -175,7 +175,7 @@ def test_a_library_run_leaves_the_process_as_it_found_it(capfd):
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     during: list[tuple[object, object, int, list[int]]] = []
 
-    def progress(done: int, total: int) -> None:
+    def progress(_done: int, _total: int) -> None:
         during.append(
             (
                 signal.getsignal(signal.SIGINT),
@@ -206,7 +206,7 @@ def test_a_library_run_leaves_the_process_as_it_found_it(capfd):
 def test_a_stop_token_set_during_the_replay_ends_the_run_as_interrupted():
     stop = threading.Event()
 
-    def progress(done: int, total: int) -> None:
+    def progress(done: int, _total: int) -> None:
         if done >= 3:
             stop.set()
 

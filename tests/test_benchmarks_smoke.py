@@ -47,6 +47,7 @@ def test_quick_benchmark_suite_writes_every_item_with_repeats_and_targets(tmp_pa
     assert document['totals']['passed'] + document['totals']['failed'] == len(targeted)
     # hsv and the naive port agree on every frame, whatever the timings say
     counts = [c for c in items['c']['checks'] if c['name'].startswith('same detection count')]
-    assert counts and all(c['value'] == 1.0 for c in counts)
+    assert counts
+    assert all(c['value'] == 1.0 for c in counts)
     assert 'PASS' in proc.stdout or 'FAIL' in proc.stdout
     assert not list(tmp_path.glob('replaybench-bench-*')), 'temporary bags were left behind'

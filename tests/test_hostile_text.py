@@ -315,7 +315,8 @@ def test_run_json_and_detections_mcap_keep_the_true_names(hostile_runs):
     assert found
     assert {gt.frame_id for gt in found} == {FRAME_ID}
     labels = {d.label for gt in found for d in gt.detections}
-    assert labels and labels <= set(LABELS.values())
+    assert labels
+    assert labels <= set(LABELS.values())
 
 
 # --- compare ---------------------------------------------------------------------------------

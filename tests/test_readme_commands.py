@@ -328,7 +328,8 @@ def test_the_default_install_leaves_out_what_only_development_needs() -> None:
         check=True,
     ).stdout
     installs = [ln for ln in make.splitlines() if 'pip install' in ln and '--upgrade pip' not in ln]
-    assert installs and all(ln.rstrip().endswith('-e .') for ln in installs), installs
+    assert installs, make
+    assert all(ln.rstrip().endswith('-e .') for ln in installs), installs
     make = subprocess.run(
         ['make', '-n', '-B', 'pytest', 'VENV=/nonexistent/venv'],
         cwd=REPO,

@@ -490,7 +490,7 @@ def execute_cell(
         else:  # one backend per cell: no other status is expected
             report['status'] = 'failed'
             report['error'] = f'the run ended with status {outcome.status}'
-    except Exception as err:  # one line per failed cell; the other cells go on
+    except Exception as err:  # noqa: BLE001  one line per failed cell; the other cells go on
         report['status'] = 'failed'
         report['error'] = _error_line(err)
     report['finished_at'] = time.time()
@@ -606,7 +606,7 @@ def local_ray(
                 _node_ip_address=LOCAL_NODE_IP,
                 _temp_dir=temp_dir,
             )
-        except Exception as err:
+        except Exception as err:  # noqa: BLE001  Ray's start-up fails in many types: one line
             msg = f'cannot start a local Ray instance: {_error_line(err)}'
             raise EngineError(msg) from None
         try:
@@ -622,7 +622,7 @@ def _joined_ray(address: str) -> Iterator[dict[str, Any]]:
     with _environment(changes):
         try:
             ray.init(address=address, logging_level=logging.ERROR, log_to_driver=False)
-        except Exception as err:
+        except Exception as err:  # noqa: BLE001  Ray's connection fails in many types: one line
             hint = (
                 ''
                 if os.environ.get(_AUTH_MODE) == 'token'
@@ -1355,7 +1355,7 @@ def _check_backend_options(cells: Sequence[Cell], settings: SweepSettings) -> No
             where = f' ({cell.params_text})' if cell.params else ''
             msg = f'{cell.backend}{where}: {err}'
             raise UsageError(msg) from None
-        except Exception:  # a backend that cannot be built here may still run on a node
+        except Exception:  # noqa: BLE001  a backend that cannot be built here may still run on a node
             continue
 
 

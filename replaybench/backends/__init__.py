@@ -154,7 +154,7 @@ def _status(name: str, origin: str, load: type[Backend] | Exception) -> BackendS
         if not isinstance(availability, Availability):
             ok, reason = availability
             availability = Availability(ok=bool(ok), reason=str(reason))
-    except Exception as exc:  # report, do not crash the listing
+    except Exception as exc:  # noqa: BLE001  report, do not crash the listing
         reason = f'available() failed: {type(exc).__name__}: {exc}'
         availability = Availability(ok=False, reason=reason)
     return BackendStatus(name, description, availability, origin)

@@ -104,7 +104,7 @@ class BusyBackend:
     def open(self) -> None:
         """Nothing to load."""
 
-    def detect(self, frame: Frame) -> BackendResult:
+    def detect(self, frame: Frame) -> BackendResult:  # noqa: ARG002  the protocol's signature
         clock = self._clock
         start = clock()
         end = start + self._seconds

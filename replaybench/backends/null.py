@@ -37,7 +37,7 @@ class NullBackend:
     def open(self) -> None:
         """Nothing to load."""
 
-    def detect(self, frame: Frame) -> BackendResult:
+    def detect(self, frame: Frame) -> BackendResult:  # noqa: ARG002  the protocol's signature
         return _RESULT
 
     def info(self) -> dict[str, Any]:

@@ -64,7 +64,7 @@ def session_options(threads: int | None, *, spinning: bool = False) -> Any:
     return so
 
 
-def _not_open(*args: object) -> tuple[Detection, ...]:
+def _not_open(*_args: object) -> tuple[Detection, ...]:
     msg = 'onnx-cpu: the backend is not open'
     raise BackendError(msg)
 
@@ -227,7 +227,8 @@ class OnnxCpuBackend:
             self.open()
         letterbox = self._letterbox
         spec = self.spec
-        assert letterbox is not None and spec is not None
+        assert letterbox is not None
+        assert spec is not None
         clock = time.perf_counter_ns
 
         t0 = clock()

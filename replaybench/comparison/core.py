@@ -245,7 +245,6 @@ def _accuracy_metric(
 
 
 def _reference(
-    run: RunInfo,
     backend: str,
     topic: str,
     baseline_keys: Sequence[tuple[str, str]],
@@ -327,11 +326,10 @@ def compare_runs(
     engines = _engine_flags(runs, baseline)
     rows: list[Row] = []
     for run in runs:
-        for line in flags_of_run[run.index]:
-            warnings.append(f'{run.label}: {line}')
+        warnings.extend(f'{run.label}: {line}' for line in flags_of_run[run.index])
         match = inputs_match(run, base_run) if run.index != baseline else True
         for (backend, topic), s in series[run.index].items():
-            ref = _reference(run, backend, topic, baseline_keys, baseline_backend)
+            ref = _reference(backend, topic, baseline_keys, baseline_backend)
             role: Role
             if ref is None:
                 role = 'unpaired'

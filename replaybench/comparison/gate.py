@@ -181,7 +181,7 @@ _SIDE = {'>': 'above', '>=': 'at or above', '<': 'below', '<=': 'at or below'}
 _OTHER_SIDE = {'>': 'at or below', '>=': 'below', '<': 'at or above', '<=': 'above'}
 
 
-def _missing(row: Row, condition: Condition, m: MetricComparison) -> tuple[Verdict, str]:
+def _missing(condition: Condition, m: MetricComparison) -> tuple[Verdict, str]:
     name = _NAMES[condition.metric]
     if m.baseline is not None and m.value is None:
         return 'failed', f'the baseline has {name} but this run does not'
@@ -211,7 +211,7 @@ def _judge(
     est, ci = _change(m, condition)
     method = method_text(m)
     if est is None:
-        verdict, reason = _missing(row, condition, m)
+        verdict, reason = _missing(condition, m)
         return GateResult(
             condition.text,
             row.backend,
@@ -296,13 +296,13 @@ def evaluate_gate(
     estimate. UsageError on a bad condition (all are parsed before any is judged).
     """
     parsed = [parse_condition(c) for c in conditions]
-    results: list[GateResult] = []
     candidates = [r for r in comparison.rows if r.role == 'candidate']
     level = round(comparison.confidence * 100)
-    for condition in parsed:
-        for row in candidates:
-            results.append(_judge(row, comparison.baseline_row(row), condition, strict, level))
-    return results
+    return [
+        _judge(row, comparison.baseline_row(row), condition, strict, level)
+        for condition in parsed
+        for row in candidates
+    ]
 
 
 def gate_failed(results: Sequence[GateResult]) -> bool:

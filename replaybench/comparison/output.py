@@ -192,30 +192,29 @@ def comparison_json(
     allow_inconclusive: bool = False,
 ) -> dict[str, Any]:
     """The comparison.json document."""
-    runs = []
-    for run in comparison.runs:
-        runs.append(
-            {
-                'index': run.index,
-                'label': run.label,
-                'dir': str(run.dir),
-                'status': run.status,
-                'hostname': run.hostname,
-                'cpu_model': run.cpu_model,
-                'cores': run.cores,
-                'governor': run.governor,
-                'load_average': run.load_average,
-                'gpus': list(run.gpus),
-                'inputs': [
-                    {'path': p, 'sha256': s}
-                    for p, s in zip(run.input_paths, run.input_sha256, strict=True)
-                ],
-                'settings': run.settings,
-                'backends': {
-                    label: {'engine': engine_text(info)} for label, info in run.backend_info.items()
-                },
+    runs = [
+        {
+            'index': run.index,
+            'label': run.label,
+            'dir': str(run.dir),
+            'status': run.status,
+            'hostname': run.hostname,
+            'cpu_model': run.cpu_model,
+            'cores': run.cores,
+            'governor': run.governor,
+            'load_average': run.load_average,
+            'gpus': list(run.gpus),
+            'inputs': [
+                {'path': p, 'sha256': s}
+                for p, s in zip(run.input_paths, run.input_sha256, strict=True)
+            ],
+            'settings': run.settings,
+            'backends': {
+                label: {'engine': engine_text(info)} for label, info in run.backend_info.items()
             },
-        )
+        }
+        for run in comparison.runs
+    ]
     return {
         'schema_version': COMPARISON_SCHEMA_VERSION,
         'tool': {'name': 'replaybench', 'version': __version__},

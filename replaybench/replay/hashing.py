@@ -132,7 +132,7 @@ class InputHash:
             self.error = 'cancelled'
         except OSError as err:
             self.error = f'cannot read {err.filename or "the input"}: {err.strerror or err}'
-        except Exception as err:  # an injected digest's own failure: recorded, not lost
+        except Exception as err:  # noqa: BLE001  an injected digest's failure: recorded
             self.error = f'{type(err).__name__}: {err}'
         finally:
             self.finished_s = time.perf_counter()

@@ -178,7 +178,7 @@ def _start_rate(hz: float) -> float:
     return float(f'{hz:.3g}')
 
 
-def _prepare(out_dir: Path, force: bool) -> None:
+def _prepare(out_dir: Path) -> None:
     """The sweep's folder. ``find_peak_rate`` runs inside a ``RunFolder`` (``_in_run_folder``):
     ``out_dir`` is its new temporary folder, and ``force`` was applied when it was made."""
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -478,7 +478,7 @@ def find_peak_rate(
     confirm_trials: int = CONFIRM_TRIALS,
     clock: Clock | None = None,
     backend_factory: Callable[[str, BackendOptions], Backend] | None = None,
-    force: bool = False,
+    force: bool = False,  # noqa: ARG001  read by _in_run_folder from the bound arguments
     report: bool = True,
     threads: int | None = None,
     command: Sequence[str] = (),
@@ -515,7 +515,7 @@ def find_peak_rate(
     n = min(n, trial_frames if trial_frames is not None else DEFAULT_TRIAL_FRAMES)
     warmup = default_warmup(n)
     if out_dir is not None:
-        _prepare(out_dir, force)
+        _prepare(out_dir)
     started = dt.datetime.now(dt.UTC)
     t_start = time.perf_counter()
     base = RunConfig(

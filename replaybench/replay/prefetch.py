@@ -100,7 +100,7 @@ class Prefetcher:
                     decoded = err
                 if not self._put(Prefetched(raw, decoded, release, clock.now() - release)):
                     return
-        except BaseException as err:
+        except BaseException as err:  # noqa: BLE001  the consumer gets any end
             self._put(_End(err))
             return
         self._put(_End(None))

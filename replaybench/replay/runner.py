@@ -973,7 +973,7 @@ class _Run:
             self.progress(self.done, self.total)
 
 
-def _expected_frames(inp: _Input, topic: CameraTopic, config: RunConfig) -> int:
+def _expected_frames(topic: CameraTopic, config: RunConfig) -> int:
     n = topic.count
     if config.max_frames is not None:
         n = min(n, config.max_frames)
@@ -1166,7 +1166,7 @@ class _OpenBackend:
         self.closed = True
         try:
             self.backend.close()
-        except Exception as err:  # a plugin's close() must not lose the run
+        except Exception as err:  # noqa: BLE001  a plugin's close() must not lose the run
             return f'{type(err).__name__}: {err}'.splitlines()[0]
         return None
 
@@ -1182,7 +1182,7 @@ def _make_backends(
             backend_traits(backend)
         except ReplaybenchError:
             raise
-        except Exception as err:  # a plugin's own exception: one line, not a traceback
+        except Exception as err:  # noqa: BLE001  a plugin's own error: one line
             first = f'{type(err).__name__}: {err}'.splitlines()[0]
             msg = f'backend {name!r} could not be opened: {first}'
             raise BackendError(msg) from None
@@ -1247,7 +1247,7 @@ def _open_backends(
                     backend.open()
             except ReplaybenchError:
                 raise
-            except Exception as err:  # a plugin's own exception: one line, not a traceback
+            except Exception as err:  # noqa: BLE001  a plugin's own error: one line
                 first = f'{type(err).__name__}: {err}'.splitlines()[0]
                 msg = f'backend {name!r} could not be opened: {first}'
                 raise BackendError(msg) from None
@@ -1288,7 +1288,7 @@ def _execute(
             run.ground_truth[(inp.number, frame_id, stamp)] = dets
         for topic in inp.topics:
             run.topic_frames[topic.name] = run.topic_frames.get(topic.name, 0) + _expected_frames(
-                inp, topic, config
+                topic, config
             )
     run.set_warmups()
     run.total = sum(run.topic_frames.values()) * len(config.backends)
@@ -1478,7 +1478,7 @@ def _run_backend(
         run.resources[label] = summary
         try:
             info = backend.info()
-        except Exception as err:  # a plugin's info() must not lose the run
+        except Exception as err:  # noqa: BLE001  a plugin's info() must not lose the run
             info = {'error': f'{type(err).__name__}: {err}'.splitlines()[0]}
         closing = entry.close()
         if closing is not None:

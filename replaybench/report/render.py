@@ -265,8 +265,7 @@ def _banner(run: RunResult, frames: Sequence[FrameRecord], rows: Sequence[Summar
                 f'Input <code>{path}</code> is truncated: only its complete messages were '
                 'replayed.',
             )
-        for warning in entry.warnings:
-            items.append(f'<code>{path}</code>: {_e(warning)}')
+        items.extend(f'<code>{path}</code>: {_e(warning)}' for warning in entry.warnings)
     skipped = dict(run.skipped)
     n_skipped = sum(1 for r in frames if r.status == 'skipped')
     if skipped or n_skipped:
@@ -408,8 +407,10 @@ def _summary_table(rows: Sequence[SummaryRow], colours: Mapping[str, str]) -> st
         cells.append(f'<td class="n">{_e(_fmt_ms(row.jitter_ms))}</td>')
         cells.append(f'<td class="n">{_e(_fmt(row.detections_per_frame))}</td>')
         if accuracy:
-            for key in ('precision50', 'recall50', 'map50', 'map50_95'):
-                cells.append(f'<td class="n">{_e(_fmt(_accuracy_value(row, key), 3))}</td>')
+            cells.extend(
+                f'<td class="n">{_e(_fmt(_accuracy_value(row, key), 3))}</td>'
+                for key in ('precision50', 'recall50', 'map50', 'map50_95')
+            )
         body.append(f'<tr>{"".join(cells)}</tr>')
     return (
         f'<div class="table-wrap"><table id="summary-table"><thead><tr>{th}</tr></thead>'

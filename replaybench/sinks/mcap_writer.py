@@ -108,7 +108,7 @@ def _type_hash(msgtype: str) -> str:
     """The RIHS01 type hash of ``msgtype`` (rosbag2's ``topic_type_hash``); '' when unknown."""
     try:
         return str(typestore().hash_rihs01(msgtype))
-    except Exception:
+    except Exception:  # noqa: BLE001  rosbags refuses an unknown type in several ways
         return ''
 
 

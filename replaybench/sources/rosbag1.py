@@ -143,7 +143,7 @@ class Rosbag1Source(TableSource):
         else:
             try:
                 self._index_with_rosbags(mapped)
-            except Exception as err:
+            except Exception as err:  # noqa: BLE001  rosbags on a damaged index: a reason
                 self._channels.clear()
                 self._chunks.clear()
                 self._parts.clear()

@@ -145,8 +145,8 @@ def _open_sqlite(
             storage.close()
 
     try:
-        for file in files:
-            storages.append(SqliteStorage(file))
+        for file in files:  # one by one: a later failure closes those already open
+            storages.append(SqliteStorage(file))  # noqa: PERF401
     except BaseException:
         close()
         raise
@@ -441,7 +441,7 @@ class RosbagsSource:
                     log_time = 0
                 yield log_time, channel.topic, i, n, channel, payload
                 n += 1
-        except Exception as err:
+        except Exception as err:  # noqa: BLE001  sqlite and rosbags errors: a warning
             if self._closed:
                 return
             self._truncated = True
@@ -470,7 +470,7 @@ class RosbagsSource:
                 log_time = max(0, time)
                 count, first, last = stats.get(conn.id, (0, log_time, log_time))
                 stats[conn.id] = (count + 1, min(first, log_time), max(last, log_time))
-        except Exception as err:
+        except Exception as err:  # noqa: BLE001  sqlite and rosbags errors: a warning
             self._truncated = True
             self._warn(f'{self._file_name(i)}: cannot count messages ({_one_line(err)})')
             return {}
@@ -499,7 +499,7 @@ class RosbagsSource:
                     ]
                     for conn, _, _ in sub.messages(conns, None, start_ns):
                         per_conn[conn.id] = per_conn.get(conn.id, 0) + 1
-            except Exception as err:
+            except Exception as err:  # noqa: BLE001  sqlite and rosbags errors: a warning
                 self._warn(f'{self._file_name(i)}: cannot count messages ({_one_line(err)})')
             for cid, count in per_conn.items():
                 if cid in chmap:

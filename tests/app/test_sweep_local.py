@@ -115,7 +115,8 @@ def test_a_local_sweep_of_two_bags_and_two_backends_writes_four_run_folders_and_
         assert f'href="{cell["run_dir"]}/report.html"' in html
     assert html.count('best FPS') == 2  # one per input row
     assert f'Ray {ray.__version__}' in html
-    assert seen and seen[-1].done == seen[-1].total == 4
+    assert seen
+    assert seen[-1].done == seen[-1].total == 4
     assert seen[-1].running == seen[-1].failed == 0
 
 

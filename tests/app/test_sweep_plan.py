@@ -26,7 +26,7 @@ REPO = Path(__file__).resolve().parents[2]
 BAG = REPO / 'fixtures' / 'bags' / 'jpeg.mcap'
 
 
-def test_a_param_grid_gives_one_cell_per_combination_for_its_backend_only(tmp_path: Path) -> None:
+def test_a_param_grid_gives_one_cell_per_combination_for_its_backend_only() -> None:
     axes = parse_params(['hsv.min_area=50,100,200', 'hsv.kernel=3,5'], ['hsv', 'null'])
     inputs = [input_identity(BAG), input_identity(REPO / 'fixtures' / 'bags' / 'rgb8_raw.mcap')]
     cells = plan_cells(inputs, ['hsv', 'null'], axes, SweepSettings())
@@ -126,9 +126,7 @@ def test_a_missing_input_or_a_fifo_is_refused(tmp_path: Path) -> None:
         input_identity(fifo)
 
 
-def test_a_local_instance_uses_a_token_of_the_process_and_never_the_home_folder(
-    tmp_path: Path,
-) -> None:
+def test_a_local_instance_uses_a_token_of_the_process_and_never_the_home_folder() -> None:
     found = join_auth_env(None, {})
     assert found['RAY_AUTH_MODE'] == 'token'
     assert len(found['RAY_AUTH_TOKEN']) == 64

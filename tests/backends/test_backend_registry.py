@@ -153,7 +153,8 @@ def test_broken_entry_points_are_listed_as_unavailable_with_the_reason(
     assert "declares name 'something-else'" in reasons['misnamed']
     assert rows['nogpu'].availability == Availability(ok=False, reason='no CUDA device')
     assert reasons['boom'] == 'available() failed: RuntimeError: driver crashed'
-    assert rows['toy'].availability.ok and rows['hsv'].availability.ok
+    assert rows['toy'].availability.ok
+    assert rows['hsv'].availability.ok
     with pytest.raises(BackendUnavailableError, match=r"backend 'gone': cannot load"):
         get_backend('gone')
 
@@ -180,7 +181,7 @@ def test_invalid_entry_point_names_are_rejected(
 
 
 def test_installed_distributions_register_backends_through_the_entry_point_group(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, plugin_module: str
+    tmp_path: Path, plugin_module: str
 ) -> None:
     dist = tmp_path / 'rb_toy_dist-1.2.dist-info'
     dist.mkdir()

@@ -80,7 +80,8 @@ def test_depth_encodings_are_accepted_and_find_nothing() -> None:
 def test_red_is_found_on_both_sides_of_the_hue_wrap(scene: type[Scene]) -> None:
     low_hue, high_hue = (0, 40, 230), (60, 0, 230)  # OpenCV hue about 5 and about 172
     hsv = cv2.cvtColor(np.array([[low_hue, high_hue]], dtype=np.uint8), cv2.COLOR_BGR2HSV)
-    assert hsv[0, 0, 0] <= 10 and hsv[0, 1, 0] >= 170
+    assert hsv[0, 0, 0] <= 10
+    assert hsv[0, 1, 0] >= 170
     s = scene(seed=5).rect(low_hue, 20, 20, 80, 60).rect(high_hue, 180, 120, 260, 200)
     found = run(s.frame())
     assert sorted(boxes(found)) == [('red', 20, 20, 80, 60), ('red', 180, 120, 260, 200)]
@@ -158,7 +159,8 @@ def test_stage_times_are_measured_in_nanoseconds(scene: type[Scene]) -> None:
     for value in (stages.preprocess_ns, stages.infer_ns, stages.postprocess_ns):
         assert isinstance(value, int)
         assert 0 < value < 10**9
-    assert stages.h2d_ns is None and stages.d2h_ns is None
+    assert stages.h2d_ns is None
+    assert stages.d2h_ns is None
 
 
 def test_frame_size_changes_reallocate_work_buffers(scene: type[Scene]) -> None:

@@ -24,7 +24,8 @@ Scene = Any
 @pytest.fixture(scope='module')
 def naive() -> ModuleType:
     spec = importlib.util.spec_from_file_location('naive_hsv', NAIVE)
-    assert spec is not None and spec.loader is not None
+    assert spec is not None
+    assert spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     sys.modules['naive_hsv'] = module
     spec.loader.exec_module(module)

@@ -20,6 +20,7 @@ def test_null_backend_returns_no_detections_and_zero_stage_times() -> None:
     result = backend.detect(Frame('/t', 0, 0, 0, 'cam', image, 'rgb8', 'rgb8'))
     assert result.detections == ()
     assert result.stages == StageTimes(preprocess_ns=0, infer_ns=0, postprocess_ns=0)
-    assert result.stages.h2d_ns is None and result.stages.d2h_ns is None
+    assert result.stages.h2d_ns is None
+    assert result.stages.d2h_ns is None
     json.dumps(backend.info())
     backend.close()

@@ -76,7 +76,8 @@ def test_onnx_cpu_is_a_registered_available_backend():
     assert get_backend('onnx-cpu') is OnnxCpuBackend
     assert isinstance(OnnxCpuBackend(), Backend)
     row = {r.name: r for r in backend_table()}['onnx-cpu']
-    assert row.availability.ok and row.origin == 'built-in'
+    assert row.availability.ok
+    assert row.origin == 'built-in'
 
 
 def test_without_a_model_the_missing_bundled_model_is_a_clear_error(tmp_path, monkeypatch):
@@ -105,7 +106,8 @@ def test_a_yolov8_graph_gives_boxes_in_source_pixels(tmp_path):
     assert result.detections == (Detection(0, 'ball', pytest.approx(0.9), 16.0, 16.0, 48.0, 32.0),)
     stages = result.stages
     assert all(isinstance(t, int) and t > 0 for t in stages[:3])
-    assert stages.h2d_ns is None and stages.d2h_ns is None
+    assert stages.h2d_ns is None
+    assert stages.d2h_ns is None
     again = backend.detect(_frame(np.zeros((48, 64, 3), np.uint8)))
     assert again.detections == result.detections
     backend.close()
@@ -186,8 +188,8 @@ def test_mono_frames_are_accepted_and_depth_frames_refused(tmp_path):
     backend = _open(model=_v8_model(tmp_path))
     assert backend.detect(_frame(np.zeros((32, 32), np.uint8), 'mono8')).detections
     assert backend.detect(_frame(np.ones((32, 32), np.uint16), 'mono16')).detections
+    depth = Frame('/depth', 3, 0, 0, 'c', np.ones((32, 32), np.uint16), 'mono16', '16UC1', True)
     with pytest.raises(BackendError, match=r'is a depth image \(16UC1\)'):
-        depth = Frame('/depth', 3, 0, 0, 'c', np.ones((32, 32), np.uint16), 'mono16', '16UC1', True)
         backend.detect(depth)
     with pytest.raises(BackendError, match='depth image'):
         backend.detect(_frame(np.ones((32, 32), np.float32), '32FC1'))
@@ -283,14 +285,15 @@ def real() -> Path:
 @pytest.fixture(scope='module')
 def check_model(real: Path) -> ModuleType:
     spec = importlib.util.spec_from_file_location('check_model', real / 'check_model.py')
-    assert spec is not None and spec.loader is not None
+    assert spec is not None
+    assert spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
 @pytest.fixture(scope='module')
-def yolox(real: Path) -> OnnxCpuBackend:
+def yolox(real: Path) -> OnnxCpuBackend:  # noqa: ARG001  ``real`` skips without the model
     backend = _open(model=YOLOX, labels='coco', threads=2)
     yield backend
     backend.close()
@@ -307,7 +310,8 @@ def test_yolox_nano_is_recognised_as_a_raw_grid_model(yolox):
     assert info['preprocess']['scale'] == 1.0
 
 
-def test_yolox_nano_finds_the_astronaut_through_the_replay(tmp_path, real):
+@pytest.mark.usefixtures('real')
+def test_yolox_nano_finds_the_astronaut_through_the_replay(tmp_path):
     rgb = cv2.cvtColor(cv2.imread(str(ASTRONAUT), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
     bag = _bag(tmp_path / 'astronaut.mcap', rgb)
     outcome = run_benchmark(
@@ -343,7 +347,8 @@ def test_yolox_nano_agrees_with_check_model(yolox, check_model):
             np.testing.assert_allclose(_box(det), box, atol=1.01)
 
 
-def test_yolox_nano_finds_the_person_in_the_real_aruco_bag(tmp_path, real):
+@pytest.mark.usefixtures('real')
+def test_yolox_nano_finds_the_person_in_the_real_aruco_bag(tmp_path):
     if not ARUCO_BAG.is_file():
         pytest.skip(f'{ARUCO_BAG} not present')
     outcome = run_benchmark(

@@ -45,7 +45,8 @@ def test_data_driven_block_length_follows_the_memory_of_the_series() -> None:
     # the bootstrap uses ceil(n^(1/3)) at least, longer blocks when the series needs them
     iid = replicates(_ar1(1000, 0.0, seed=2) + 10, None, n_boot=10, rng=np.random.default_rng(0))
     slow = replicates(_ar1(1000, 0.95, seed=2) + 10, None, n_boot=10, rng=np.random.default_rng(0))
-    assert iid is not None and slow is not None
+    assert iid is not None
+    assert slow is not None
     assert iid.block == block_length(1000) == 10
     assert slow.block > 30
 
@@ -87,7 +88,8 @@ def test_same_seed_gives_the_same_interval_and_another_seed_another() -> None:
     again = ratio_ci(base, cand, 'p50', n_boot=500, seed=7)
     other = ratio_ci(base, cand, 'p50', n_boot=500, seed=8)
     assert first == again
-    assert first[1] is not None and other[1] is not None
+    assert first[1] is not None
+    assert other[1] is not None
     assert first[1] != other[1]
     assert first[0] == other[0]  # the point estimate does not depend on the seed
 
@@ -118,7 +120,8 @@ def test_throughput_replicates_come_from_the_completion_intervals() -> None:
     lat = np.full(100, 5.0)
     intervals = np.full(100, 0.01)  # one frame done every 10 ms
     reps = replicates(lat, intervals, n_boot=50, rng=np.random.default_rng(0))
-    assert reps is not None and reps.fps is not None
+    assert reps is not None
+    assert reps.fps is not None
     np.testing.assert_allclose(reps.fps, 100.0)
     np.testing.assert_allclose(reps.mean, 5.0)
 
@@ -129,5 +132,6 @@ def test_two_thousand_resamples_of_ten_thousand_frames_take_well_under_a_second(
     t0 = time.perf_counter()
     reps = replicates(lat, intervals, n_boot=2000, rng=np.random.default_rng(0))
     elapsed = time.perf_counter() - t0
-    assert reps is not None and reps.p99.shape == (2000,)
+    assert reps is not None
+    assert reps.p99.shape == (2000,)
     assert elapsed < 1.0, f'{elapsed:.2f} s for one series'

@@ -70,7 +70,9 @@ def test_a_planted_regression_is_significant_in_every_timing_metric(tmp_path: Pa
         assert m.ratio_ci[0] > 1.3
         assert m.ratio == pytest.approx(m.value / m.baseline)  # type: ignore[operator]
     fps = cand_row.metrics['fps']
-    assert fps.significant is True and fps.ratio is not None and fps.ratio < 0.75
+    assert fps.significant is True
+    assert fps.ratio is not None
+    assert fps.ratio < 0.75
 
 
 def test_point_estimates_are_those_of_summary_csv(tmp_path: Path) -> None:
@@ -156,7 +158,8 @@ def test_unstable_and_badly_set_up_runs_are_flagged(tmp_path: Path) -> None:
     assert 'load average 3.5 above half of 4 cores' in flags
     assert 'GPU differs from the baseline: NVIDIA H100 vs none' in flags
     assert 'settings differ from the baseline: rate 30hz vs max' in flags
-    assert comparison.rows[1].latency_cv is not None and comparison.rows[1].latency_cv > 0.1
+    assert comparison.rows[1].latency_cv is not None
+    assert comparison.rows[1].latency_cv > 0.1
 
 
 def test_labels_name_the_machine_and_stay_unique(tmp_path: Path) -> None:
@@ -224,7 +227,8 @@ def test_accuracy_deltas_are_point_estimates_without_ci(tmp_path: Path) -> None:
     assert metrics['map50'].diff == pytest.approx(-0.10)
     assert metrics['precision50'].diff == pytest.approx(0.10)
     assert metrics['recall50'].diff == pytest.approx(0.0)
-    assert metrics['map50'].ratio_ci is None and metrics['map50'].significant is None
+    assert metrics['map50'].ratio_ci is None
+    assert metrics['map50'].significant is None
 
 
 def test_a_few_frames_are_compared_frame_by_frame_and_flagged(tmp_path: Path) -> None:
@@ -232,9 +236,11 @@ def test_a_few_frames_are_compared_frame_by_frame_and_flagged(tmp_path: Path) ->
     row = compare_runs(_pair(tmp_path, series, series * 2), n_boot=50).rows[1]
     median = row.metrics['median_ms']
     assert median.ratio == pytest.approx(2.0, rel=1e-4)
-    assert median.method == 'per-frame' and median.blocks is None
+    assert median.method == 'per-frame'
+    assert median.blocks is None
     assert median.value_ci is None  # no bootstrap of its own value
-    assert median.ratio_ci is not None and median.ratio_ci[0] > 1.5
+    assert median.ratio_ci is not None
+    assert median.ratio_ci[0] > 1.5
     assert median.significant is True
     assert any('compared frame by frame' in f for f in row.flags)
 

@@ -94,7 +94,9 @@ def test_a_planted_regression_fails_the_gate_and_names_what_failed(tmp_path: Pat
     failed = [line for line in echo.err if line.startswith('replaybench: gate: FAIL')]
     assert len(failed) == 1
     assert 'p99_ms > +10%' in failed[0]
-    assert 'hsv' in failed[0] and TOPIC in failed[0] and 'p99 latency' in failed[0]
+    assert 'hsv' in failed[0]
+    assert TOPIC in failed[0]
+    assert 'p99 latency' in failed[0]
     assert 'the whole CI is above +10%' in failed[0]
     # neither run has ground truth: the map50 condition cannot be judged
     assert 'gate: FAILED (1 of 2 checks, 1 inconclusive)' in echo.out
@@ -107,7 +109,8 @@ def test_an_improvement_does_not_fail_a_regression_gate(tmp_path: Path) -> None:
     comparison = compare_runs([a, b], n_boot=300)
     results = evaluate_gate(comparison, ['p99_ms > +10%', 'fps < -10%', 'median_ms < -20%'])
     assert [r.failed for r in results] == [False, False, True]
-    assert results[2].estimate is not None and results[2].estimate == pytest.approx(-50, abs=3)
+    assert results[2].estimate is not None
+    assert results[2].estimate == pytest.approx(-50, abs=3)
 
 
 def test_a_borderline_change_is_inconclusive_by_default_and_fails_when_strict(
@@ -119,13 +122,17 @@ def test_a_borderline_change_is_inconclusive_by_default_and_fails_when_strict(
     b = write_run(tmp_path / 'b', {('hsv', TOPIC): cand})
     comparison = compare_runs([a, b], n_boot=1000)
     (result,) = evaluate_gate(comparison, ['median_ms > +5%'])
-    assert result.estimate is not None and result.ci_low is not None
+    assert result.estimate is not None
+    assert result.ci_low is not None
     assert result.estimate > 5.0 > result.ci_low  # past the threshold, its CI is not
-    assert result.ci_high is not None and result.ci_high > 5.0
-    assert result.verdict == 'inconclusive' and not result.failed
+    assert result.ci_high is not None
+    assert result.ci_high > 5.0
+    assert result.verdict == 'inconclusive'
+    assert not result.failed
     assert 'the CI straddles +5%' in result.explanation
     (strict,) = evaluate_gate(comparison, ['median_ms > +5%'], strict=True)
-    assert strict.failed and strict.verdict == 'failed'
+    assert strict.failed
+    assert strict.verdict == 'failed'
     assert (strict.estimate, strict.ci_low) == (result.estimate, result.ci_low)
     echo = Echo()
     assert echo.run([a, b], tmp_path / 'o1', ['median_ms > +5%']) == 3
@@ -142,7 +149,8 @@ def test_absolute_thresholds_use_the_difference_in_the_metric_unit(tmp_path: Pat
     comparison = compare_runs([a, b], n_boot=300)
     over2, over5 = evaluate_gate(comparison, ['median_ms > +2', 'median_ms > 5'])
     assert over2.estimate == pytest.approx(3.0, abs=0.3)
-    assert over2.failed and not over5.failed
+    assert over2.failed
+    assert not over5.failed
     assert '+3' in over2.explanation or '+2.9' in over2.explanation
 
 
@@ -178,7 +186,8 @@ def test_timing_without_ci_is_inconclusive_unless_strict(tmp_path: Path) -> None
     comparison = compare_runs([a, b], n_boot=50)
     (loose,) = evaluate_gate(comparison, ['p99_ms > +10%'])
     (strict,) = evaluate_gate(comparison, ['p99_ms > +10%'], strict=True)
-    assert loose.verdict == 'inconclusive' and not loose.failed
+    assert loose.verdict == 'inconclusive'
+    assert not loose.failed
     assert 'no CI: 3 baseline against 3 measured frames are too few' in loose.explanation
     assert strict.failed
     assert gate_failed([loose, strict])

@@ -69,7 +69,8 @@ def test_the_three_files_hold_rows_ratios_cis_flags_and_gate(tmp_path: Path) -> 
     assert doc['gate']['passed'] is False
     assert [r['failed'] for r in doc['gate']['results']] == [True, False]
     p99 = doc['rows'][1]['metrics']['p99_ms']
-    assert p99['significant'] is True and len(p99['ratio_ci']) == 2
+    assert p99['significant'] is True
+    assert len(p99['ratio_ci']) == 2
     assert doc['warnings'][0].startswith('INPUTS DIFFER')
 
     html = html_path.read_text(encoding='utf-8')
@@ -115,7 +116,8 @@ def test_html_is_self_contained_and_escapes_every_text_from_the_runs(tmp_path: P
     assert '<script' not in html
     assert html.count('&lt;script&gt;') > 10
     assert not re.search(r'(?:src|href)=["\']?(?:https?:)?//', html)
-    assert '<link' not in html and '@import' not in html
+    assert '<link' not in html
+    assert '@import' not in html
     # the same input gives the same bytes
     main_compare([a, b], tmp_path / 'out2', ['p99_ms > +1%'], echo=lambda _: None,
                  echo_err=lambda _: None)  # fmt: skip

@@ -164,8 +164,10 @@ def test_the_phases_row_of_the_table_has_a_mean_far_past_the_threshold() -> None
     base = _series(300, 10.0, 1, 'quiet')
     cand = _series(300, 10.0, 2, 'phases')
     judgement = judge_series(base, cand, 'mean_ms > +10%')
-    assert judgement.estimate is not None and judgement.estimate > 35.0  # whole runs
-    assert judgement.interval is not None and judgement.interval[1] < 10.0  # typical block
+    assert judgement.estimate is not None
+    assert judgement.estimate > 35.0
+    assert judgement.interval is not None
+    assert judgement.interval[1] < 10.0
     assert judgement.verdict == 'passed'
 
 
@@ -203,7 +205,8 @@ def test_the_ratio_interval_is_the_shift_interval_of_the_logarithms() -> None:
     estimate, interval = ratio_interval(x, y, 0.95)
     log_estimate, log_interval = shift_interval(np.log(x), np.log(y), 0.95)
     assert estimate == pytest.approx(math.exp(log_estimate))  # type: ignore[arg-type]
-    assert interval is not None and log_interval is not None
+    assert interval is not None
+    assert log_interval is not None
     assert interval == pytest.approx((math.exp(log_interval[0]), math.exp(log_interval[1])))
     assert ratio_interval([1.0, 0.0], [1.0, 2.0], 0.95) == (None, None)
     assert ratio_interval([], [1.0], 0.95) == (None, None)

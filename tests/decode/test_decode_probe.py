@@ -75,8 +75,10 @@ def test_undecodable_compressed_depth_is_still_flagged_as_depth(mk):
         ]
     )
     d, e = probe_topics(source)
-    assert d.is_depth and 'RVL' in d.error
-    assert e.is_depth and 'truncated' in e.error
+    assert d.is_depth
+    assert 'RVL' in d.error
+    assert e.is_depth
+    assert 'truncated' in e.error
 
 
 def test_probe_reads_only_the_first_message_of_each_topic(mk):

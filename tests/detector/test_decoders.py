@@ -70,7 +70,8 @@ def test_yolox_decoder_adds_the_grid_and_scales_by_stride():
     )
     np.testing.assert_allclose(scores, [0.4, 0.8, 0.45], rtol=1e-6)
     assert classes.tolist() == [0, 1, 0]
-    assert boxes.dtype == np.float32 and scores.dtype == np.float32
+    assert boxes.dtype == np.float32
+    assert scores.dtype == np.float32
     assert classes.dtype == np.int64
 
 
@@ -136,7 +137,9 @@ def test_yolov8_decoder_reads_channels_first_without_objectness():
 def test_dense_decoders_return_empty_arrays_when_nothing_passes():
     out = np.zeros((1, 6, 3), np.float32)
     boxes, scores, classes = decode_yolov8(out, conf=0.25)
-    assert boxes.shape == (0, 4) and scores.shape == (0,) and classes.shape == (0,)
+    assert boxes.shape == (0, 4)
+    assert scores.shape == (0,)
+    assert classes.shape == (0,)
 
 
 def test_nms_decoder_reads_one_output_with_six_columns():

@@ -110,7 +110,8 @@ def test_yolox_defaults_give_raw_bgr_values_padded_at_the_bottom_right():
     image = np.zeros((32, 48, 3), np.uint8)
     image[...] = (10, 20, 30)  # BGR
     tensor, _ = letterbox(image, 'bgr8', pre)
-    assert tensor.dtype == np.float32 and tensor.flags.c_contiguous
+    assert tensor.dtype == np.float32
+    assert tensor.flags.c_contiguous
     assert tensor.shape == (1, 3, 64, 64)
     assert tensor[0, :, 0, 0].tolist() == [10, 20, 30]
     assert tensor[0, :, 63, 63].tolist() == [114, 114, 114]

@@ -85,7 +85,9 @@ def test_family_defaults_follow_the_reference_exports():
             114,
             'center',
         )
-        assert pre.letterbox and pre.mean == (0, 0, 0) and pre.std == (1, 1, 1)
+        assert pre.letterbox
+        assert pre.mean == (0, 0, 0)
+        assert pre.std == (1, 1, 1)
 
 
 def test_preprocess_keys_are_parsed_from_strings():
@@ -249,7 +251,8 @@ def test_the_family_option_beats_metadata_and_metadata_beats_shapes(tmp_path):
     assert (spec.family, spec.family_source) == ('yolov5', 'metadata')
     spec = load_model_spec(path, family='yolox')
     assert (spec.family, spec.family_source) == ('yolox', 'option')
-    assert spec.preprocess.channel_order == 'bgr' and spec.preprocess.scale == 1.0
+    assert spec.preprocess.channel_order == 'bgr'
+    assert spec.preprocess.scale == 1.0
     assert spec.class_names == ('class0', 'class1', 'class2', 'class3')
 
 
@@ -315,7 +318,8 @@ def test_fp16_inputs_and_dynamic_sizes_are_read(tmp_path):
     assert spec.preprocess.size == (64, 32)  # Ultralytics imgsz is [h, w]
     assert spec.input_shape == ('batch', 3, 'height', 'width')
     spec = load_model_spec(path, overrides={'size': '64x32', 'pad_value': '0'})
-    assert spec.preprocess.size == (64, 32) and spec.preprocess.pad_value == 0
+    assert spec.preprocess.size == (64, 32)
+    assert spec.preprocess.pad_value == 0
 
 
 @pytest.mark.parametrize(

@@ -256,7 +256,8 @@ def mcap_chunk_boundaries(rel: str) -> tuple[int, ...]:
 
     data = fixture_bytes(rel)
     summary = make_reader(io.BytesIO(data)).get_summary()
-    assert summary is not None and summary.chunk_indexes
+    assert summary is not None
+    assert summary.chunk_indexes
     cuts = set()
     for ci in summary.chunk_indexes:
         cuts |= {ci.chunk_start_offset, ci.chunk_start_offset + ci.chunk_length}
@@ -290,7 +291,8 @@ def mcap_message_ends(rel: str) -> tuple[tuple[str, int], ...]:
         for cid, pos in ci.message_index_offsets.items():
             stream = StreamReader(io.BytesIO(data[pos:]), skip_magic=True)
             index = next(iter(stream.records))
-            assert isinstance(index, MessageIndex) and index.channel_id == cid
+            assert isinstance(index, MessageIndex)
+            assert index.channel_id == cid
             for _, offset in index.records:
                 at = records_start + offset
                 assert data[at] == OP_MESSAGE

@@ -185,7 +185,7 @@ def test_image_topic_longer_than_a_file_name_replays(tmp_path):
     so a 300-character topic raised OSError (file name too long) after the replay."""
     topic = '/' + 'x' * 300
 
-    def channel(cid, name, encoding, schema_id):
+    def channel(_cid, name, encoding, schema_id):
         return (topic if name == '/camera/image_raw' else name), encoding, schema_id
 
     data = rewrite_mcap(fixture_bytes('rgb8_raw.mcap'), channel=channel)

@@ -106,8 +106,9 @@ def test_a_small_input_is_hashed_at_once_and_its_run_has_no_hashing_warning(tmp_
 
 
 def test_no_hash_records_a_null_sha256_and_says_so_without_reading_the_input(tmp_path):
-    def refuse(files: Sequence[Path]) -> InputHash:
-        raise AssertionError('hashed although hash_inputs is False')
+    def refuse(_files: Sequence[Path]) -> InputHash:
+        msg = 'hashed although hash_inputs is False'
+        raise AssertionError(msg)
 
     out = tmp_path / 'run'
     run_benchmark(
@@ -120,8 +121,9 @@ def test_no_hash_records_a_null_sha256_and_says_so_without_reading_the_input(tmp
 
 
 def test_a_known_sha256_is_recorded_without_hashing_the_input_again(tmp_path):
-    def refuse(files: Sequence[Path]) -> InputHash:
-        raise AssertionError('hashed although the sha256 was given')
+    def refuse(_files: Sequence[Path]) -> InputHash:
+        msg = 'hashed although the sha256 was given'
+        raise AssertionError(msg)
 
     out = tmp_path / 'run'
     run_benchmark(
@@ -188,7 +190,8 @@ def test_a_model_that_cannot_load_stops_the_hashing_and_leaves_nothing(tmp_path)
         def open(self) -> None:
             # the input is being hashed while the model loads
             assert started.wait(WAIT_S)
-            raise RuntimeError('cannot load the model')
+            msg = 'cannot load the model'
+            raise RuntimeError(msg)
 
     with pytest.raises(BackendError, match='cannot load the model'):
         run_benchmark(

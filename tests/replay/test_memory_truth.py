@@ -77,7 +77,7 @@ def test_mapping_a_file_raises_mapped_memory_not_private_memory(tmp_path: Path) 
     assert summary['rss_mb_peak'] >= summary['private_mb_peak'] + 140
 
 
-def test_allocating_raises_private_memory(tmp_path: Path) -> None:
+def test_allocating_raises_private_memory() -> None:
     with ResourceSampler(interval_s=0.02) as sampler:
         time.sleep(0.05)
         block = np.ones(200 * 1_000_000, dtype=np.uint8)  # written, so resident

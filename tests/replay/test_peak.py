@@ -114,7 +114,8 @@ def test_the_sweep_starts_at_the_probe_rate_doubles_then_bisects(bag: Path, tmp_
     # a second trial at 50 Hz confirms it
     assert [t.rate_hz for t in result.trials] == [50.0, 100.0, 75.0, 62.5, 56.25, 53.125, 50.0]
     assert [t.ok for t in result.trials] == [True] + [False] * 5 + [True]
-    assert result.trials[-1].attempt == 2 and result.confirmed
+    assert result.trials[-1].attempt == 2
+    assert result.confirmed
     assert result.peak_hz == 50.0
     assert result.status == 'complete'
 
@@ -138,7 +139,7 @@ def test_a_failing_start_rate_is_halved_until_a_trial_passes(bag: Path, tmp_path
     clock = VirtualClock()
     made: list[ServiceTimeBackend] = []
 
-    def factory(name: str, options: BackendOptions) -> ServiceTimeBackend:
+    def factory(_name: str, _options: BackendOptions) -> ServiceTimeBackend:
         # the max-rate probe sees a 10 ms backend, every trial a 20 ms one
         made.append(ServiceTimeBackend(clock, 0.010 if not made else 0.020))
         return made[-1]

@@ -86,7 +86,7 @@ def _scripted_sweep(
     clock = VirtualClock()
     used: list[float] = []
 
-    def factory(name: str, options: BackendOptions) -> Scripted:
+    def factory(_name: str, _options: BackendOptions) -> Scripted:
         used.append(services.get(len(used), 0.020))
         return Scripted(clock, used[-1])
 
@@ -154,7 +154,8 @@ def test_a_lucky_trial_above_the_service_rate_is_not_reported(bag: Path, tmp_pat
     # a 20 ms backend (50 Hz) whose trial at 53.125 Hz ran at 18 ms a frame, as a fast spell can
     services = {6: 0.018}
     single, used = _scripted_sweep(bag, tmp_path / 'one', services, confirm_trials=1)
-    assert used[6] == 0.018 and single.trials[5].rate_hz == 53.125
+    assert used[6] == 0.018
+    assert single.trials[5].rate_hz == 53.125
     assert single.peak_hz == 53.125  # one trial per rate: above what the backend sustains
 
     confirmed, _ = _scripted_sweep(bag, tmp_path / 'two', services)
@@ -162,7 +163,8 @@ def test_a_lucky_trial_above_the_service_rate_is_not_reported(bag: Path, tmp_pat
         (50.0, True), (100.0, False), (75.0, False), (62.5, False), (56.25, False),
         (53.125, True), (53.125, False), (50.0, True),
     ]  # fmt: skip
-    assert confirmed.peak_hz == 50.0 and confirmed.confirmed
+    assert confirmed.peak_hz == 50.0
+    assert confirmed.confirmed
     assert not any('trials disagree' in w for w in confirmed.warnings)
 
 
@@ -174,7 +176,8 @@ def test_a_failed_confirmation_moves_the_peak_down_and_halves_when_nothing_passe
     assert [(t.rate_hz, t.attempt, t.ok) for t in result.trials][5:] == [
         (53.125, 1, False), (50.0, 2, False), (25.0, 1, True), (25.0, 2, True),
     ]  # fmt: skip
-    assert result.peak_hz == 25.0 and result.confirmed
+    assert result.peak_hz == 25.0
+    assert result.confirmed
     assert result.peak_hz < min(t.rate_hz for t in result.trials if not t.ok)
     peak = json.loads((tmp_path / 'peak' / 'peak.json').read_text())
     assert peak['first_failing_hz'] == 50.0
@@ -190,7 +193,8 @@ def test_a_pass_above_a_failing_rate_is_warned_about_and_not_reported(
         (50.0, True), (100.0, False), (75.0, False), (62.5, True), (68.75, False),
         (65.625, False), (62.5, False), (50.0, False), (25.0, True), (25.0, True),
     ]  # fmt: skip
-    assert result.peak_hz == 25.0 and result.confirmed
+    assert result.peak_hz == 25.0
+    assert result.confirmed
     assert any(
         w.startswith('trials disagree: 62.5 Hz passed above the failing 50 Hz')
         for w in result.warnings
@@ -228,7 +232,7 @@ def test_an_interruption_before_the_confirmation_reports_an_unconfirmed_peak(
                 raise KeyboardInterrupt
             return super().detect(frame)
 
-    def factory(name: str, options: BackendOptions) -> Scripted:
+    def factory(_name: str, _options: BackendOptions) -> Scripted:
         runs.append(1)
         return Stopping(clock, 0.020)
 
@@ -237,7 +241,8 @@ def test_an_interruption_before_the_confirmation_reports_an_unconfirmed_peak(
         backend_factory=factory, report=False,
     )  # fmt: skip
     assert result.status == 'interrupted'
-    assert result.trials[-1].attempt == 2 and not result.trials[-1].ok
+    assert result.trials[-1].attempt == 2
+    assert not result.trials[-1].ok
     assert (result.peak_hz, result.confirmed) == (50.0, False)
     assert any('interrupted before 50 Hz was confirmed' in w for w in result.warnings)
 
@@ -259,7 +264,8 @@ def test_a_backend_of_x_ms_on_the_virtual_clock_peaks_near_1000_over_x_hz(
         backend_factory=lambda name, options: Scripted(clock, cost_ms / 1e3), report=False,
     )  # fmt: skip
     service_hz = 1000.0 / cost_ms
-    assert result.peak_hz is not None and result.confirmed
+    assert result.peak_hz is not None
+    assert result.confirmed
     assert 0.85 * service_hz <= result.peak_hz <= service_hz / (1 - max_drop), result.trials
     assert len([t for t in result.trials if t.rate_hz == result.peak_hz and t.ok]) >= 2
 
@@ -285,7 +291,8 @@ def test_a_busy_wait_backend_of_x_ms_peaks_near_1000_over_x_hz(
     if probe is None or probe < 0.9 * service_hz:
         # other processes held the CPU: the spin itself ran slow, so no rate can be expected
         pytest.skip(f'a {busy_ms:g} ms busy-wait ran at {probe} frames/s at max rate here')
-    assert result.peak_hz is not None and result.confirmed, result.trials
+    assert result.peak_hz is not None, result.trials
+    assert result.confirmed, result.trials
     # below: the harness's own cost and the machine's stalls; above: with drops allowed, a rate
     # is passed up to about service_hz / (1 - max_drop)
     assert 0.85 * service_hz <= result.peak_hz <= service_hz / (1 - max_drop), result.trials

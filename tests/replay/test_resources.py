@@ -55,7 +55,8 @@ def _busy(seconds: float) -> None:
         x += 1
 
 
-def test_a_busy_loop_shows_as_cpu_use(no_nvml: None) -> None:
+@pytest.mark.usefixtures('no_nvml')
+def test_a_busy_loop_shows_as_cpu_use() -> None:
     wall0, cpu0 = time.perf_counter(), time.process_time()
     with ResourceSampler(interval_s=0.05) as sampler:
         _busy(0.3)
@@ -69,13 +70,15 @@ def test_a_busy_loop_shows_as_cpu_use(no_nvml: None) -> None:
     assert summary['samples'] >= 4
 
 
-def test_sleeping_uses_almost_no_cpu(no_nvml: None) -> None:
+@pytest.mark.usefixtures('no_nvml')
+def test_sleeping_uses_almost_no_cpu() -> None:
     with ResourceSampler(interval_s=0.05) as sampler:
         time.sleep(0.3)
     assert sampler.summary()['cpu_percent_mean'] < 20
 
 
-def test_allocating_200_mb_raises_the_peak_rss(no_nvml: None) -> None:
+@pytest.mark.usefixtures('no_nvml')
+def test_allocating_200_mb_raises_the_peak_rss() -> None:
     with ResourceSampler(interval_s=0.02) as sampler:
         time.sleep(0.05)
         block = np.ones(200 * 1_000_000, dtype=np.uint8)  # written, so resident
@@ -89,7 +92,8 @@ def test_allocating_200_mb_raises_the_peak_rss(no_nvml: None) -> None:
     assert min(rss) <= summary['rss_mb_mean'] <= summary['rss_mb_peak']
 
 
-def test_the_series_is_downsampled_to_max_samples(no_nvml: None) -> None:
+@pytest.mark.usefixtures('no_nvml')
+def test_the_series_is_downsampled_to_max_samples() -> None:
     with ResourceSampler(interval_s=0.002, max_samples=20) as sampler:
         time.sleep(0.25)
     summary = sampler.summary()
@@ -105,7 +109,8 @@ def test_the_series_is_downsampled_to_max_samples(no_nvml: None) -> None:
     assert np.median(cpu) < 50
 
 
-def test_without_nvml_the_gpu_fields_are_none(no_nvml: None) -> None:
+@pytest.mark.usefixtures('no_nvml')
+def test_without_nvml_the_gpu_fields_are_none() -> None:
     with ResourceSampler(interval_s=0.02) as sampler:
         time.sleep(0.05)
     summary = sampler.summary()
@@ -124,15 +129,17 @@ def _fake_nvml(*, fail_init: bool = False, power: bool = True) -> types.ModuleTy
 
     def init() -> None:
         if fail_init:
-            raise NVMLError('Driver Not Loaded')
+            msg = 'Driver Not Loaded'
+            raise NVMLError(msg)
 
     def handle(index: int) -> str:
         state['index'] = index
         return f'gpu{index}'
 
-    def power_usage(h: str) -> int:
+    def power_usage(_handle: str) -> int:
         if not power:
-            raise NVMLError('Not Supported')
+            msg = 'Not Supported'
+            raise NVMLError(msg)
         return 75_000  # mW
 
     module.NVMLError = NVMLError  # type: ignore[attr-defined]
@@ -188,8 +195,9 @@ def test_a_gpu_index_beyond_the_devices_gives_no_gpu_fields(
     assert sampler.summary()['gpu_name'] is None
 
 
+@pytest.mark.usefixtures('no_nvml')
 def test_without_proc_the_rss_comes_from_getrusage(
-    monkeypatch: pytest.MonkeyPatch, tmp_path: Any, no_nvml: None
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Any
 ) -> None:
     pytest.importorskip('resource')
     monkeypatch.setattr(resources, 'PROC_SELF', tmp_path / 'no-proc')
@@ -201,7 +209,8 @@ def test_without_proc_the_rss_comes_from_getrusage(
     assert summary['cpu_percent_mean'] > 0
 
 
-def test_the_sampler_measures_its_own_cost_and_it_is_small(no_nvml: None) -> None:
+@pytest.mark.usefixtures('no_nvml')
+def test_the_sampler_measures_its_own_cost_and_it_is_small() -> None:
     with ResourceSampler() as sampler:  # the default interval
         time.sleep(0.6)
     summary = sampler.summary()
@@ -210,7 +219,8 @@ def test_the_sampler_measures_its_own_cost_and_it_is_small(no_nvml: None) -> Non
     assert 0 <= summary['overhead_cpu_percent'] < 2
 
 
-def test_summary_is_available_while_running_and_stop_is_idempotent(no_nvml: None) -> None:
+@pytest.mark.usefixtures('no_nvml')
+def test_summary_is_available_while_running_and_stop_is_idempotent() -> None:
     sampler = ResourceSampler(interval_s=0.02).start()
     try:
         time.sleep(0.06)

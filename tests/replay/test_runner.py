@@ -318,7 +318,7 @@ def test_backend_options_reach_the_backend(tmp_path):
     bag = _bag(tmp_path / 'cam.mcap', n=2)
     seen: list[BackendOptions] = []
 
-    def factory(name: str, options: BackendOptions) -> ServiceTimeBackend:
+    def factory(_name: str, options: BackendOptions) -> ServiceTimeBackend:
         seen.append(options)
         return ServiceTimeBackend(VirtualClock(), 0.0)
 
@@ -375,7 +375,8 @@ def test_at_max_rate_frames_cheap_to_read_are_read_inline_and_run_json_says_why(
     (decision,) = outcome.run.backends[0].read_ahead
     assert decision.used is False
     assert decision.probe_frames == 15
-    assert decision.probe_read_decode_ms is not None and decision.threshold_ms is not None
+    assert decision.probe_read_decode_ms is not None
+    assert decision.threshold_ms is not None
     assert decision.probe_read_decode_ms < decision.threshold_ms
 
 

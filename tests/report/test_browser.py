@@ -130,8 +130,10 @@ def test_every_chart_renders_with_a_visible_size_and_drawn_content(report: Page)
     # per topic: latency over time, latency CDF, detections over time; throughput and stages
     assert len(charts) >= 3 * len(TOPICS) + 2
     for chart in charts:
-        assert chart['width'] > 50 and chart['height'] > 50, chart
-        assert chart['contentWidth'] > 0 and chart['contentHeight'] > 0, chart
+        assert chart['width'] > 50, chart
+        assert chart['height'] > 50, chart
+        assert chart['contentWidth'] > 0, chart
+        assert chart['contentHeight'] > 0, chart
         assert chart['marks'] > 0, chart
 
 
@@ -156,7 +158,8 @@ def test_sample_images_are_decoded_by_the_browser(report: Page) -> None:
     assert len(images) == len(TOPICS)
     for image in images:
         assert image['complete'], image
-        assert image['width'] > 0 and image['height'] > 0, image
+        assert image['width'] > 0, image
+        assert image['height'] > 0, image
         assert image['src'] == 'data:image/jpeg;base64,', image
 
 

@@ -104,7 +104,8 @@ def test_the_intervals_are_the_ones_compare_gives_for_the_same_run(make_run: Mak
     assert head.p50_ci == mine.metrics['median_ms'].value_ci
     assert head.p99_ci == mine.metrics['p99_ms'].value_ci
     for value, interval in ((head.fps, head.fps_ci), (head.p50_ms, head.p50_ci)):
-        assert interval is not None and value is not None
+        assert interval is not None
+        assert value is not None
         assert interval[0] <= value <= interval[1]
     html = render_report(run_dir).read_text(encoding='utf-8')
     lo, hi = head.fps_ci  # type: ignore[misc]

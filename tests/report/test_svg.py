@@ -79,7 +79,8 @@ def test_line_chart_draws_axes_legend_and_one_polyline_per_series() -> None:
         span_label='warm-up',
         marks=[Marks('a dropped (1)', PALETTE[0], [1.5])],
     )
-    assert svg.startswith('<svg') and svg.endswith('</svg>')
+    assert svg.startswith('<svg')
+    assert svg.endswith('</svg>')
     assert svg.count('<polyline') == 2
     assert '<title>T &lt;1&gt;</title>' in svg
     assert '>a &amp; b</text>' in svg
@@ -87,7 +88,8 @@ def test_line_chart_draws_axes_legend_and_one_polyline_per_series() -> None:
     assert '>a dropped (1)</text>' in svg
     assert 'fill-opacity="0.07"' in svg
     assert '>time (s)</text>' in svg
-    assert 'NaN' not in svg and 'nan' not in svg
+    assert 'NaN' not in svg
+    assert 'nan' not in svg
 
 
 def test_charts_are_deterministic_and_ignore_non_finite_points() -> None:

@@ -112,7 +112,7 @@ def test_values_are_written_with_fixed_precision(tmp_path: Path) -> None:
 
 def test_an_exception_inside_the_writer_still_leaves_a_complete_csv(tmp_path: Path) -> None:
     path = tmp_path / 'frames.csv'
-    with pytest.raises(KeyboardInterrupt), FramesCsvWriter(path) as writer:
+    with pytest.raises(KeyboardInterrupt), FramesCsvWriter(path) as writer:  # noqa: PT012  the exception passes through the context manager under test
         for seq in range(250):
             writer.write(_ok(seq))
         raise KeyboardInterrupt

@@ -146,7 +146,8 @@ def test_a_40_frame_run_has_intervals_around_its_estimates_everywhere_and_compar
         assert row['measured'] == 38
         assert not any('measured frames' in w for w in row['warnings'])
         for point, (low, high) in CI_KEYS.items():
-            assert row[low] is not None and row[high] is not None, (backend, point)
+            assert row[low] is not None, (backend, point)
+            assert row[high] is not None, (backend, point)
             assert row[low] <= row[point] <= row[high], (backend, point)
             # summary.csv: the same numbers, the columns at the end
             assert csv_rows[backend][low] == f'{row[low]:.4f}'
@@ -185,7 +186,8 @@ def test_a_10_frame_run_has_empty_intervals_and_says_there_are_too_few_frames(
     row = _row(_run_json(out), 'null')
     assert row['measured'] == 10
     for low, high in CI_KEYS.values():
-        assert row[low] is None and row[high] is None
+        assert row[low] is None
+        assert row[high] is None
     too_few = '10 measured frames: fewer than 20, no 95 % interval'
     assert row['warnings'][0] == too_few
     [csv_row] = _csv_rows(out / 'summary.csv')
@@ -319,7 +321,9 @@ def test_drift_needs_a_change_beyond_10_percent_that_the_exact_interval_confirms
     assert not drift(steady).significant  # type: ignore[union-attr]
     stepped = np.concatenate((steady[:30], steady[30:] * 1.25))
     found = drift(stepped)
-    assert found is not None and found.significant and found.method == 'between-block'
+    assert found is not None
+    assert found.significant
+    assert found.method == 'between-block'
     assert found.ratio == pytest.approx(1.25, rel=0.05)
     # significant but small: 5 % is not drift
     small = np.concatenate((steady[:30], steady[30:] * 1.05))
@@ -330,7 +334,9 @@ def test_drift_needs_a_change_beyond_10_percent_that_the_exact_interval_confirms
     # 4 against 4 frames is the least that can be judged, frame by frame
     assert drift([1.0] * (DRIFT_MIN_FRAMES - 1)) is None
     short = drift([1.0, 1.01, 1.02, 1.03, 2.0, 2.01, 2.02, 2.03])
-    assert short is not None and short.significant and short.method == 'per-frame'
+    assert short is not None
+    assert short.significant
+    assert short.method == 'per-frame'
 
 
 def test_with_intervals_fills_in_every_row_and_reads_the_same_series_back_from_frames_csv(
@@ -350,7 +356,8 @@ def test_with_intervals_fills_in_every_row_and_reads_the_same_series_back_from_f
     mine = measured_series([r for r in records if r.backend == 'b'])
     theirs = measured_series([r for r in back if r.backend == 'b'])
     assert np.array_equal(mine.latency_ms, theirs.latency_ms)
-    assert mine.intervals_s is not None and theirs.intervals_s is not None
+    assert mine.intervals_s is not None
+    assert theirs.intervals_s is not None
     assert np.array_equal(mine.intervals_s, theirs.intervals_s)
 
 
@@ -443,7 +450,8 @@ def test_without_cpufreq_cpu_throttling_cannot_be_judged_and_gives_no_warning(
         time.sleep(0.05)
     summary = sampler.summary()
     assert summary['cpu_freq_source'] is None
-    assert summary['cpu_mhz_min'] is None and summary['cpu_mhz_max'] is None
+    assert summary['cpu_mhz_min'] is None
+    assert summary['cpu_mhz_max'] is None
     assert summary['cpu_throttle_events'] is None
     assert summary['gpu_throttle_reasons'] is None
     assert all(p['cpu_mhz'] is None for p in sampler.series())

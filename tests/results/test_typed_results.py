@@ -57,7 +57,8 @@ def test_compare_names_the_gpu_a_backend_reports_and_the_one_its_use_was_sampled
     first = _run(tmp_path / 'a', 'null', 'hsv')
     run = read_run_result(first)
     null, hsv = run.backends
-    assert hsv.resources is not None and hsv.resources.summary is not None
+    assert hsv.resources is not None
+    assert hsv.resources.summary is not None
     reported = replace(null, info={**null.info, 'device_name': 'NVIDIA Reported'})
     sampled = replace(
         hsv,
@@ -105,7 +106,8 @@ def test_an_older_run_json_without_the_host_or_the_agreement_iou_still_reads(
     assert run.environment.hostname is None
     assert run.settings.agreement_iou == AGREEMENT_IOU  # what every run before used
     (info,) = load_runs([run_dir])
-    assert info.label.startswith('run (') and info.hostname is None
+    assert info.label.startswith('run (')
+    assert info.hostname is None
 
 
 def test_a_run_started_from_python_records_no_command_line(

@@ -235,7 +235,8 @@ def test_cdr_images_are_copied_byte_for_byte_and_decode_to_the_same_pixels(
                 if 'camera_info' in topic:
                     continue
                 want, got = decode_image(original), decode_image(_as_raw(schema, channel, message))
-                assert got.stamp_ns == want.stamp_ns and got.frame_id == want.frame_id
+                assert got.stamp_ns == want.stamp_ns
+                assert got.frame_id == want.frame_id
                 np.testing.assert_array_equal(got.image, want.image)
 
 
@@ -394,7 +395,7 @@ def test_real_foxglove_protobuf_recording_copies_to_the_same_pixels(tmp_path: Pa
         np.testing.assert_array_equal(got.image, want.image)
 
 
-def test_real_ros1_camera_info_converts_to_ros2(tmp_path: Path) -> None:
+def test_real_ros1_camera_info_converts_to_ros2() -> None:
     bag = SHARED_REAL / 'bags' / 'ros1' / 'ubiquity_aruco_images.bag'
     if not bag.is_file():
         pytest.skip(f'{SHARED_REAL} not present (real recordings are optional)')

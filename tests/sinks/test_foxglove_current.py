@@ -131,7 +131,7 @@ def test_the_current_definitions_decode_every_annotation_field(tmp_path: Path) -
     assert (empty.circles, empty.points, empty.texts, empty.metadata) == ([], [], [], [])
 
 
-def test_the_bytes_are_what_the_current_definitions_serialise(tmp_path: Path) -> None:
+def test_the_bytes_are_what_the_current_definitions_serialise() -> None:
     store = _upstream_store()
     ours = serialize_image_annotations(T0, [RED, BLUE], '#0072b2')
     decoded = store.deserialize_cdr(ours, msgs.IMAGE_ANNOTATIONS)

@@ -116,7 +116,8 @@ def _image_topics(bag: Path) -> dict[str, int]:
     if bag.suffix == '.mcap':
         with bag.open('rb') as stream:
             summary = make_reader(stream).get_summary()
-        assert summary is not None and summary.statistics is not None
+        assert summary is not None
+        assert summary.statistics is not None
         counts = {
             summary.channels[c].topic: (summary.schemas[summary.channels[c].schema_id].name, n)
             for c, n in summary.statistics.channel_message_counts.items()
@@ -294,7 +295,8 @@ def test_every_reader_decodes_every_message_and_the_counts_agree(
         )
         header = reader.get_header()
         summary = reader.get_summary()
-        assert summary is not None and summary.statistics is not None
+        assert summary is not None
+        assert summary.statistics is not None
         by_mcap: dict[str, int] = {}
         times = []
         for schema, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):

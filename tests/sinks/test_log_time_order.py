@@ -84,7 +84,8 @@ def test_any_arrival_order_gives_the_same_sorted_file(steps: list[tuple[str, int
             )
         with path.open('rb') as stream:
             summary = make_reader(stream).get_summary()
-        assert summary is not None and summary.statistics is not None
+        assert summary is not None
+        assert summary.statistics is not None
         assert summary.statistics.message_count == len(steps)
         if steps:
             times = [T0 + t for _, t in steps]

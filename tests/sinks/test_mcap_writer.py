@@ -153,7 +153,7 @@ def test_messages_are_staged_until_finish_and_the_stage_is_gone_after(tmp_path: 
 
 def test_file_is_valid_after_an_exception_inside_the_with_block(tmp_path: Path) -> None:
     path = tmp_path / 'detections.mcap'
-    with pytest.raises(RuntimeError, match='backend crashed'), DetectionsWriter(path) as writer:
+    with pytest.raises(RuntimeError, match='backend crashed'), DetectionsWriter(path) as writer:  # noqa: PT012  the exception passes through the context manager under test
         for i in range(3):
             writer.add('hsv', '/camera/image_raw', T0 + i, T0 + i, 'cam', [RED])
         msg = 'backend crashed'

@@ -47,7 +47,8 @@ def _official_counts(path: Path) -> dict[str, int]:
     if path.suffix == '.mcap':
         with path.open('rb') as stream:
             summary = make_reader(stream).get_summary()
-        assert summary is not None and summary.statistics is not None
+        assert summary is not None
+        assert summary.statistics is not None
         counts = {}
         for channel_id, n in summary.statistics.channel_message_counts.items():
             channel = summary.channels[channel_id]
@@ -106,7 +107,8 @@ def test_a_null_run_replays_every_frame_the_official_reader_counts(
     assert {s.topic: s.frames for s in outcome.run.summary_rows} == official
     with (outcome.run_dir / 'detections.mcap').open('rb') as stream:
         summary = make_reader(stream).get_summary()
-    assert summary is not None and summary.statistics is not None
+    assert summary is not None
+    assert summary.statistics is not None
     written = {
         summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()
     }

@@ -217,7 +217,7 @@ def nvidia_driver_release() -> str | None:
             release = pynvml.nvmlSystemGetDriverVersion()
         finally:
             pynvml.nvmlShutdown()
-    except Exception:  # NVML missing or refusing: the release is optional
+    except Exception:  # noqa: BLE001  NVML missing or refusing: the release is optional
         return None
     return release.decode() if isinstance(release, bytes) else str(release)
 

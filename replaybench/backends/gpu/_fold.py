@@ -122,13 +122,13 @@ def _shape_of(node: Any, shape: tuple[int, ...]) -> np.ndarray:
     return np.array(shape[slice(start, end)], dtype=np.int64)
 
 
-def _evaluate(onnx: Any, node: Any, feeds: dict[str, np.ndarray], opset: int) -> list[Any] | None:
+def _evaluate(node: Any, feeds: dict[str, np.ndarray], opset: int) -> list[Any] | None:
     """The outputs of one node on constant inputs, None when onnx's reference cannot run it."""
     from onnx.reference import ReferenceEvaluator
 
     try:
         outputs = ReferenceEvaluator(node, opsets={'': opset}).run(None, feeds)
-    except Exception:  # an op the reference does not implement: the node stays
+    except Exception:  # noqa: BLE001  an op the reference does not implement: the node stays
         return None
     values = [np.asarray(v) for v in outputs]
     if any(v.dtype == object or v.size > MAX_FOLDED_ELEMENTS for v in values):
@@ -158,7 +158,7 @@ def fold_shapes(onnx: Any, model: Any, input_shape: Sequence[int]) -> tuple[Any,
         shapes: dict[str, tuple[int, ...]] = {}
         try:
             inferred = shape_inference.infer_shapes(folded_model, data_prop=True)
-        except Exception:  # inference is a help: without it only constants fold
+        except Exception:  # noqa: BLE001  inference is a help: without it only constants fold
             inferred = None
         if inferred is not None:
             for info in (*inferred.graph.input, *inferred.graph.value_info):
@@ -167,7 +167,7 @@ def fold_shapes(onnx: Any, model: Any, input_shape: Sequence[int]) -> tuple[Any,
                     shapes[info.name] = dims
         kept = []
         for node in graph.node:
-            values = _fold_node(onnx, node, constants, shapes, opset)
+            values = _fold_node(node, constants, shapes, opset)
             if values is None or any(name in graph_outputs for name in node.output):
                 kept.append(node)
                 continue
@@ -183,7 +183,6 @@ def fold_shapes(onnx: Any, model: Any, input_shape: Sequence[int]) -> tuple[Any,
 
 
 def _fold_node(
-    onnx: Any,
     node: Any,
     constants: dict[str, np.ndarray],
     shapes: dict[str, tuple[int, ...]],
@@ -203,7 +202,7 @@ def _fold_node(
     if not all(name in constants for name in inputs):
         return None
     feeds = {name: constants[name] for name in inputs}
-    return _evaluate(onnx, node, feeds, opset)
+    return _evaluate(node, feeds, opset)
 
 
 def _rebuild_initializers(graph: Any, constants: dict[str, np.ndarray]) -> None:

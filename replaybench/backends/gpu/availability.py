@@ -75,7 +75,7 @@ def ort_provider_problem(provider: str) -> str | None:
 
         available = list(ort.get_available_providers())
         version = str(getattr(ort, '__version__', '?'))
-    except Exception as exc:  # a broken install is a reason, not a crash
+    except Exception as exc:  # noqa: BLE001  a broken install is a reason, not a crash
         return f'onnxruntime cannot be imported: {type(exc).__name__}: {exc}'
     if provider not in available:
         return (
@@ -91,7 +91,7 @@ def torch_problem(device: int | None = None) -> str | None:
         return f'torch is not installed: {GPU_EXTRA}'
     try:
         torch = importlib.import_module('torch')
-    except Exception as exc:  # a broken install is a reason, not a crash
+    except Exception as exc:  # noqa: BLE001  a broken install is a reason, not a crash
         return f'torch cannot be imported: {type(exc).__name__}: {exc}'
     if torch.version.cuda is None:
         return f'torch {torch.__version__} is a CPU-only build: install a CUDA build ({_DOCS})'
@@ -110,7 +110,7 @@ def cupy_problem(device: int | None = None) -> str | None:
     try:
         cupy = importlib.import_module('cupy')
         count = int(cupy.cuda.runtime.getDeviceCount())
-    except Exception as exc:  # missing CUDA runtime libraries and the like
+    except Exception as exc:  # noqa: BLE001  missing CUDA runtime libraries and the like
         return f'cupy cannot use CUDA: {type(exc).__name__}: {exc}'
     if device is not None and not 0 <= device < count:
         return f'cupy sees no GPU with index {device} ({count} visible)'
@@ -247,7 +247,7 @@ def ep_node_counts(session: Any) -> dict[str, int] | None:
         return None
     try:
         subgraphs = get_info()
-    except Exception:  # recording not enabled, or a build without it
+    except Exception:  # noqa: BLE001  recording not enabled, or a build without it
         return None
     counts: dict[str, int] = {}
     for subgraph in subgraphs:

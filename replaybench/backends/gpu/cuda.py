@@ -204,7 +204,7 @@ class OrtEngine:
     def __call__(self) -> dict[str, Tensor]:
         try:
             self.session.run_with_iobinding(self.binding)
-        except Exception as exc:  # onnxruntime errors have several types
+        except Exception as exc:  # noqa: BLE001  onnxruntime errors have several types
             msg = f'inference failed: {type(exc).__name__}: {exc}'
             raise BackendError(msg) from None
         self.binding.synchronize_outputs()
@@ -238,7 +238,7 @@ def _import_onnx2torch() -> tuple[Any, Any]:
     for name in [m for m in sys.modules if m == 'onnx2torch' or m.startswith('onnx2torch.')]:
         del sys.modules[name]
 
-    def missing(*args: object, **kwargs: object) -> Any:
+    def missing(*_args: object, **_kwargs: object) -> Any:
         msg = 'torchvision is not installed'
         raise BackendError(msg)
 
@@ -314,7 +314,7 @@ class TorchEngine:
             graph = torch.cuda.CUDAGraph()
             with torch.cuda.graph(graph):
                 self.static = self._forward()
-        except Exception as exc:  # capture is an optimisation: fall back to eager mode
+        except Exception as exc:  # noqa: BLE001  capture is an optimisation: eager mode
             torch.cuda.synchronize(self.input.device)
             self.graph = None
             self.static = []
@@ -619,7 +619,7 @@ class CudaBackend:
             so.intra_op_num_threads = self.options.threads
         try:
             return ort.InferenceSession(str(self.model_path), so, providers=self._providers(stream))
-        except Exception as exc:  # onnxruntime raises several types
+        except Exception as exc:  # noqa: BLE001  onnxruntime raises several types
             problem = driver_problem(self.options.device)
             if problem is not None:  # e.g. a GPU index beyond the machine
                 raise BackendUnavailableError(problem) from None
@@ -647,7 +647,7 @@ class CudaBackend:
         check_placement(placement, self.provider)
         return providers, placement
 
-    def _open_ort(self, torch: Any, stream: Any) -> tuple[ModelSpec, Any, dict[str, Any]]:
+    def _open_ort(self, stream: Any) -> tuple[ModelSpec, Any, dict[str, Any]]:
         """The session on the GPU provider (checked), the model's spec and the facts."""
         problem = ort_provider_problem(self.provider)
         if problem is not None:
@@ -701,7 +701,7 @@ class CudaBackend:
             raise BackendError(msg) from None
         try:
             module = onnx2torch.convert(proto)
-        except Exception as exc:  # unsupported ops and the like
+        except Exception as exc:  # noqa: BLE001  unsupported ops and the like
             what = f'{type(exc).__name__}: {exc}'
             msg = f'{self.name}: onnx2torch cannot convert {self.model_path}: {what}'
             raise BackendError(msg) from None
@@ -775,7 +775,7 @@ class CudaBackend:
         with torch.cuda.device(device):
             self._stream = torch.cuda.Stream(device=device)
         if engine == 'ort':
-            spec, runner, facts = self._open_ort(torch, self._stream)
+            spec, runner, facts = self._open_ort(self._stream)
         else:
             spec, runner, facts = self._open_torch(torch)
         half = spec.precision == 'fp16' or (engine == 'torch' and self.options.precision == 'fp16')
@@ -818,7 +818,7 @@ class CudaBackend:
             # what the session runs on, once more after a real inference
             self._facts['providers'] = check_session_providers(runner, self.provider)
 
-    def _precision_facts(self, gpu: DeviceFacts) -> dict[str, Any]:
+    def _precision_facts(self, gpu: DeviceFacts) -> dict[str, Any]:  # noqa: ARG002  tensorrt.py's override uses gpu
         return {'precision_requested': self.options.precision, 'tf32': self.precision == 'tf32'}
 
     def _warm_up(self) -> None:
@@ -898,7 +898,8 @@ class CudaBackend:
     def _run(self, pixels: npt.NDArray[np.uint8], layout: str, where: str) -> BackendResult:
         """One frame's pixels through upload, preprocessing, engine and postprocessing."""
         torch, pipeline, engine = self._torch, self._pipeline, self._engine
-        assert pipeline is not None and engine is not None
+        assert pipeline is not None
+        assert engine is not None
         clock = StageClock(self._stream.synchronize, self._events)
         with torch.cuda.device(self._device), torch.cuda.stream(self._stream):
             clock.start()

@@ -121,7 +121,7 @@ def _driver() -> list[Finding]:
     for index in range(count):
         try:
             gpu = _cuda.device_facts(index)
-        except Exception as exc:  # a device the driver refuses to describe
+        except Exception as exc:  # noqa: BLE001  a device the driver refuses to describe
             findings.append(Finding(BAD, f'GPU {index}', str(exc)))
             continue
         findings.append(
@@ -177,7 +177,7 @@ def _onnxruntime() -> list[Finding]:
     try:
         ort = importlib.import_module('onnxruntime')
         providers = list(ort.get_available_providers())
-    except Exception as exc:  # a broken install is a finding
+    except Exception as exc:  # noqa: BLE001  a broken install is a finding
         return [*findings, Finding(BAD, 'onnxruntime', f'{type(exc).__name__}: {exc}')]
     build = _ort_cuda_build()
     cuda = f', built for CUDA {build}' if build else ', a CPU build'
@@ -198,7 +198,7 @@ def _onnxruntime() -> list[Finding]:
 def _ort_cuda_build() -> str:
     try:
         info = importlib.import_module('onnxruntime.capi.build_and_package_info')
-    except Exception:  # older builds have no such module
+    except Exception:  # noqa: BLE001  older builds have no such module
         return ''
     return str(getattr(info, 'cuda_version', '') or '')
 
@@ -211,7 +211,7 @@ def _torch() -> list[Finding]:
         cuda = torch.version.cuda
         available = bool(torch.cuda.is_available())
         cudnn = torch.backends.cudnn.version() if available else None
-    except Exception as exc:  # a broken install is a finding
+    except Exception as exc:  # noqa: BLE001  a broken install is a finding
         return [Finding(BAD, 'torch', f'{type(exc).__name__}: {exc}')]
     if cuda is None:
         return [Finding(BAD, 'torch', f'{torch.__version__}: a CPU-only build')]
@@ -235,7 +235,7 @@ def _cupy() -> list[Finding]:
         cupy = importlib.import_module('cupy')
         runtime = int(cupy.cuda.runtime.runtimeGetVersion())
         count = int(cupy.cuda.runtime.getDeviceCount())
-    except Exception as exc:  # missing CUDA libraries and the like
+    except Exception as exc:  # noqa: BLE001  missing CUDA libraries and the like
         return [Finding(BAD, 'CuPy', f'{wanted} {version}: {type(exc).__name__}: {exc}')]
     text = f'{wanted} {version}, CUDA runtime {runtime // 1000}.{runtime % 1000 // 10}, '
     return [Finding(OK, 'CuPy', f'{text}{count} GPU(s)')]

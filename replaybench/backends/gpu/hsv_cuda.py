@@ -182,7 +182,7 @@ class HsvCudaBackend:
         try:
             cupy = importlib.import_module('cupy')
             ndimage = importlib.import_module('cupyx.scipy.ndimage')
-        except Exception as exc:  # ImportError and CUDA library load failures
+        except Exception as exc:  # noqa: BLE001  ImportError and CUDA library load failures
             msg = f'hsv-cuda: cannot import cupy: {type(exc).__name__}: {exc}'
             raise BackendUnavailableError(msg) from None
         self._cp, self._ndi = cupy, ndimage
@@ -210,7 +210,7 @@ class HsvCudaBackend:
                     events, lambda e: e.record(stream), cupy.cuda.get_elapsed_time
                 )
                 self._warm_up()
-        except Exception as exc:  # missing CUDA runtime parts (NVRTC, ...) show up here
+        except Exception as exc:  # noqa: BLE001  missing CUDA runtime parts (NVRTC, ...)
             self.close()
             msg = f'hsv-cuda: CuPy cannot run its kernels: {type(exc).__name__}: {exc}'
             raise BackendUnavailableError(msg) from None

@@ -131,7 +131,7 @@ class TensorrtBackend(CudaBackend):
             trt['user_compute_stream'] = cuda['user_compute_stream']
         return [('TensorrtExecutionProvider', trt), ('CUDAExecutionProvider', cuda)]
 
-    def _open_ort(self, torch: Any, stream: Any) -> tuple[ModelSpec, Any, dict[str, Any]]:
+    def _open_ort(self, stream: Any) -> tuple[ModelSpec, Any, dict[str, Any]]:
         problem = tensorrt_problem()
         if problem is not None:
             raise BackendUnavailableError(problem)
@@ -161,7 +161,7 @@ class TensorrtBackend(CudaBackend):
                 'trt_profile_opt_shapes': profile,
                 'trt_profile_max_shapes': profile,
             }
-        spec, session, facts = super()._open_ort(torch, stream)
+        spec, session, facts = super()._open_ort(stream)
         facts.update(
             {
                 'tensorrt': key.tensorrt,

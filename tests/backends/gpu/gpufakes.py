@@ -196,7 +196,8 @@ def fake_loader(monkeypatch: pytest.MonkeyPatch, libraries: dict[str, int | None
     def dlopen(name: str) -> FakeLibrary:
         asked.append(name)
         if name not in libraries:
-            raise OSError(f'{name}: cannot open shared object file: No such file or directory')
+            msg = f'{name}: cannot open shared object file: No such file or directory'
+            raise OSError(msg)
         return FakeLibrary(name, libraries[name])
 
     monkeypatch.setattr(_libs, '_dlopen', dlopen)

@@ -163,7 +163,8 @@ def test_hsv_cuda_gives_the_hsv_detections_within_the_stated_tolerance():
         for a, b in ((ours.detections, theirs.detections), (theirs.detections, ours.detections)):
             total += len(a)
             hits += sum(any(x.label == y.label and _iou(x, y) >= 0.9 for y in b) for x in a)
-        assert ours.stages.h2d_ns and ours.stages.d2h_ns
+        assert ours.stages.h2d_ns
+        assert ours.stages.d2h_ns
     assert total >= 100
     assert hits / total >= 0.95
     identical = sum(o.detections == t.detections for o, t in zip(gpu, cpu, strict=True))

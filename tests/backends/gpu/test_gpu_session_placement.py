@@ -33,9 +33,8 @@ def gpu(monkeypatch, driver):
     return torch_on_the_cpu(monkeypatch, torch)
 
 
-def test_the_session_runs_every_node_on_the_gpu_provider_or_not_at_all(
-    monkeypatch, tiny_model, gpu
-):
+@pytest.mark.usefixtures('gpu')
+def test_the_session_runs_every_node_on_the_gpu_provider_or_not_at_all(monkeypatch, tiny_model):
     seen = fake_gpu_build(monkeypatch, GPU_SESSION)
     backend = CudaBackend(BackendOptions(model=tiny_model, engine='ort'))
     backend.open()
@@ -71,7 +70,8 @@ def test_a_session_with_nodes_placed_on_the_cpu_is_refused(monkeypatch, tiny_mod
     assert gpu.emptied == 1  # what was opened is released
 
 
-def test_the_providers_are_checked_again_after_the_first_inference(monkeypatch, tiny_model, gpu):
+@pytest.mark.usefixtures('gpu')
+def test_the_providers_are_checked_again_after_the_first_inference(monkeypatch, tiny_model):
     seen = fake_gpu_build(monkeypatch, GPU_SESSION, after_run=['CPUExecutionProvider'])
     backend = CudaBackend(BackendOptions(model=tiny_model, engine='ort'))
     with pytest.raises(BackendUnavailableError, match='refusing to run on the CPU'):
@@ -79,7 +79,8 @@ def test_the_providers_are_checked_again_after_the_first_inference(monkeypatch, 
     assert seen.runs == 1  # the warm-up inference ran, then the check refused
 
 
-def test_tensorrt_is_refused_where_it_took_no_node(monkeypatch, tiny_model, tmp_path, gpu):
+@pytest.mark.usefixtures('gpu')
+def test_tensorrt_is_refused_where_it_took_no_node(monkeypatch, tiny_model, tmp_path):
     fake_loader(monkeypatch, {'libnvinfer.so.10': 101300, 'libnvonnxparser.so.10': None})
     reported = ['TensorrtExecutionProvider', *GPU_SESSION]
     fake_gpu_build(
@@ -92,8 +93,9 @@ def test_tensorrt_is_refused_where_it_took_no_node(monkeypatch, tiny_model, tmp_
     assert 'CUDAExecutionProvider ' in str(err.value)
 
 
+@pytest.mark.usefixtures('gpu')
 def test_tensorrt_with_its_nodes_records_the_engine_key_and_placement(
-    monkeypatch, tiny_model, tmp_path, gpu
+    monkeypatch, tiny_model, tmp_path
 ):
     fake_loader(monkeypatch, {'libnvinfer.so.10': 101300, 'libnvonnxparser.so.10': None})
     reported = ['TensorrtExecutionProvider', *GPU_SESSION]
@@ -120,9 +122,8 @@ def test_tensorrt_with_its_nodes_records_the_engine_key_and_placement(
     second.close()
 
 
-def test_auto_picks_torch_up_front_when_onnxruntime_lacks_the_provider(
-    monkeypatch, tiny_model, gpu
-):
+@pytest.mark.usefixtures('gpu')
+def test_auto_picks_torch_up_front_when_onnxruntime_lacks_the_provider(monkeypatch, tiny_model):
     monkeypatch.setattr(onnxruntime, 'get_available_providers', lambda: ['CPUExecutionProvider'])
     backend = CudaBackend(BackendOptions(model=tiny_model))
     engine, why = backend.choose_engine()

@@ -117,7 +117,8 @@ def test_hsv_cuda_warms_up_on_every_class_and_gives_its_pools_back(cupy, scene):
     assert [pool.freed for pool in cupy.pools] == [1, 1]
 
 
-def test_hsv_cuda_reports_device_time_from_events_on_its_stream(cupy, scene):
+@pytest.mark.usefixtures('cupy')
+def test_hsv_cuda_reports_device_time_from_events_on_its_stream(scene):
     backend = HsvCudaBackend(BackendOptions())
     backend.open()
     stages = backend.detect(scene(seed=4).frame('rgb8')).stages
@@ -132,7 +133,8 @@ def test_hsv_cuda_reports_device_time_from_events_on_its_stream(cupy, scene):
     assert stages.h2d_ns >= 0
 
 
-def test_a_replay_writes_host_and_device_times_to_frames_csv(cupy, tmp_path):
+@pytest.mark.usefixtures('cupy')
+def test_a_replay_writes_host_and_device_times_to_frames_csv(tmp_path):
     config = RunConfig(
         inputs=[FIXTURE_BAGS / 'rgb8_raw.mcap'],
         backends=['hsv-cuda'],

@@ -144,10 +144,11 @@ def replay(
     outcome = run_benchmark(config)
     wall, cpu = time.perf_counter() - start, time.process_time() - cpu
     (summary,) = outcome.summaries
-    if outcome.status != 'complete' or summary.throughput_fps is None:
+    record_s = outcome.run.backends[0].record_s
+    if outcome.status != 'complete' or summary.throughput_fps is None or record_s is None:
         msg = f'run of {backend} on {path.name}: status {outcome.status}, no throughput'
         raise RuntimeError(msg)
-    return summary.throughput_fps, wall, cpu, outcome.run.backends[0].record_s
+    return summary.throughput_fps, wall, cpu, record_s
 
 
 def steady_read_sampler(source: Source, bag: Bag) -> Sampler:

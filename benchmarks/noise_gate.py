@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 from benchmarks.core import pin_thread_env
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Mapping, Sequence
     from multiprocessing.process import BaseProcess
 
     import numpy as np
@@ -121,7 +121,7 @@ def _bag(path: Path, size: tuple[int, int], frames: int) -> Path:
     return path
 
 
-def _run(bag: Path, out: Path, backend: str, frames: int, extra: dict[str, str]) -> Path:
+def _run(bag: Path, out: Path, backend: str, frames: int, extra: Mapping[str, str]) -> Path:
     from replaybench.backends.base import BackendOptions
     from replaybench.replay.runner import RunConfig, run_benchmark
 
@@ -137,6 +137,7 @@ def _run(bag: Path, out: Path, backend: str, frames: int, extra: dict[str, str])
             options=BackendOptions(threads=1, extra=extra),
         )
     )
+    assert outcome.run_dir is not None
     return outcome.run_dir
 
 
@@ -167,7 +168,7 @@ def _bootstrap_verdicts(base: Path, cand: Path, seed: int) -> dict[str, str]:
     rng = np.random.default_rng(seed)
     rb = replicates(*_series(base), rng=rng)
     rc = replicates(*_series(cand), rng=rng)
-    verdicts = {}
+    verdicts: dict[str, str] = {}
     for text in CONDITIONS:
         condition = parse_condition(text)
         name = {'median_ms': 'p50', 'p99_ms': 'p99', 'mean_ms': 'mean', 'fps': 'fps'}

@@ -8,6 +8,7 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 import pytest
@@ -242,7 +243,7 @@ def test_compare_takes_runs_in_memory_or_folders_and_gives_the_table_and_verdict
 
 def test_peak_in_memory_gives_the_trials_and_the_peak_and_writes_nothing(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    seen = []
+    seen: list[Any] = []
     res = rb.peak(
         BAG, backend='null', max_hz=40.0, min_hz=10.0, refine_steps=0, progress=seen.append
     )

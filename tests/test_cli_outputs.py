@@ -15,6 +15,7 @@ import tempfile
 import textwrap
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from typer.testing import CliRunner
@@ -75,14 +76,14 @@ def _env(**extra: str) -> dict[str, str]:
     return {**os.environ, 'PYTHONWARNINGS': 'ignore', **extra}
 
 
-def _spawn(*args: str, **kwargs: object) -> subprocess.Popen[str]:
+def _spawn(*args: str, **kwargs: Any) -> subprocess.Popen[str]:
     return subprocess.Popen(
         [sys.executable, '-m', 'replaybench', *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
         env=_env(),
-        **kwargs,  # type: ignore[call-overload]
+        **kwargs,
     )
 
 
@@ -95,9 +96,9 @@ def _wait_for_replay(process: subprocess.Popen[str], parent: Path, name: str = '
         time.sleep(0.05)
 
 
-def _consistent(out: Path) -> dict[str, object]:
+def _consistent(out: Path) -> dict[str, Any]:
     """run.json, frames.csv and summary.csv count the same frames; run.json returned."""
-    run = json.loads((out / 'run.json').read_text())
+    run: dict[str, Any] = json.loads((out / 'run.json').read_text())
     with (out / 'frames.csv').open(newline='') as f:
         rows = list(csv.DictReader(f))
     with (out / 'summary.csv').open(newline='') as f:
@@ -176,9 +177,9 @@ def test_a_read_only_folder_is_refused_for_a_user_who_cannot_write_there(command
         base.chmod(0o755)
         (base / 'ro').mkdir(mode=0o555)
         before = _tree(base)
-        command = [*args, '--out', str(base / 'ro' / 'run')]
+        argv = [*args, '--out', str(base / 'ro' / 'run')]
         result = subprocess.run(
-            ['setpriv', *NOBODY, sys.executable, '-m', 'replaybench', *command],
+            ['setpriv', *NOBODY, sys.executable, '-m', 'replaybench', *argv],
             capture_output=True,
             text=True,
             env=_env(),

@@ -19,6 +19,7 @@ import select
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
@@ -34,6 +35,9 @@ from replaybench.results.records import FrameRecord, FramesCsvWriter, read_frame
 from replaybench.sinks.mcap_writer import detections_channel
 from replaybench.sources import open_source
 from replaybench.textsafe import csv_text, escape, from_csv, unescape, visible, visible_lines
+
+if TYPE_CHECKING:
+    from replaybench.types import Detection
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -64,12 +68,12 @@ _TS.register(
 T = _TS.types
 
 
-def _header(stamp: int, frame_id: str) -> object:
+def _header(stamp: int, frame_id: str) -> Any:
     time = T['builtin_interfaces/msg/Time'](sec=stamp // 10**9, nanosec=stamp % 10**9)
     return T['std_msgs/msg/Header'](stamp=time, frame_id=frame_id)
 
 
-def _image(stamp: int, frame_id: str, bgr: np.ndarray, encoding: str = 'bgr8') -> object:
+def _image(stamp: int, frame_id: str, bgr: np.ndarray, encoding: str = 'bgr8') -> Any:
     height, width = bgr.shape[:2]
     return T['sensor_msgs/msg/Image'](
         header=_header(stamp, frame_id),
@@ -82,7 +86,7 @@ def _image(stamp: int, frame_id: str, bgr: np.ndarray, encoding: str = 'bgr8') -
     )
 
 
-def _detections(stamp: int, frame_id: str, truth: list) -> object:
+def _detections(stamp: int, frame_id: str, truth: list[Detection]) -> Any:
     pose = T['geometry_msgs/msg/PoseWithCovariance'](
         pose=T['geometry_msgs/msg/Pose'](
             position=T['geometry_msgs/msg/Point'](x=0.0, y=0.0, z=0.0),

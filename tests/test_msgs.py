@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from typing import Any
 
 import numpy as np
 import pytest
@@ -227,7 +228,7 @@ def test_detections_cdr_matches_the_rosbags_serialiser_for_any_labels_and_alignm
 
 def test_ros1_detections_carry_the_class_name_score_and_box() -> None:
     data = msgs.serialize_detections(STAMP, 'cam', DETS, ros1=True, seq=7)
-    message = msgs.typestore(ros1=True).deserialize_ros1(data, msgs.DETECTION2DARRAY)
+    message: Any = msgs.typestore(ros1=True).deserialize_ros1(data, msgs.DETECTION2DARRAY)
     assert message.header.seq == 7
     assert message.header.stamp.sec * 10**9 + message.header.stamp.nanosec == STAMP
     assert [d.results[0].id for d in message.detections] == ['red', 'yellow']
@@ -253,6 +254,7 @@ def test_stamps_the_header_cannot_hold_are_clamped_to_the_nearest_time(
 ) -> None:
     data = msgs.serialize_detections(stamp_ns, 'cam', DETS, ros1=ros1)
     store = msgs.typestore(ros1=ros1)
+    message: Any
     if ros1:
         message = store.deserialize_ros1(data, msgs.DETECTION2DARRAY)
     else:
@@ -262,8 +264,8 @@ def test_stamps_the_header_cannot_hold_are_clamped_to_the_nearest_time(
 
 def test_camera_info_round_trips_through_cdr_and_ros1() -> None:
     info = _info()
-    cdr = msgs.typestore().deserialize_cdr(msgs.serialize_camera_info(info), msgs.CAMERA_INFO)
-    ros1 = msgs.typestore(ros1=True).deserialize_ros1(
+    cdr: Any = msgs.typestore().deserialize_cdr(msgs.serialize_camera_info(info), msgs.CAMERA_INFO)
+    ros1: Any = msgs.typestore(ros1=True).deserialize_ros1(
         msgs.serialize_camera_info(info, ros1=True), msgs.CAMERA_INFO
     )
     for got, (d, k, r, p) in (
@@ -294,7 +296,7 @@ def test_images_round_trip_with_packed_rows(ros1: bool) -> None:
     depth = (np.arange(4 * 6, dtype=np.uint16) * 1000).reshape(4, 6)
     for pixels, encoding in ((rgb, 'rgb8'), (depth[:, ::-1], '16UC1')):
         data = msgs.serialize_image(STAMP, 'cam', pixels, encoding, ros1=ros1)
-        message = deserialize(data, msgs.IMAGE)
+        message: Any = deserialize(data, msgs.IMAGE)
         assert (message.height, message.width, message.encoding) == (*pixels.shape[:2], encoding)
         assert message.step == pixels.shape[1] * pixels.itemsize * (
             pixels.shape[2] if pixels.ndim == 3 else 1
@@ -307,7 +309,7 @@ def test_images_round_trip_with_packed_rows(ros1: bool) -> None:
 def test_compressed_images_keep_format_and_bytes() -> None:
     payload = bytes(range(256)) * 3
     data = msgs.serialize_compressed_image(STAMP, 'cam', payload, 'rgb8; jpeg compressed bgr8')
-    message = msgs.typestore().deserialize_cdr(data, msgs.COMPRESSED_IMAGE)
+    message: Any = msgs.typestore().deserialize_cdr(data, msgs.COMPRESSED_IMAGE)
     assert message.format == 'rgb8; jpeg compressed bgr8'
     assert message.data.tobytes() == payload
     assert message.header.frame_id == 'cam'

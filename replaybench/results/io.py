@@ -250,7 +250,7 @@ def load_schema(name: str) -> dict[str, Any]:
 
 @functools.cache
 def _validator(name: str) -> Any:
-    import jsonschema  # type: ignore[import-untyped]
+    import jsonschema
 
     schema = load_schema(name)
     cls = jsonschema.validators.validator_for(schema)

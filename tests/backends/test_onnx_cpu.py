@@ -30,6 +30,7 @@ from replaybench.sources import open_source
 from replaybench.types import Detection, Frame
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
     from types import ModuleType
 
 REAL = (Path(__file__).resolve().parents[2] / '..' / 'shared' / 'real').resolve()
@@ -103,7 +104,11 @@ def test_a_yolov8_graph_gives_boxes_in_source_pixels(tmp_path):
     backend = _open(model=_v8_model(tmp_path), threads=1, conf=0.25)
     # 64x48 source into 32x32 centred: scale 0.5, 32x24, 4 rows of pad on top
     result = backend.detect(_frame(np.zeros((48, 64, 3), np.uint8)))
-    assert result.detections == (Detection(0, 'ball', pytest.approx(0.9), 16.0, 16.0, 48.0, 32.0),)
+    dets = result.detections
+    assert [(d.class_index, d.label, d.x0, d.y0, d.x1, d.y1) for d in dets] == [
+        (0, 'ball', 16.0, 16.0, 48.0, 32.0)
+    ]
+    assert [d.score for d in dets] == pytest.approx([0.9])
     stages = result.stages
     assert all(isinstance(t, int) and t > 0 for t in stages[:3])
     assert stages.h2d_ns is None
@@ -170,10 +175,11 @@ def test_an_nms_graph_with_separate_outputs_is_decoded(tmp_path):
     backend = _open(model=path, labels='coco')
     # 64x64 source into 32x32: scale 0.5, no pad
     dets = backend.detect(_frame(np.zeros((64, 64, 3), np.uint8))).detections
-    assert dets == (
-        Detection(2, 'car', pytest.approx(0.9), 0.0, 0.0, 32.0, 32.0),
-        Detection(0, 'person', pytest.approx(0.5), 16.0, 16.0, 64.0, 64.0),
-    )
+    assert [(d.class_index, d.label, d.x0, d.y0, d.x1, d.y1) for d in dets] == [
+        (2, 'car', 0.0, 0.0, 32.0, 32.0),
+        (0, 'person', 16.0, 16.0, 64.0, 64.0),
+    ]
+    assert [d.score for d in dets] == pytest.approx([0.9, 0.5])
     assert backend.info()['nms'] == 'in graph'
 
 
@@ -263,6 +269,7 @@ def test_a_replay_through_onnx_cpu_writes_its_detections(tmp_path):
         )
     )
     assert outcome.status == 'complete'
+    assert outcome.run_dir is not None
     written = _written(outcome.run_dir)
     assert len(written) == 3
     for dets in written:
@@ -293,7 +300,7 @@ def check_model(real: Path) -> ModuleType:
 
 
 @pytest.fixture(scope='module')
-def yolox(real: Path) -> OnnxCpuBackend:  # noqa: ARG001  ``real`` skips without the model
+def yolox(real: Path) -> Iterator[OnnxCpuBackend]:  # noqa: ARG001  ``real`` skips without the model
     backend = _open(model=YOLOX, labels='coco', threads=2)
     yield backend
     backend.close()
@@ -312,7 +319,9 @@ def test_yolox_nano_is_recognised_as_a_raw_grid_model(yolox):
 
 @pytest.mark.usefixtures('real')
 def test_yolox_nano_finds_the_astronaut_through_the_replay(tmp_path):
-    rgb = cv2.cvtColor(cv2.imread(str(ASTRONAUT), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    bgr = cv2.imread(str(ASTRONAUT), cv2.IMREAD_COLOR)
+    assert bgr is not None
+    rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
     bag = _bag(tmp_path / 'astronaut.mcap', rgb)
     outcome = run_benchmark(
         RunConfig(
@@ -323,6 +332,7 @@ def test_yolox_nano_finds_the_astronaut_through_the_replay(tmp_path):
             report=False,
         )
     )
+    assert outcome.run_dir is not None
     (dets,) = _written(outcome.run_dir)
     people = [d for d in dets if d.label == 'person']
     assert len(people) == 1
@@ -334,6 +344,7 @@ def test_yolox_nano_finds_the_astronaut_through_the_replay(tmp_path):
 
 def test_yolox_nano_agrees_with_check_model(yolox, check_model):
     image = cv2.imread(str(ASTRONAUT), cv2.IMREAD_COLOR)
+    assert image is not None
     # a non-square crop too, so that letterbox padding is exercised
     for img in (image, np.ascontiguousarray(image[40:400, :])):
         ours = yolox.detect(_frame(img)).detections
@@ -360,6 +371,7 @@ def test_yolox_nano_finds_the_person_in_the_real_aruco_bag(tmp_path):
             report=False,
         )
     )
+    assert outcome.run_dir is not None
     (dets,) = _written(outcome.run_dir, '/raspicam_node/image/compressed')
     people = [d for d in dets if d.label == 'person']
     assert people, dets

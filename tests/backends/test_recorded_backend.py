@@ -60,6 +60,7 @@ def test_recorded_detections_are_scored_like_a_backend_without_latency(tmp_path)
     assert recorded.n_det == n_gt - 6  # one box per frame was not recorded
     assert recorded.recall50 == pytest.approx((n_gt - 6) / n_gt)
     assert summary['recorded'].latency_ms_p50 is None
+    assert outcome.run_dir is not None
     with (outcome.run_dir / 'frames.csv').open(newline='') as f:
         rows = [r for r in csv.DictReader(f) if r['backend'] == 'recorded']
     assert len(rows) == 6

@@ -154,11 +154,12 @@ def real_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     if not bag.is_file():
         pytest.skip(f'{bag} missing')
     base = tmp_path_factory.mktemp('real')
-    dirs = []
+    dirs: list[Path] = []
     for name in ('first', 'second'):
         outcome = run_benchmark(
             RunConfig(inputs=[bag], backends=['null', 'hsv'], out_dir=base / name, report=False)
         )
+        assert outcome.run_dir is not None
         dirs.append(outcome.run_dir)
     return dirs[0], dirs[1]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 from types import SimpleNamespace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import pytest
@@ -14,6 +14,8 @@ from replaybench.types import RawMessage, TopicInfo
 
 if TYPE_CHECKING:
     from collections.abc import Collection, Iterator
+
+    from replaybench.types import Serialization
 
 REAL = (Path(__file__).resolve().parents[2] / '..' / 'shared' / 'real').resolve()
 
@@ -30,7 +32,7 @@ def real_dir() -> Path:
     return REAL
 
 
-def header(serialization: str, stamp_ns: int, frame_id: str) -> Any:
+def header(serialization: Serialization, stamp_ns: int, frame_id: str) -> Any:
     store = STORES[serialization]
     time = store.types['builtin_interfaces/msg/Time'](
         sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000
@@ -41,7 +43,9 @@ def header(serialization: str, stamp_ns: int, frame_id: str) -> Any:
     return cls(stamp=time, frame_id=frame_id)
 
 
-def serialize(serialization: str, message: Any, msgtype: str, little_endian: bool = True) -> bytes:
+def serialize(
+    serialization: Serialization, message: Any, msgtype: str, little_endian: bool = True
+) -> bytes:
     store = STORES[serialization]
     if serialization == 'ros1':
         return bytes(store.serialize_ros1(message, msgtype))
@@ -50,7 +54,7 @@ def serialize(serialization: str, message: Any, msgtype: str, little_endian: boo
 
 def pack_rows(pixels: np.ndarray, step: int, *, big_endian: bool = False) -> np.ndarray:
     """The bytes of ``pixels`` (HxW or HxWxC), each row padded with 0xAB to ``step`` bytes."""
-    order = '>' if big_endian else '<'
+    order: Literal['>', '<'] = '>' if big_endian else '<'
     rows = np.ascontiguousarray(pixels, dtype=pixels.dtype.newbyteorder(order))
     rows = rows.reshape(rows.shape[0], -1).view(np.uint8)
     out = np.full((rows.shape[0], step), 0xAB, dtype=np.uint8)
@@ -59,7 +63,7 @@ def pack_rows(pixels: np.ndarray, step: int, *, big_endian: bool = False) -> np.
 
 
 def image_message(
-    serialization: str,
+    serialization: Serialization,
     data: np.ndarray,
     *,
     width: int,
@@ -87,7 +91,7 @@ def image_message(
 
 
 def compressed_message(
-    serialization: str,
+    serialization: Serialization,
     payload: bytes,
     fmt: str,
     *,
@@ -105,7 +109,9 @@ def compressed_message(
     return RawMessage(topic, 'sensor_msgs/msg/CompressedImage', serialization, 5, 0, raw)
 
 
-def simple_image(pixels: np.ndarray, serialization: str, encoding: str, **kw: Any) -> RawMessage:
+def simple_image(
+    pixels: np.ndarray, serialization: Serialization, encoding: str, **kw: Any
+) -> RawMessage:
     """An Image message of ``pixels`` with packed rows."""
     height, width = pixels.shape[:2]
     step = pixels[0].nbytes

@@ -7,7 +7,7 @@ import pytest
 
 from replaybench.decode import CameraInfoIndex, camera_info_topic_for, decode_camera_info
 from replaybench.errors import DecodeError
-from replaybench.types import CameraInfo, RawMessage
+from replaybench.types import CameraInfo, RawMessage, Serialization
 
 K = [612.5, 0.0, 320.25, 0.0, 611.75, 240.5, 0.0, 0.0, 1.0]
 R = [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0]
@@ -16,7 +16,12 @@ D = [0.11, -0.22, 0.001, -0.002, 0.05]
 
 
 def camera_info_message(
-    mk, serialization: str, stamp_ns: int, *, topic: str = '/cam/camera_info', log_time: int = 0
+    mk,
+    serialization: Serialization,
+    stamp_ns: int,
+    *,
+    topic: str = '/cam/camera_info',
+    log_time: int = 0,
 ) -> RawMessage:
     store = mk.stores[serialization]
     roi = store.types['sensor_msgs/msg/RegionOfInterest'](
@@ -125,11 +130,18 @@ def info(stamp_ns: int, topic: str = '/cam/camera_info', width: int = 640) -> Ca
     return CameraInfo(stamp_ns, 'f', width, 480, 'plumb_bob', (), (), (), (), topic=topic)
 
 
+def found(index: CameraInfoIndex, topic: str, stamp_ns: int) -> CameraInfo:
+    """The index's CameraInfo for an image on ``topic`` at ``stamp_ns``; one must be found."""
+    got = index.lookup(topic, stamp_ns)
+    assert got is not None, (topic, stamp_ns)
+    return got
+
+
 def test_lookup_returns_the_nearest_stamp_and_the_earlier_one_on_a_tie():
     index = CameraInfoIndex(
         [info(300, width=3), info(100, width=1), info(200, width=2)], ['/cam/image_raw']
     )
-    width = lambda stamp: index.lookup('/cam/image_raw', stamp).width  # noqa: E731
+    width = lambda stamp: found(index, '/cam/image_raw', stamp).width  # noqa: E731
     assert width(0) == 1
     assert width(100) == 1
     assert width(149) == 1
@@ -149,8 +161,8 @@ def test_lookup_keeps_cameras_apart():
         [info(100, '/left/camera_info', 1), info(100, '/right/camera_info', 2)],
         ['/left/image_raw', '/right/image_raw'],
     )
-    assert index.lookup('/left/image_raw/compressed', 100).width == 1
-    assert index.lookup('/right/image_raw', 100).width == 2
+    assert found(index, '/left/image_raw/compressed', 100).width == 1
+    assert found(index, '/right/image_raw', 100).width == 2
     assert CameraInfoIndex().lookup('/left/image_raw', 100) is None
 
 
@@ -165,7 +177,7 @@ def test_index_from_a_source_reads_every_camera_info_and_skips_broken_ones(mk):
     assert len(index) == 3
     assert index.skipped == 1
     assert [i.log_time_ns for i in index.all()] == [1_005, 2_005, 3_005]
-    assert index.lookup('/cam/image_raw/compressed', 2_400).stamp_ns == 2_000
+    assert found(index, '/cam/image_raw/compressed', 2_400).stamp_ns == 2_000
     assert CameraInfoIndex.from_source(source, []).lookup('/cam/image_raw', 0) is None
 
 
@@ -201,6 +213,7 @@ def test_real_rosbag2_camera_info_decodes_the_same_as_ros1(real_dir):
     cdr = []
     with path.open('rb') as f:
         for schema, channel, message in make_reader(f).iter_messages():
+            assert schema is not None
             if schema.name == 'sensor_msgs/msg/CameraInfo':
                 msg = RawMessage(
                     channel.topic, schema.name, 'cdr', message.log_time, 0, message.data

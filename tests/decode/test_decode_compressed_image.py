@@ -153,7 +153,7 @@ def test_compressed_depth_32fc1_turns_inverse_depth_back_into_metres(mk):
     assert np.isnan(decoded.image[1, 1])
     # quantisation error of 1 in inverse depth grows with depth squared: ~d^2 / A
     tolerance = depth[valid] ** 2 / quant_a * 1.5 + 1e-4
-    assert np.all(np.abs(decoded.image[valid] - depth[valid]) <= tolerance)
+    assert np.all(np.abs(decoded.image[valid].astype(np.float32) - depth[valid]) <= tolerance)
 
 
 def test_compressed_depth_rvl_is_reported_as_unsupported(mk):

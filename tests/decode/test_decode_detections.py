@@ -40,7 +40,7 @@ def ros1_id_is_string() -> bool:
     fields = dict(
         msgs.typestore(ros1=True).fielddefs['vision_msgs/msg/ObjectHypothesisWithPose'][1]
     )
-    return fields['id'][1][0] == 'string'
+    return bool(fields['id'][1][0] == 'string')
 
 
 def detection_array(ros1: bool, stamp_ns: int, boxes, *, with_results: bool = True) -> bytes:

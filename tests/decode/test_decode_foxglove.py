@@ -54,7 +54,7 @@ def schema(name: str) -> bytes:
             field.type_name = '.google.protobuf.Timestamp'
     timestamp = descriptor_pb2.FileDescriptorProto()
     timestamp_pb2.DESCRIPTOR.CopyToProto(timestamp)
-    return descriptor_pb2.FileDescriptorSet(file=[proto, timestamp]).SerializeToString()
+    return bytes(descriptor_pb2.FileDescriptorSet(file=[proto, timestamp]).SerializeToString())
 
 
 def make(name: str, **fields) -> RawMessage:
@@ -141,6 +141,7 @@ def read_mcap(path):
 
     with path.open('rb') as f:
         for schema_, channel, message in make_reader(f).iter_messages():
+            assert schema_ is not None
             yield RawMessage(
                 channel.topic, schema_.name, 'protobuf', message.log_time, 0,
                 message.data, schema_.data,

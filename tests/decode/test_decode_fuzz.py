@@ -71,13 +71,14 @@ def test_corrupted_compressed_images_raise_only_decode_error(mk, ext, edits, cut
 @SETTINGS
 @given(data=st.binary(max_size=300))
 def test_random_bytes_raise_only_decode_error(data):
-    from replaybench.types import RawMessage
+    from replaybench.types import RawMessage, Serialization
 
+    both: tuple[Serialization, ...] = ('cdr', 'ros1')
     for msgtype in ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage'):
-        for serialization in ('cdr', 'ros1'):
+        for serialization in both:
             with contextlib.suppress(DecodeError):
                 decode_image(RawMessage('/t', msgtype, serialization, 0, 0, data))
-    for serialization in ('cdr', 'ros1'):
+    for serialization in both:
         with contextlib.suppress(DecodeError):
             decode_camera_info(
                 RawMessage('/t', 'sensor_msgs/msg/CameraInfo', serialization, 0, 0, data)

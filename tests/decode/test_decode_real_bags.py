@@ -48,7 +48,7 @@ def test_raw_bag_frames_have_the_documented_shapes(bags):
 
 def test_big_endian_flagged_rgb8_frame_is_the_unswapped_bytes(bags):
     msg = first_images(bags / 'ctu_spot_raw.bag')['/spot/camera/hand_color/image']
-    fields = parse_image(msg.data, 'ros1')
+    fields = parse_image(memoryview(msg.data), 'ros1')
     assert (fields.is_bigendian, fields.step, fields.width, fields.height) == (1, 1920, 640, 480)
     raw = np.frombuffer(msg.data, np.uint8, count=fields.size, offset=fields.offset)
     decoded = decode_image(msg)

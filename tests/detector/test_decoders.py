@@ -177,7 +177,7 @@ def test_nms_decoder_reads_separate_outputs_up_to_the_detection_count():
 
 
 def test_nms_decoder_reads_boxes_scores_labels_without_a_count():
-    outputs = {
+    outputs: dict[str, np.ndarray] = {
         'boxes': np.array([[[0, 0, 2, 2], [1, 1, 3, 3]]], np.float32),
         'scores': np.array([[0.3, 0.7]], np.float32),
         'labels': np.array([[1, 0]], np.int64),
@@ -240,7 +240,7 @@ def test_nms_stops_at_max_det_and_handles_no_boxes():
     boxes = np.array([[i * 10, 0, i * 10 + 5, 5] for i in range(5)], np.float32)
     scores = np.array([0.1, 0.5, 0.3, 0.4, 0.2], np.float32)
     assert nms(boxes, scores, np.zeros(5, np.int64), 0.5, max_det=2).tolist() == [1, 3]
-    empty = nms(np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0), 0.5)
+    empty = nms(np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64), 0.5)
     assert empty.tolist() == []
 
 

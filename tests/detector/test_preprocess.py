@@ -66,7 +66,8 @@ def test_geometry_fits_the_frame_inside_the_input(src, size, align, expected):
 )
 def test_a_box_found_in_model_pixels_maps_back_to_its_source_pixels(align, src, rect):
     pre = Preprocess(size=(160, 128), align=align, channel_order='rgb')
-    tensor, transform = letterbox(_scene(*src, rect), 'bgr8', pre)
+    width, height = src
+    tensor, transform = letterbox(_scene(width, height, rect), 'bgr8', pre)
     found = _found_box(tensor, 'rgb')
     back = boxes_to_source(found, transform)[0]
     # resizing smears the edges by at most one model pixel = 1 / scale source pixels

@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import pytest
-from fuzzkit import fixture_digests
+from fuzz.fuzzkit import fixture_digests
 
 if TYPE_CHECKING:
     from collections.abc import Iterator

@@ -21,7 +21,7 @@ import tempfile
 import time
 import traceback
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
@@ -190,7 +190,9 @@ class McapRecord(NamedTuple):
     body: dict[str, tuple[int, int]]  # name -> (start, end) of str / bytes / rest values
 
 
-def _mcap_fields(data: bytes, op: int, body: int, end: int) -> tuple[dict, dict]:
+def _mcap_fields(
+    data: bytes, op: int, body: int, end: int
+) -> tuple[dict[str, Field], dict[str, tuple[int, int]]]:
     fields: dict[str, Field] = {}
     spans: dict[str, tuple[int, int]] = {}
     pos = body
@@ -371,7 +373,14 @@ def mcap_image_fields(rel: str) -> list[dict[str, Field]]:
 @functools.cache
 def mcap_length_fields(rel: str) -> tuple[Field, ...]:
     """Every length / size / offset field of a fixture MCAP, message payload fields included."""
-    names = ('_len', 'record_length', 'size', 'chunk_start', 'chunk_length', 'index_length')
+    names: tuple[str, ...] = (
+        '_len',
+        'record_length',
+        'size',
+        'chunk_start',
+        'chunk_length',
+        'index_length',
+    )
     names += ('summary_start', 'summary_offset_start', 'group_start', 'group_length')
     out = [f for r in mcap_records(rel) for f in r.fields.values() if f.name.endswith(names)]
     data = fixture_bytes(rel)
@@ -390,7 +399,7 @@ def mcap_length_fields(rel: str) -> tuple[Field, ...]:
 
 
 def structural_spans(
-    records: tuple[McapRecord, ...] | list, head: int = 96
+    records: tuple[McapRecord, ...] | list[McapRecord], head: int = 96
 ) -> list[tuple[int, int]]:
     """(start, end) of the first ``head`` bytes of every record: headers, lengths, payload heads."""
     return [(r.start, min(r.end, r.start + head)) for r in records]
@@ -423,17 +432,17 @@ def rewrite_mcap(
     for record in StreamReader(io.BytesIO(data)).records:
         if isinstance(record, Schema) and record.id not in seen_schemas:
             seen_schemas.add(record.id)
-            values = (record.name, record.encoding, record.data)
+            schema_values = (record.name, record.encoding, record.data)
             if schema is not None:
-                values = schema(record.id, *values)
-            assert writer.register_schema(*values) == record.id
+                schema_values = schema(record.id, *schema_values)
+            assert writer.register_schema(*schema_values) == record.id
         elif isinstance(record, Channel) and record.id not in seen_channels:
             seen_channels.add(record.id)
-            values = (record.topic, record.message_encoding, record.schema_id)
+            channel_values = (record.topic, record.message_encoding, record.schema_id)
             if channel is not None:
-                values = channel(record.id, *values)
+                channel_values = channel(record.id, *channel_values)
             topics[record.id] = record.topic
-            assert writer.register_channel(*values) == record.id
+            assert writer.register_channel(*channel_values) == record.id
         elif isinstance(record, Message):
             payload = record.data
             if message is not None:
@@ -628,7 +637,7 @@ def db3_structural_spans(data: bytes) -> list[tuple[int, int]]:
     return [(0, 112)] + [(p, p + 16) for p in range(ps, len(data), ps)]
 
 
-def edit_db3(path: Path, statements: list[tuple[str, tuple]]) -> None:
+def edit_db3(path: Path, statements: list[tuple[str, tuple[Any, ...]]]) -> None:
     """Run SQL statements against a copied .db3 (never a fixture) and close it cleanly.
 
     A statement on a table an earlier one dropped, or one the schema's constraints refuse
@@ -654,7 +663,7 @@ class Outcome(NamedTuple):
     code: int
     stderr: str
     out: Path
-    run: dict | None
+    run: dict[str, Any] | None
     rows: list[dict[str, str]]
     elapsed: float
 
@@ -675,7 +684,7 @@ def write_case(workdir: Path, files: dict[str, bytes]) -> Path:
     return case
 
 
-def check_run_folder(code: int, out: Path) -> tuple[dict | None, list[dict[str, str]]]:
+def check_run_folder(code: int, out: Path) -> tuple[dict[str, Any] | None, list[dict[str, str]]]:
     """The output contract: exit 2 claims nothing complete; exit 0 leaves readable outputs."""
     run_json = out / 'run.json'
     if code != 0:
@@ -700,8 +709,8 @@ def check_run_folder(code: int, out: Path) -> tuple[dict | None, list[dict[str, 
     from mcap.reader import make_reader
 
     with (out / 'detections.mcap').open('rb') as handle:
-        reader = make_reader(handle, validate_crcs=True)
-        topics = [channel.topic for _, channel, _ in reader.iter_messages()]
+        mcap_reader = make_reader(handle, validate_crcs=True)
+        topics = [channel.topic for _, channel, _ in mcap_reader.iter_messages()]
     detections = sum(t.startswith('/replaybench/') and t.endswith('/detections') for t in topics)
     assert detections == ok, f'{detections} detection messages for {ok} processed frames'
     assert (out / 'summary.csv').is_file()

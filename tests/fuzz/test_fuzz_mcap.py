@@ -5,9 +5,10 @@ in bounded time and memory, and never leaves a failed run that claims to be comp
 from __future__ import annotations
 
 import tracemalloc
+from typing import Any
 
 import pytest
-from fuzzkit import (
+from fuzz.fuzzkit import (
     OP_CHANNEL,
     OP_SCHEMA,
     WINDOWS,
@@ -110,10 +111,10 @@ TOPICS = [
 
 
 @st.composite
-def schema_plan(draw) -> dict:
+def schema_plan(draw) -> dict[str, Any]:
     """Which schema / channel fields to rewrite, and to what."""
     ids = st.integers(1, 5)
-    plan: dict = {'schema': {}, 'channel': {}}
+    plan: dict[str, Any] = {'schema': {}, 'channel': {}}
     for _ in range(draw(st.integers(1, 3))):
         target = draw(ids)
         what = draw(
@@ -140,7 +141,7 @@ def schema_plan(draw) -> dict:
     return plan
 
 
-def apply_plan(name: str, plan: dict) -> bytes:
+def apply_plan(name: str, plan: dict[str, Any]) -> bytes:
     def schema(sid, sname, encoding, data):
         edit = plan['schema'].get(sid, {})
         return edit.get('name', sname), edit.get('encoding', encoding), edit.get('data', data)

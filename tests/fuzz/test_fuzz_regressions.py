@@ -8,7 +8,7 @@ import tracemalloc
 import cv2
 import numpy as np
 import pytest
-from fuzzkit import (
+from fuzz.fuzzkit import (
     bag_image_fields,
     cleanup,
     edit_db3,
@@ -134,7 +134,7 @@ def test_rosbag2_negative_timestamps_are_replayed_at_log_time_zero(tmp_path):
     db3 = negative_time_db3(tmp_path)
     with open_source(db3) as source:
         times = [m.log_time_ns for m in source.messages()]
-        assert all(t >= 0 for t in source.topics() for t in (t.first_ns, t.last_ns))
+        assert all(ns >= 0 for t in source.topics() for ns in (t.first_ns, t.last_ns))
         warnings = source.warnings
     assert len(times) == 30
     assert times[:3] == [0, 0, 0]

@@ -4,9 +4,10 @@ oversized lengths, wrong or missing connection records and images claiming huge 
 from __future__ import annotations
 
 import tracemalloc
+from typing import Any
 
 import pytest
-from fuzzkit import (
+from fuzz.fuzzkit import (
     WINDOWS,
     Field,
     bag_image_fields,
@@ -88,8 +89,8 @@ MSGTYPES = [
 
 
 @st.composite
-def connection_plan(draw) -> dict[int, dict]:
-    plan: dict[int, dict] = {}
+def connection_plan(draw) -> dict[int, dict[str, Any]]:
+    plan: dict[int, dict[str, Any]] = {}
     for _ in range(draw(st.integers(1, 3))):
         target = draw(st.integers(0, 2))
         what = draw(st.sampled_from(['msgtype', 'msgdef', 'md5sum', 'drop']))

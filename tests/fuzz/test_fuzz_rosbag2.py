@@ -7,9 +7,10 @@ from __future__ import annotations
 import tempfile
 import tracemalloc
 from pathlib import Path
+from typing import Any
 
 import pytest
-from fuzzkit import (
+from fuzz.fuzzkit import (
     cdr_image_fields,
     cleanup,
     db3_page_size,
@@ -107,9 +108,9 @@ MESSAGE_IDS = st.integers(1, 31)
 
 
 @st.composite
-def sql_edits(draw) -> list[tuple[str, tuple]]:
+def sql_edits(draw) -> list[tuple[str, tuple[Any, ...]]]:
     """A few statements that damage the bag's meaning while keeping it a valid database."""
-    edits: list[tuple[str, tuple]] = []
+    edits: list[tuple[str, tuple[Any, ...]]] = []
     for _ in range(draw(st.integers(1, 3))):
         kind = draw(
             st.sampled_from(
@@ -172,7 +173,7 @@ def sql_edits(draw) -> list[tuple[str, tuple]]:
     return edits
 
 
-def edited_db3(edits: list[tuple[str, tuple]]) -> bytes:
+def edited_db3(edits: list[tuple[str, tuple[Any, ...]]]) -> bytes:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / DB3
         path.write_bytes(db3_bytes())

@@ -11,7 +11,7 @@ import time
 from typing import TYPE_CHECKING, NamedTuple
 
 import pytest
-from fuzzkit import (
+from fuzz.fuzzkit import (
     bag_chunk_boundaries,
     check_run_folder,
     drop_records,

@@ -7,7 +7,7 @@ cut, computed from the intact file's indexes with the ``mcap`` library / ``rosba
 from __future__ import annotations
 
 import pytest
-from fuzzkit import (
+from fuzz.fuzzkit import (
     LONG,
     bag_chunk_boundaries,
     bag_message_ends,

@@ -14,7 +14,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from fuzzkit import cleanup, fuzz_settings, replay, write_case
+from fuzz.fuzzkit import cleanup, fuzz_settings, replay, write_case
 from hypothesis import example, given
 from hypothesis import strategies as st
 from walbags import CAMERA, Step, image_payloads, sqlite_rows, write_wal_bag

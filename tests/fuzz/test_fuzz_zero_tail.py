@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
 import pytest
-from fuzzkit import cleanup, fixture_bytes, fuzz_settings, recompressed_bag, replay, write_case
+from fuzz.fuzzkit import cleanup, fixture_bytes, fuzz_settings, recompressed_bag, replay, write_case
 from hypothesis import example, given
 from hypothesis import strategies as st
 
@@ -87,13 +87,15 @@ def _image_payloads_mcap(raw: bytes) -> tuple[bytes, ...]:
     return tuple(bytes(m.data) for _, _, m in reader.iter_messages(topics=[IMAGE_TOPIC]))
 
 
-def _message_groups(raw: bytes, payloads: tuple[bytes, ...]) -> tuple[tuple[int, frozenset], ...]:
+def _message_groups(
+    raw: bytes, payloads: tuple[bytes, ...]
+) -> tuple[tuple[int, frozenset[bytes]], ...]:
     """One group per payload, whole where its last byte is (payloads end their records)."""
     assert all(raw.count(p) == 1 for p in payloads)
     return tuple((raw.find(p) + len(p), frozenset([p])) for p in payloads)
 
 
-def _chunk_groups(raw: bytes) -> tuple[tuple[int, frozenset], ...]:
+def _chunk_groups(raw: bytes) -> tuple[tuple[int, frozenset[bytes]], ...]:
     """One group per chunk: where the chunk record ends, the image payloads it holds."""
     from mcap.data_stream import ReadDataStream
     from mcap.reader import make_reader

@@ -166,6 +166,7 @@ def test_a_successful_forced_run_leaves_only_the_new_runs_files(tmp_path: Path) 
     fresh = run_benchmark(
         RunConfig(inputs=[bag], backends=['null'], out_dir=tmp_path / 'fresh', report=False)
     )
+    assert fresh.run_dir is not None
     assert sorted(_snapshot(out)) == sorted(_snapshot(fresh.run_dir))
     assert not (out / 'report.html').exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ['cam.mcap', 'fresh', 'run']
@@ -219,7 +220,7 @@ def test_a_previous_run_set_aside_by_a_crash_during_the_swap_is_put_back(tmp_pat
     ids=['start past the end', 'duration 0', 'window in a gap'],
 )
 def test_a_time_window_without_frames_exits_2_and_writes_nothing(
-    tmp_path: Path, window: dict[str, float], gap: bool
+    tmp_path: Path, window: dict[str, Any], gap: bool
 ) -> None:
     bag = _bag(tmp_path / 'cam.mcap', n=10, gap_after=5 if gap else None)
     with pytest.raises(UsageError, match='no frame was measured') as caught:
@@ -258,6 +259,7 @@ def test_an_explicit_warmup_of_every_frame_is_clamped_so_one_frame_is_measured(t
     assert run.settings.warmup_per_topic == {TOPIC: 4}
     assert [s.measured for s in run.summary_rows] == [1]
     assert any('--warmup 50' in w and TOPIC in w for w in run.warnings)
+    assert outcome.run_dir is not None
     rows = _rows(outcome.run_dir)
     assert [r['warmup'] for r in rows] == ['1', '1', '1', '1', '0']
 
@@ -295,6 +297,7 @@ def test_a_backend_that_raises_is_stopped_and_recorded_while_the_others_finish(
         clock=VirtualClock() if mode == 'fixed rate' else None,
         backend_factory=_factory,
     )
+    assert outcome.run_dir is not None
     run = json.loads((outcome.run_dir / 'run.json').read_text())
     assert outcome.status == run['status'] == 'partial'
     if mode == 'max read ahead':
@@ -400,7 +403,7 @@ def test_a_forced_peak_sweep_that_fails_leaves_the_previous_peak_folder_byte_for
 
     bag = _bag(tmp_path / 'cam.mcap', n=12)
     out = tmp_path / 'peak'
-    sweep = {'trial_frames': 10, 'min_hz': 50.0, 'max_hz': 100.0, 'refine_steps': 0}
+    sweep: dict[str, Any] = {'trial_frames': 10, 'min_hz': 50.0, 'max_hz': 100.0, 'refine_steps': 0}
     find_peak_rate(bag, 'null', out, options=BackendOptions(), **sweep)
     assert (out / 'peak.json').is_file()
     before = _snapshot(out)

@@ -94,6 +94,7 @@ def test_recorded_rate_with_a_slow_backend_drops_exactly_the_frames_it_should(tm
         clock=clock,
         backend_factory=lambda name, options: backend,
     )
+    assert outcome.run_dir is not None
     rows = _rows(outcome.run_dir)
     assert len(rows) == 10
     # 0 runs 0-0.27 s; 1 waits and is pushed out by 2 (0.2); 2 runs 0.27-0.54 while 3, 4, 5
@@ -127,6 +128,7 @@ def test_a_fast_backend_at_recorded_rate_drops_nothing_and_latency_is_its_servic
         clock=clock,
         backend_factory=lambda name, options: backend,
     )
+    assert outcome.run_dir is not None
     rows = _rows(outcome.run_dir)
     assert [r['status'] for r in rows] == ['ok'] * 12
     assert [r['warmup'] for r in rows] == ['1', '1'] + ['0'] * 10
@@ -147,6 +149,7 @@ def test_a_fixed_rate_releases_frames_at_that_rate_whatever_the_log_times(tmp_pa
         clock=clock,
         backend_factory=lambda name, options: backend,
     )
+    assert outcome.run_dir is not None
     releases = [float(r['release_s']) for r in _rows(outcome.run_dir)]
     assert releases == pytest.approx([i / 5 for i in range(10)])
 
@@ -165,6 +168,7 @@ def test_one_undecodable_message_is_skipped_counted_and_kept_in_frames_csv(tmp_p
     outcome = run_benchmark(
         RunConfig(inputs=[bag], backends=['null'], out_dir=tmp_path / 'run', report=False)
     )
+    assert outcome.run_dir is not None
     rows = _rows(outcome.run_dir)
     assert [r['status'] for r in rows] == ['ok', 'ok', 'ok', 'skipped', 'ok', 'ok']
     assert rows[3]['note']
@@ -254,6 +258,7 @@ def test_an_interrupted_run_leaves_valid_finalized_outputs_marked_interrupted(tm
         backend_factory=lambda name, options: Interrupting(clock, 0.01),
     )
     assert outcome.status == 'interrupted'
+    assert outcome.run_dir is not None
     run = json.loads((outcome.run_dir / 'run.json').read_text())
     assert run['status'] == 'interrupted'
     assert len(_rows(outcome.run_dir)) == 7
@@ -272,6 +277,7 @@ def test_max_frames_start_and_duration_restrict_the_replay(tmp_path):
             inputs=[bag], backends=['null'], out_dir=tmp_path / 'a', max_frames=5, report=False
         )
     )
+    assert outcome.run_dir is not None
     assert [int(r['seq']) for r in _rows(outcome.run_dir)] == [0, 1, 2, 3, 4]
     outcome = run_benchmark(
         RunConfig(
@@ -283,6 +289,7 @@ def test_max_frames_start_and_duration_restrict_the_replay(tmp_path):
             report=False,
         )
     )
+    assert outcome.run_dir is not None
     seqs = [int(r['seq']) for r in _rows(outcome.run_dir)]
     assert seqs == [15, 16, 17, 18, 19, 20]  # log times 0.5 s <= t < 0.7 s after the first message
 
@@ -293,6 +300,7 @@ def test_several_bags_are_separate_inputs_of_one_run(tmp_path):
     outcome = run_benchmark(
         RunConfig(inputs=[a, b], backends=['null'], out_dir=tmp_path / 'run', report=False)
     )
+    assert outcome.run_dir is not None
     rows = _rows(outcome.run_dir)
     assert [(r['input'], r['seq']) for r in rows] == [
         ('0', '0'),
@@ -416,6 +424,7 @@ def test_a_bag_shorter_than_the_probe_is_read_inline(tmp_path):
     assert outcome.run.backends[0].read_ahead == (
         ReadAhead(input=0, depth=4, used=False, reason='input ended in the probe'),
     )
+    assert outcome.run_dir is not None
     assert len(_rows(outcome.run_dir)) == 5
 
 
@@ -476,6 +485,7 @@ def test_the_sample_is_the_middle_frame_read_again_with_every_backends_boxes(tmp
             {'service': (box,), 'null': ()},
             '/cam/image_raw #4',
         )
+    assert outcome.run_dir is not None
     written = (outcome.run_dir / 'samples' / 'input0_cam_image_raw.jpg').read_bytes()
     assert written == (tmp_path / 'expected.jpg').read_bytes()
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 from mcap.reader import make_reader
@@ -19,7 +20,9 @@ LEFT = '/cam_left/image_raw/compressed'
 
 def _coco_from_bag(path: Path, topic: str, id_base: int = 0) -> None:
     """The bag's ground-truth topic for one camera as COCO, stamps in the file names."""
-    images, annotations, categories = [], [], {}
+    images: list[dict[str, Any]] = []
+    annotations: list[dict[str, Any]] = []
+    categories: dict[str, int] = {}
     with open_source(BAG) as source:
         truth = {}
         for raw in source.messages(topics=['/ground_truth/detections']):
@@ -37,7 +40,7 @@ def _coco_from_bag(path: Path, topic: str, id_base: int = 0) -> None:
     path.write_text(json.dumps({'images': images, 'annotations': annotations, 'categories': cats}))
 
 
-def _accuracy(outcome) -> dict[str, dict]:
+def _accuracy(outcome) -> dict[str, Any]:
     return {s.topic: s.accuracy for s in outcome.summaries if s.backend == 'hsv'}
 
 
@@ -90,6 +93,8 @@ def test_annotations_and_copied_images_land_in_detections_mcap(tmp_path: Path) -
     )
     with (out / 'detections.mcap').open('rb') as f:
         summary = make_reader(f).get_summary()
+    assert summary is not None
+    assert summary.statistics is not None
     counts = {
         summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()
     }

@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 
 from replaybench.errors import UsageError
@@ -8,7 +10,7 @@ from replaybench.replay import Rate, VirtualClock, parse_rate, replay_timed
 
 def _simulate(offsets, service_s, depth, keys=None):
     clock = VirtualClock()
-    events = []
+    events: list[tuple[Any, ...]] = []
 
     def process(item, release, start):
         clock.advance(service_s)

@@ -20,10 +20,14 @@ from replaybench.results.runfile import load_run
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from playwright.sync_api import ViewportSize
+
+    from replaybench.results.model import SummaryRow
+
     MakeRun = Callable[..., Path]
 
 CHROMIUM = Path('/usr/bin/chromium')
-LAPTOP = {'width': 1366, 'height': 768}
+LAPTOP: ViewportSize = {'width': 1366, 'height': 768}
 
 
 def _patch(run_dir: Path, change: Callable[[dict[str, Any]], None]) -> None:
@@ -92,11 +96,17 @@ def test_the_headline_names_the_fastest_detector_and_the_most_accurate_one_per_t
     assert html.index('id="headline"') < html.index('class="cards"') < html.index('id="summary"')
 
 
+def _fps(row: SummaryRow) -> float:
+    """The row's throughput; every row of these runs has one."""
+    assert row.throughput_fps is not None, row
+    return row.throughput_fps
+
+
 def test_the_intervals_are_the_ones_compare_gives_for_the_same_run(make_run: MakeRun) -> None:
     run_dir = make_run(backends=('hsv', 'onnx-cpu'), frames=150)
     data = load_run(run_dir)
     [head] = topic_headlines(data.run, data.run.summary_rows, data.frames)
-    fps = {r.backend: r.throughput_fps for r in data.run.summary_rows}
+    fps = {r.backend: _fps(r) for r in data.run.summary_rows}
     assert head.fastest == max(fps, key=fps.__getitem__)
     rows = compare_runs([run_dir]).rows
     mine = next(r for r in rows if r.backend == head.fastest)
@@ -136,7 +146,7 @@ def test_several_topics_say_what_a_topics_fps_is_next_to_the_number(make_run: Ma
     rows = _headline_rows(html)
     assert [r[0] for r in rows] == list(topics)
     for head, row in zip(heads, rows, strict=True):
-        total = sum(r.throughput_fps for r in data.run.summary_rows if r.backend == head.fastest)
+        total = sum(_fps(r) for r in data.run.summary_rows if r.backend == head.fastest)
         assert head.fps_all == pytest.approx(total)
         assert row[2].endswith(f'of {total:.1f} in all')
     assert 'The topics are replayed together, interleaved, so they share that window' in html

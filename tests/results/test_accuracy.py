@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import io
 import time
+from typing import Any
 
 import numpy as np
 import pytest
@@ -174,7 +175,7 @@ def _cocoeval(
     names = sorted({d.label for items in (*gt.values(), *dets.values()) for d in items})
     cat = {name: i + 1 for i, name in enumerate(names)}
     image_id = {frame: i + 1 for i, frame in enumerate(gt)}
-    annotations = []
+    annotations: list[dict[str, Any]] = []
     for frame, items in gt.items():
         for d in items:
             w, h = d.x1 - d.x0, d.y1 - d.y0

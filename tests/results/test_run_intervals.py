@@ -21,6 +21,7 @@ from bagtools import image_msg, noise_frames, write_mcap
 
 from replaybench.backends.base import Availability, BackendOptions
 from replaybench.backends.busywait import BusyBackend, spin_options
+from replaybench.backends.gpu import _cuda
 from replaybench.cli import app
 from replaybench.comparison import compare_runs
 from replaybench.replay import Rate, VirtualClock, resources
@@ -212,6 +213,7 @@ def test_a_busy_backend_that_slows_down_in_the_second_half_is_flagged_as_driftin
     [summary] = outcome.summaries
     drifts = [w for w in summary.warnings if w.startswith('latency drift: ')]
     assert len(drifts) == 1, summary.warnings
+    assert outcome.run_dir is not None
     written = _row(_run_json(outcome.run_dir), 'busy')['warnings']
     assert drifts == [w for w in written if 'drift' in w]
 
@@ -232,6 +234,7 @@ def test_a_busy_backend_of_constant_cost_is_not_flagged_as_drifting(tmp_path: Pa
     assert summary.latency_ms_p50_ci_low is not None
     # the busy-wait spins wall time: other processes that take the CPU stretch it, and that is
     # real drift of the measured latency; judge the rule only when the spins held
+    assert outcome.run_dir is not None
     spins = [
         float(r['infer_ms'])
         for r in _csv_rows(outcome.run_dir / 'frames.csv')
@@ -420,7 +423,7 @@ def test_the_sampler_records_cpu_frequency_thermal_events_and_gpu_throttle_reaso
 ) -> None:
     monkeypatch.setattr(resources, 'SYS_CPU', tmp_path)
     monkeypatch.setattr(resources, 'BUSY_CPU_PERCENT', 0.0)  # every sample counts, busy or not
-    monkeypatch.setattr(resources._cuda, 'load_libcuda', lambda: None)
+    monkeypatch.setattr(_cuda, 'load_libcuda', lambda: None)
     monkeypatch.setitem(sys.modules, 'pynvml', _fake_nvml(0x1 | 0x20))  # idle + SW thermal
     monkeypatch.setattr('os.sched_getaffinity', lambda pid: {0, 1})
     _fake_cpus(tmp_path, 3_000_000, core=5, package=2)

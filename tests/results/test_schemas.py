@@ -41,11 +41,12 @@ def written(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """run.json of two real runs of the same bag, peak.json of a real peak search and the
     comparison.json of the two runs."""
     base = tmp_path_factory.mktemp('outputs')
-    runs = []
+    runs: list[Path] = []
     for name in ('a', 'b'):
         outcome = run_benchmark(
             RunConfig(inputs=[RAW], backends=['hsv', 'null'], out_dir=base / name, report=False)
         )
+        assert outcome.run_dir is not None
         runs.append(outcome.run_dir)
     find_peak_rate(
         RAW,

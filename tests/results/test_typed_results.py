@@ -37,6 +37,7 @@ def _run(out: Path, *backends: str) -> Path:
     outcome = run_benchmark(
         RunConfig(inputs=[RAW], backends=list(backends), out_dir=out, report=False)
     )
+    assert outcome.run_dir is not None
     return outcome.run_dir
 
 

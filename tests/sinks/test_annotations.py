@@ -369,7 +369,7 @@ def test_protobuf_images_are_copied_as_sensor_msgs_cdr_with_the_same_pixels(
         assert (got.stamp_ns, got.frame_id, got.encoding) == (T0 + 5, 'cam', 'rgb8')
         np.testing.assert_array_equal(got.image, pixels)
     with AnyReader([path]) as reader:
-        decoded = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()]
+        decoded: list[Any] = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()]
     assert [(m.width, m.height, m.step, m.is_bigendian) for m in decoded] == [(8, 6, 24, 0)] * 2
 
 

@@ -32,6 +32,7 @@ from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 from mcap_protobuf.writer import Writer as ProtobufWriter
 from mcap_ros2.decoder import DecoderFactory as Ros2DecoderFactory
 from rosbags.highlevel import AnyReader
+from rosbags.interfaces import ConnectionExtRosbag2
 from rosbags.rosbag2 import Reader as Rosbag2Reader
 from ruamel.yaml import YAML
 
@@ -301,6 +302,7 @@ def test_every_reader_decodes_every_message_and_the_counts_agree(
         times = []
         for schema, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
             assert decoded is not None
+            assert schema is not None
             assert (schema.encoding, channel.message_encoding) == ('ros2msg', 'cdr')
             assert channel.metadata['offered_qos_profiles'] == OFFERED_QOS_PROFILES
             assert channel.metadata['topic_type_hash'].startswith('RIHS01_')
@@ -330,7 +332,8 @@ def test_every_reader_decodes_every_message_and_the_counts_agree(
     with Rosbag2Reader(folder) as rosbag2:
         assert rosbag2.message_count == sum(by_mcap.values())
         assert {t: info.msgcount for t, info in rosbag2.topics.items()} == by_mcap
-        assert all(c.ext.offered_qos_profiles for c in rosbag2.connections)
+        exts = [c.ext for c in rosbag2.connections]
+        assert all(isinstance(e, ConnectionExtRosbag2) and e.offered_qos_profiles for e in exts)
         assert [t for _, t, _ in rosbag2.messages()] == sorted(times)
     with AnyReader([folder]) as directory:
         by_directory: dict[str, int] = {}
@@ -370,7 +373,9 @@ def test_copied_images_decode_to_the_input_stamps_and_sizes(
                 import cv2
                 import numpy as np
 
-                shape = cv2.imdecode(np.asarray(message.data), cv2.IMREAD_UNCHANGED).shape
+                image = cv2.imdecode(np.asarray(message.data), cv2.IMREAD_UNCHANGED)
+                assert image is not None
+                shape = image.shape
             got[(connection.topic, log_time)] = (sec * 10**9 + nanosec, shape)
     assert got == want
 
@@ -385,6 +390,8 @@ def test_a_rerun_writes_a_byte_identical_file(tmp_path: Path) -> None:
     }
     first = run_benchmark(RunConfig(out_dir=tmp_path / 'a', **config))  # type: ignore[arg-type]
     second = run_benchmark(RunConfig(out_dir=tmp_path / 'b', **config))  # type: ignore[arg-type]
+    assert first.run_dir is not None
+    assert second.run_dir is not None
     data = (first.run_dir / 'detections.mcap').read_bytes()
     assert data == (second.run_dir / 'detections.mcap').read_bytes()
     assert len(data) > 10_000
@@ -400,6 +407,7 @@ def test_the_rosbag2_record_and_metadata_yaml_describe_the_same_bag(tmp_path: Pa
             annotations=True,
         )
     )
+    assert outcome.run_dir is not None
     path = outcome.run_dir / 'detections.mcap'
     with path.open('rb') as stream:
         (record,) = list(make_reader(stream).iter_metadata())

@@ -111,7 +111,7 @@ def test_written_file_reads_back_with_rosbags_anyreader(tmp_path: Path) -> None:
                 2,
             ),
         }
-        decoded = [
+        decoded: list[tuple[str, int, Any]] = [
             (c.topic, t, reader.deserialize(raw, c.msgtype)) for c, t, raw in reader.messages()
         ]
     hsv = [m for topic, _, m in decoded if topic.startswith('/replaybench/hsv/')]

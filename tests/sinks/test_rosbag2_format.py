@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from rosbags.highlevel import AnyReader
+from rosbags.interfaces import ConnectionExtRosbag2
 from rosbags.rosbag2 import Reader as Rosbag2Reader
 
 BAG = Path(__file__).resolve().parents[2] / 'fixtures' / 'bags' / 'rgb8.bag'
@@ -35,7 +36,8 @@ def test_format_rosbag2_makes_the_run_folder_a_bag_that_rosbags_reads(tmp_path: 
     assert (out / 'metadata.yaml').is_file()
     with Rosbag2Reader(out) as bag:
         assert bag.message_count == 30  # 10 CameraInfo, 10 detections, 10 annotations
-        assert all(c.ext.offered_qos_profiles for c in bag.connections)
+        exts = [c.ext for c in bag.connections]
+        assert all(isinstance(e, ConnectionExtRosbag2) and e.offered_qos_profiles for e in exts)
     with AnyReader([out]) as reader:
         decoded: list[Any] = [
             reader.deserialize(raw, c.msgtype)

@@ -1,7 +1,7 @@
 from __future__ import annotations
 
 import mmap
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 from mcap.data_stream import ReadDataStream
@@ -108,7 +108,9 @@ def test_compressed_chunks_yield_the_same_messages_as_the_mcap_reader(
     path = write_mcap(tmp_path / 'comp.mcap', plan, compression, 700)
     with path.open('rb') as f:
         reader = make_reader(f)
-        assert {c.compression for c in reader.get_summary().chunk_indexes} == {compression}
+        summary = reader.get_summary()
+        assert summary is not None
+        assert {c.compression for c in summary.chunk_indexes} == {compression}
         reference = sorted(
             (channel.topic, message.log_time, message.data)
             for _, channel, message in reader.iter_messages()
@@ -138,7 +140,7 @@ def _cut_points(size: int) -> list[int]:
     return sorted({8, 30, size // 5, size // 3, size // 2, 2 * size // 3, size - 200, size - 1})
 
 
-def _check_cut_order(got: list, full: list) -> None:
+def _check_cut_order(got: list[Any], full: list[Any]) -> None:
     """Yielded messages keep the replay order; seq numbers each topic's yielded messages."""
     rank = {(m.topic, m.payload): i for i, m in enumerate(full)}
     assert [rank[(m.topic, m.payload)] for m in got] == sorted(
@@ -182,7 +184,9 @@ def test_truncated_compressed_mcap_replays_every_complete_chunk(
     full = expected_order(plan)
     chunks: list[tuple[int, set[bytes]]] = []
     with path.open('rb') as f:
-        for index in make_reader(f).get_summary().chunk_indexes:
+        summary = make_reader(f).get_summary()
+        assert summary is not None
+        for index in summary.chunk_indexes:
             f.seek(index.chunk_start_offset + 9)
             records = breakup_chunk(Chunk.read(ReadDataStream(f)))
             payloads = {r.data for r in records if isinstance(r, Message)}

@@ -17,11 +17,12 @@ import sqlite3
 from typing import TYPE_CHECKING
 
 import pytest
+from bagtools import TS
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from sourcebags import as_expected, expected_order, tie_plan, write_split_rosbag2
 from typer.testing import CliRunner
-from walbags import CAMERA, IMAGE, TS, image_payloads
+from walbags import CAMERA, IMAGE, image_payloads
 
 from replaybench.cli import app
 from replaybench.errors import SourceError

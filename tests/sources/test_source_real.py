@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 from mcap.reader import make_reader
@@ -124,7 +124,7 @@ def test_real_ros1_image_payload_deserialises_to_the_documented_frame(shared_rea
     store = get_typestore(Stores.ROS1_NOETIC)
     with open_source(path) as source:
         (msg,) = source.messages(topics=['/spot/camera/hand_color/image'])
-        image = store.deserialize_ros1(bytes(msg.data), msg.msgtype)
+        image: Any = store.deserialize_ros1(bytes(msg.data), msg.msgtype)
     assert (image.width, image.height, image.encoding, image.step) == (640, 480, 'rgb8', 1920)
     assert image.is_bigendian == 1
     assert len(image.data) == 640 * 480 * 3
@@ -140,8 +140,8 @@ def test_derived_containers_hold_the_same_pixels_as_the_ros1_bag(shared_real: Pa
     with open_source(bag) as a, open_source(db3) as b:
         for m1, m2 in zip(a.messages(), b.messages(), strict=True):
             assert (m1.topic, m1.log_time_ns, m1.msgtype) == (m2.topic, m2.log_time_ns, m2.msgtype)
-            i1 = ros1.deserialize_ros1(bytes(m1.data), m1.msgtype)
-            i2 = ros2.deserialize_cdr(bytes(m2.data), m2.msgtype)
+            i1: Any = ros1.deserialize_ros1(bytes(m1.data), m1.msgtype)
+            i2: Any = ros2.deserialize_cdr(bytes(m2.data), m2.msgtype)
             assert (i1.width, i1.height, i1.encoding) == (i2.width, i2.height, i2.encoding)
             assert i1.data.tobytes() == i2.data.tobytes()
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 import bz2
 import mmap
 import struct
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import lz4.frame
 import pytest
@@ -83,7 +83,7 @@ def test_bag_msgtypes_use_ros2_spelling_and_ros1_serialization(tmp_path: Path) -
     assert (msg.msgtype, msg.serialization, msg.schema) == (STRING, 'ros1', b'')
 
 
-def _check_cut(got: list, full: list) -> None:
+def _check_cut(got: list[Any], full: list[Any]) -> None:
     rank = {m.payload: i for i, m in enumerate(full)}
     order = [rank[m.payload] for m in got]
     assert order == sorted(order)

@@ -8,7 +8,7 @@ on). The channels' message types are then read from there.
 from __future__ import annotations
 
 import json
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
@@ -102,12 +102,12 @@ def write_images(path: Path, compression: str, n: int, *, chunked: bool = True) 
     return payloads
 
 
-def run_cli(path: Path, out: Path) -> dict:
+def run_cli(path: Path, out: Path) -> dict[str, Any]:
     result = CliRunner().invoke(
         app, ['run', str(path), '--out', str(out), '--backend', 'null', '--no-report']
     )
     assert result.exit_code == 0, result.output
-    run: dict = json.loads((out / 'run.json').read_text())
+    run: dict[str, Any] = json.loads((out / 'run.json').read_text())
     return run
 
 

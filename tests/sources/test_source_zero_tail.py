@@ -320,7 +320,7 @@ def prefix_decompressed(compression: str, data: bytes) -> bytes:
     if compression == 'zstd':
         return zstandard.ZstdDecompressor().decompressobj().decompress(data)
     if compression == 'lz4':
-        return lz4.frame.LZ4FrameDecompressor().decompress(data)
+        return bytes(lz4.frame.LZ4FrameDecompressor().decompress(data))
     return bz2.BZ2Decompressor().decompress(data)
 
 

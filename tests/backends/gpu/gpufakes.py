@@ -318,7 +318,7 @@ def torch_on_the_cpu(monkeypatch: pytest.MonkeyPatch, torch: Any, cuda: str = '1
     return fake_cuda
 
 
-class DeviceArray(np.ndarray):  # type: ignore[type-arg]
+class DeviceArray(np.ndarray):
     """A NumPy array with CuPy's ``set`` / ``get``."""
 
     def set(self, array: np.ndarray, stream: Any = None) -> None:

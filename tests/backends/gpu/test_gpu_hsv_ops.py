@@ -202,7 +202,8 @@ def _stress_scene(scene: Any, seed: int) -> Frame:
             cv2.line(s.image, (x, y), end, colour, int(rng.integers(1, 4)))
         else:
             cv2.circle(s.image, (x, y), int(rng.integers(8, 30)), colour, int(rng.integers(2, 5)))
-    return s.frame()
+    frame: Frame = s.frame()
+    return frame
 
 
 def test_random_stress_scenes_give_the_hsv_detections(scene: Any):
@@ -222,6 +223,7 @@ def test_real_colour_frames_give_the_hsv_detections(shared_real):
 
     config = HsvConfig()
     image = cv2.imread(str(shared_real / 'images' / 'astronaut.png'))
+    assert image is not None
     frames = [Frame('/astronaut', 0, 0, 0, '', image, 'bgr8', 'bgr8')]
     for bag in sorted((shared_real / 'bags' / 'ros1').glob('*.bag')):
         with open_source(bag) as source:

@@ -40,6 +40,7 @@ def _frames(limit: int = 8) -> list[Frame]:
     frames = []
     if ASTRONAUT.is_file():
         image = cv2.imread(str(ASTRONAUT))
+        assert image is not None
         frames.append(Frame('/astronaut', 0, 0, 0, '', image, 'bgr8', 'bgr8'))
     for bag in ('rgb8_raw.mcap', 'jpeg.mcap', 'two_camera.mcap'):
         with open_source(FIXTURE_BAGS / bag) as source:
@@ -111,7 +112,7 @@ def _compare_with_onnx_cpu(name: str, model: Path, **options: Any) -> dict[str, 
     for key in INFO_KEYS:
         assert info[key], key
     assert info['device_memory_bytes'] > 0
-    return info
+    return dict(info)
 
 
 @_needs('cuda')

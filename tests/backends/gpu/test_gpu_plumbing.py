@@ -19,7 +19,6 @@ from backends.gpu.gpufakes import GPU_A, fake_cupy, fake_gpu_build, torch_on_the
 from backends.gpu.gpuhelpers import FIXTURE_BAGS
 
 from replaybench.backends.base import BackendOptions
-from replaybench.backends.gpu import hsv_cuda as hsv_cuda_module
 from replaybench.backends.gpu.cuda import CudaBackend
 from replaybench.backends.gpu.hsv_cuda import HsvCudaBackend
 from replaybench.backends.hsv import HsvBackend
@@ -32,7 +31,7 @@ def test_hsv_cuda_runs_its_steps_and_finds_what_hsv_finds(monkeypatch, scene, dr
     driver([GPU_A])
     cupy, cupyx, ndimage = fake_cupy()
     modules = {'cupy': cupy, 'cupyx': cupyx, 'cupyx.scipy.ndimage': ndimage}
-    monkeypatch.setattr(hsv_cuda_module.importlib, 'import_module', modules.__getitem__)
+    monkeypatch.setattr(importlib, 'import_module', modules.__getitem__)
     s = scene(seed=2).rect('red', 10, 20, 60, 50).disc('blue', 200, 120, 30)
     frames = [s.frame('rgb8'), s.frame('bgr8', seq=1), s.frame('mono8', seq=2)]
 

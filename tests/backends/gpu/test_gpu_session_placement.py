@@ -115,6 +115,7 @@ def test_tensorrt_with_its_nodes_records_the_engine_key_and_placement(
     assert info['precision'] == 'tf32'
     assert 'NVIDIA_TF32_OVERRIDE=0' in info['precision_note']
     assert info['trt_engine_cached'] is False
+    assert first.engine_key is not None
     (tmp_path / first.engine_key.digest() / 'model_ctx.engine').write_bytes(b'built')
     second = TensorrtBackend(options)
     second.open()

@@ -76,6 +76,7 @@ def _run(tmp_path: Path, warmup: int | None) -> tuple[Watching, list[dict[str, s
         options=BackendOptions(),
     )
     outcome = run_benchmark(config, backend_factory=lambda name, options: backend)
+    assert outcome.run_dir is not None
     with (outcome.run_dir / 'frames.csv').open(newline='', encoding='utf-8') as file:
         return backend, list(csv.DictReader(file))
 

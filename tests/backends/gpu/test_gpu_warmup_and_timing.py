@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import importlib
+from typing import Any
 
 import numpy as np
 import pytest
@@ -23,7 +24,6 @@ from backends.gpu.gpuhelpers import FIXTURE_BAGS
 
 from replaybench.backends.base import BackendOptions
 from replaybench.backends.gpu import _hsv_ops
-from replaybench.backends.gpu import hsv_cuda as hsv_cuda_module
 from replaybench.backends.gpu._cuda import EventTimer, StageClock
 from replaybench.backends.gpu.cuda import CudaBackend
 from replaybench.backends.gpu.hsv_cuda import (
@@ -101,7 +101,7 @@ def cupy(monkeypatch, driver):
     def import_module(name: str, package: str | None = None) -> object:
         return modules[name] if name in modules else real(name, package)
 
-    monkeypatch.setattr(hsv_cuda_module.importlib, 'import_module', import_module)
+    monkeypatch.setattr(importlib, 'import_module', import_module)
     return cupy
 
 
@@ -143,6 +143,7 @@ def test_a_replay_writes_host_and_device_times_to_frames_csv(tmp_path):
         report=False,
     )
     outcome = run_benchmark(config, backend_factory=lambda name, options: HsvCudaBackend(options))
+    assert outcome.run_dir is not None
     with (outcome.run_dir / 'frames.csv').open(newline='', encoding='utf-8') as file:
         rows = list(csv.DictReader(file))
     ok = [r for r in rows if r['status'] == 'ok']
@@ -216,7 +217,8 @@ def test_frames_csv_keeps_device_times_and_reads_files_written_before_them(tmp_p
     lines = text.splitlines()
     header = ','.join(FRAMES_CSV_COLUMNS[:22])
     old.write_text(f'{header}\r\n{lines[1].rsplit(",", 5)[0]}\r\n', encoding='utf-8')
-    assert read_frames_csv(old) == [record._replace(**dict.fromkeys(DEVICE_COLUMNS))]
+    no_device: dict[str, Any] = dict.fromkeys(DEVICE_COLUMNS)
+    assert read_frames_csv(old) == [record._replace(**no_device)]
 
 
 def test_the_device_columns_are_the_last_five():

@@ -363,9 +363,12 @@ def _install_plugin(folder: Path) -> Path:
     return folder
 
 
-def _run_with_plugin(plugin: Path, *args: str) -> subprocess.CompletedProcess[str]:
+def _run_with_plugin(
+    plugin: Path, *args: str, debug: bool = False
+) -> subprocess.CompletedProcess[str]:
+    flags = ['--debug'] if debug else []
     return subprocess.run(
-        [sys.executable, '-m', 'replaybench', 'run', str(RAW), *args],
+        [sys.executable, '-m', 'replaybench', *flags, 'run', str(RAW), *args],
         capture_output=True,
         text=True,
         env=_env(PYTHONPATH=str(plugin)),
@@ -409,3 +412,19 @@ def test_a_plugin_backend_that_cannot_open_exits_2_with_one_line_before_anything
     (line,) = _error_lines(result.stderr)
     assert "backend 'brokenopen' could not be opened: OSError: no such device" in line
     assert sorted(p.name for p in tmp_path.iterdir()) == ['plugin']
+
+
+def test_with_debug_a_plugin_that_cannot_open_shows_its_own_traceback_then_the_one_line(
+    tmp_path: Path,
+) -> None:
+    plugin = _install_plugin(tmp_path / 'plugin')
+    out = tmp_path / 'run'
+    result = _run_with_plugin(plugin, '--backend', 'brokenopen', '--out', str(out), debug=True)
+    assert result.returncode == 2, result.stderr
+    assert 'The above exception was the direct cause of the following exception' in result.stderr
+    assert 'rb_boom.py' in result.stderr  # the plugin's frame, where open() raised
+    assert 'OSError: no such device: /dev/npu0' in result.stderr
+    last = result.stderr.splitlines()[-1]
+    assert last.startswith('replaybench: error: ')
+    assert "backend 'brokenopen' could not be opened" in last
+    assert not out.exists()

@@ -186,9 +186,9 @@ def cell_options(base: BackendOptions, params: Mapping[str, str]) -> BackendOpti
         if key in _FLOAT_KEYS:
             try:
                 changes[key] = float(text)
-            except ValueError:
+            except ValueError as err:
                 msg = f'--param {key}={text!r}: expected a number'
-                raise UsageError(msg) from None
+                raise UsageError(msg) from err
         elif key == 'threads':
             if not text.isdigit() or int(text) < 1:
                 msg = f'--param threads={text!r}: expected an integer >= 1'
@@ -276,12 +276,12 @@ def input_identity(path: Path, given: str | None = None) -> InputId:
     """Size and hash of an input; SourceError when it is missing or not a file or folder."""
     try:
         mode = path.stat().st_mode
-    except FileNotFoundError:
+    except FileNotFoundError as err:
         msg = f'{path}: no such file or directory'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     except OSError as err:
         msg = f'{path}: cannot read: {err.strerror or err}'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
         msg = f'{path}: not a regular file or folder'
         raise SourceError(msg)
@@ -299,7 +299,7 @@ def input_identity(path: Path, given: str | None = None) -> InputId:
                     digest.update(chunk)
     except OSError as err:
         msg = f'{path}: cannot read: {err.strerror or err}'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     return InputId(
         path.resolve(), given if given is not None else str(path), size, digest.hexdigest()
     )
@@ -435,7 +435,7 @@ def _check_input(inp: InputId, host: str) -> None:
         found = input_identity(inp.path)
     except SourceError as err:
         msg = f'{inp.path} is not readable on node {host} (inputs must be on shared storage): {err}'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     if found.size_bytes != inp.size_bytes or found.sha256 != inp.sha256:
         msg = (
             f"{inp.path} on node {host} differs from the driver's copy "
@@ -581,9 +581,9 @@ def _import_ray() -> Any:
     try:
         with _as_found():  # importing Ray sets RAY_CLIENT_MODE
             import ray
-    except ImportError:
+    except ImportError as err:
         msg = "replaybench sweep needs Ray: pip install 'replaybench[sweep]'"
-        raise UsageError(msg) from None
+        raise UsageError(msg) from err
     return ray
 
 
@@ -606,9 +606,9 @@ def local_ray(
                 _node_ip_address=LOCAL_NODE_IP,
                 _temp_dir=temp_dir,
             )
-        except Exception as err:  # noqa: BLE001  Ray's start-up fails in many types: one line
+        except Exception as err:  # Ray's start-up fails in many types: one line
             msg = f'cannot start a local Ray instance: {_error_line(err)}'
-            raise EngineError(msg) from None
+            raise EngineError(msg) from err
         try:
             yield {'mode': 'local', 'address': context.address_info.get('gcs_address')}
         finally:
@@ -622,7 +622,7 @@ def _joined_ray(address: str) -> Iterator[dict[str, Any]]:
     with _environment(changes):
         try:
             ray.init(address=address, logging_level=logging.ERROR, log_to_driver=False)
-        except Exception as err:  # noqa: BLE001  Ray's connection fails in many types: one line
+        except Exception as err:  # Ray's connection fails in many types: one line
             hint = (
                 ''
                 if os.environ.get(_AUTH_MODE) == 'token'
@@ -631,7 +631,7 @@ def _joined_ray(address: str) -> Iterator[dict[str, Any]]:
                 '(docs/sweep.md)'
             )
             msg = f'cannot join the Ray cluster at {address}: {_error_line(err)}{hint}'
-            raise EngineError(msg) from None
+            raise EngineError(msg) from err
         try:
             yield {'mode': 'cluster', 'address': address}
         finally:
@@ -1354,7 +1354,7 @@ def _check_backend_options(cells: Sequence[Cell], settings: SweepSettings) -> No
         except ReplaybenchError as err:
             where = f' ({cell.params_text})' if cell.params else ''
             msg = f'{cell.backend}{where}: {err}'
-            raise UsageError(msg) from None
+            raise UsageError(msg) from err
         except Exception:  # noqa: BLE001  a backend that cannot be built here may still run on a node
             continue
 

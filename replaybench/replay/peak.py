@@ -212,9 +212,9 @@ def _in_run_folder(sweep: Callable[_P, PeakResult]) -> Callable[_P, PeakResult]:
                 result = cast('Callable[..., PeakResult]', sweep)(*bound.args, **bound.kwargs)
                 folder.commit()
         except OSError as err:
-            raise folder.output_error(err) from None
+            raise folder.output_error(err) from err
         except OutputError as err:  # a trial's: its file named inside the temporary folder
-            raise OutputError(str(err).replace(str(folder.path), str(folder.out))) from None
+            raise OutputError(str(err).replace(str(folder.path), str(folder.out))) from err
         return result
 
     return staged

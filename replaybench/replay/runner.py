@@ -1076,7 +1076,7 @@ def run_benchmark(
     except OSError as err:
         if folder is None:
             raise
-        raise folder.output_error(err) from None
+        raise folder.output_error(err) from err
     finally:
         for inp in inputs:
             if inp.sha256 is not None:
@@ -1182,10 +1182,10 @@ def _make_backends(
             backend_traits(backend)
         except ReplaybenchError:
             raise
-        except Exception as err:  # noqa: BLE001  a plugin's own error: one line
+        except Exception as err:  # a plugin's own error: one line
             first = f'{type(err).__name__}: {err}'.splitlines()[0]
             msg = f'backend {name!r} could not be opened: {first}'
-            raise BackendError(msg) from None
+            raise BackendError(msg) from err
         made.append((name, backend))
     return made
 
@@ -1247,10 +1247,10 @@ def _open_backends(
                     backend.open()
             except ReplaybenchError:
                 raise
-            except Exception as err:  # noqa: BLE001  a plugin's own error: one line
+            except Exception as err:  # a plugin's own error: one line
                 first = f'{type(err).__name__}: {err}'.splitlines()[0]
                 msg = f'backend {name!r} could not be opened: {first}'
-                raise BackendError(msg) from None
+                raise BackendError(msg) from err
             opened.append(_OpenBackend(name, backend))
     except BaseException:
         for entry in opened:

@@ -310,17 +310,17 @@ def _read(path: str | Path, file: str) -> tuple[Any, Path]:
     target = path / file if path.is_dir() else path
     try:
         text = target.read_text(encoding='utf-8')
-    except FileNotFoundError:
+    except FileNotFoundError as err:
         msg = f'{target}: no such file'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     except (OSError, UnicodeDecodeError) as err:
         msg = f'{target}: cannot read: {err}'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     try:
         document = json.loads(text)
     except json.JSONDecodeError as err:
         msg = f'{target}: invalid JSON at line {err.lineno} column {err.colno}: {err.msg}'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     if not isinstance(document, dict):
         msg = f'{target}: expected a JSON object, found {type(document).__name__}'
         raise SourceError(msg) from None

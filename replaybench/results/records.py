@@ -430,11 +430,11 @@ def read_frames_csv(path: str | Path) -> list[FrameRecord]:
                     records.append(_parse_row(cells + missing))
                 except ValueError as err:
                     msg = f'{path}:{reader.line_num}: bad row: {err}'
-                    raise SourceError(msg) from None
+                    raise SourceError(msg) from err
     except OSError as err:
         msg = f'{path}: cannot read frames.csv: {err.strerror or err}'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     except csv.Error as err:
         msg = f'{path}: not a valid CSV: {err}'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     return records

@@ -132,7 +132,7 @@ def read_summary_csv(path: str | Path) -> pd.DataFrame:
                     columns[name].append(parsers[name](text))
     except (OSError, ValueError, csv.Error) as err:
         msg = f'{path}: cannot read summary.csv: {err}'
-        raise SourceError(msg) from None
+        raise SourceError(msg) from err
     return _frame(columns, SUMMARY_DTYPES)
 
 

@@ -69,8 +69,9 @@ def test_params_set_typed_options_and_backend_extras() -> None:
     assert found.threads == 3
     assert found.model == Path('m.onnx')
     assert dict(found.extra) == {'max_det': '10', 'min_area': '50'}
-    with pytest.raises(UsageError, match='expected a number'):
+    with pytest.raises(UsageError, match='expected a number') as caught:
         cell_options(base, {'iou': 'high'})
+    assert isinstance(caught.value.__cause__, ValueError)
     with pytest.raises(UsageError, match='integer >= 1'):
         cell_options(base, {'threads': '0'})
 

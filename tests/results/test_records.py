@@ -149,8 +149,9 @@ def test_a_bad_row_names_its_line(tmp_path: Path) -> None:
     with FramesCsvWriter(path) as writer:
         writer.write(_ok(0))
         writer.write(_ok(1, status='exploded'))
-    with pytest.raises(SourceError, match=r'frames\.csv:3: bad row'):
+    with pytest.raises(SourceError, match=r'frames\.csv:3: bad row') as caught:
         read_frames_csv(path)
+    assert isinstance(caught.value.__cause__, ValueError)  # the cell's own error, for --debug
 
 
 def test_a_missing_file_is_a_source_error(tmp_path: Path) -> None:

@@ -148,8 +148,9 @@ def test_load_run_on_a_missing_folder_says_so(tmp_path: Path) -> None:
 
 def test_load_run_reports_where_json_is_broken(tmp_path: Path) -> None:
     (tmp_path / 'run.json').write_text('{"schema_version": 1,\n "status": }')
-    with pytest.raises(SourceError, match='invalid JSON at line 2'):
+    with pytest.raises(SourceError, match='invalid JSON at line 2') as caught:
         load_run(tmp_path)
+    assert isinstance(caught.value.__cause__, json.JSONDecodeError)  # the parser's, for --debug
 
 
 @pytest.mark.parametrize('content', ['[1, 2]', '{"status": "complete"}', '{"schema_version": "1"}'])

@@ -204,9 +204,9 @@ class OrtEngine:
     def __call__(self) -> dict[str, Tensor]:
         try:
             self.session.run_with_iobinding(self.binding)
-        except Exception as exc:  # noqa: BLE001  onnxruntime errors have several types
+        except Exception as exc:  # onnxruntime errors have several types
             msg = f'inference failed: {type(exc).__name__}: {exc}'
-            raise BackendError(msg) from None
+            raise BackendError(msg) from exc
         self.binding.synchronize_outputs()
         self._values = self.binding.get_outputs()  # keeps the device buffers alive
         return {
@@ -619,19 +619,19 @@ class CudaBackend:
             so.intra_op_num_threads = self.options.threads
         try:
             return ort.InferenceSession(str(self.model_path), so, providers=self._providers(stream))
-        except Exception as exc:  # noqa: BLE001  onnxruntime raises several types
+        except Exception as exc:  # onnxruntime raises several types
             problem = driver_problem(self.options.device)
             if problem is not None:  # e.g. a GPU index beyond the machine
-                raise BackendUnavailableError(problem) from None
+                raise BackendUnavailableError(problem) from exc
             text = f'{type(exc).__name__}: {exc}'
             if 'CPU EP' in str(exc):
                 msg = (
                     f'onnxruntime would run part of {self.model_path.name} on the CPU, which '
                     f'this backend refuses ({text})'
                 )
-                raise BackendUnavailableError(msg) from None
+                raise BackendUnavailableError(msg) from exc
             msg = f'cannot load {self.model_path}: {text}'
-            raise BackendError(msg) from None
+            raise BackendError(msg) from exc
 
     def _check_session(self, session: Any) -> tuple[list[str], dict[str, int] | None]:
         """The session's providers and nodes per provider; refused unless all is on the GPU."""
@@ -642,7 +642,7 @@ class CudaBackend:
             if libraries is None:
                 raise
             msg = f'{exc}; {libraries}'
-            raise BackendUnavailableError(msg) from None
+            raise BackendUnavailableError(msg) from exc
         placement = ep_node_counts(session)
         check_placement(placement, self.provider)
         return providers, placement
@@ -698,13 +698,13 @@ class CudaBackend:
             proto, report = fold_shapes(onnx, proto, (1, 3, height, width))
         except BackendError as exc:
             msg = f'{self.name}: cannot fold the shapes of {self.model_path.name}: {exc}'
-            raise BackendError(msg) from None
+            raise BackendError(msg) from exc
         try:
             module = onnx2torch.convert(proto)
-        except Exception as exc:  # noqa: BLE001  unsupported ops and the like
+        except Exception as exc:  # unsupported ops and the like
             what = f'{type(exc).__name__}: {exc}'
             msg = f'{self.name}: onnx2torch cannot convert {self.model_path}: {what}'
-            raise BackendError(msg) from None
+            raise BackendError(msg) from exc
         facts = {
             'torch': str(torch.__version__),
             'onnx2torch': _version('onnx2torch'),
@@ -766,7 +766,7 @@ class CudaBackend:
             if self.options.engine == 'auto' and others:
                 hint = f' (not switching engines: pass --engine {others[0]} to try it)'
             msg = f'{self.name}: engine {engine} ({why}): {text}{hint}'
-            raise type(exc)(msg) from None
+            raise type(exc)(msg) from exc
 
     def _open_engine(self, engine: str) -> None:
         torch, device = self._torch_device()
@@ -909,7 +909,7 @@ class CudaBackend:
                 transform = pipeline.preprocess(image, layout)
             except BackendError as exc:
                 msg = f'{self.name}: frame {where}: {exc}'
-                raise BackendError(msg) from None
+                raise BackendError(msg) from exc
             pre = clock.lap()
             outputs = engine()
             infer = clock.lap()

@@ -182,9 +182,9 @@ class HsvCudaBackend:
         try:
             cupy = importlib.import_module('cupy')
             ndimage = importlib.import_module('cupyx.scipy.ndimage')
-        except Exception as exc:  # noqa: BLE001  ImportError and CUDA library load failures
+        except Exception as exc:  # ImportError and CUDA library load failures
             msg = f'hsv-cuda: cannot import cupy: {type(exc).__name__}: {exc}'
-            raise BackendUnavailableError(msg) from None
+            raise BackendUnavailableError(msg) from exc
         self._cp, self._ndi = cupy, ndimage
         self._device = cupy.cuda.Device(index)
         facts = device_facts(index)
@@ -210,10 +210,10 @@ class HsvCudaBackend:
                     events, lambda e: e.record(stream), cupy.cuda.get_elapsed_time
                 )
                 self._warm_up()
-        except Exception as exc:  # noqa: BLE001  missing CUDA runtime parts (NVRTC, ...)
+        except Exception as exc:  # missing CUDA runtime parts (NVRTC, ...)
             self.close()
             msg = f'hsv-cuda: CuPy cannot run its kernels: {type(exc).__name__}: {exc}'
-            raise BackendUnavailableError(msg) from None
+            raise BackendUnavailableError(msg) from exc
 
     def close(self) -> None:
         """Drop the device buffers and return CuPy's cached blocks (device and pinned), so that

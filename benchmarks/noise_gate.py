@@ -161,9 +161,9 @@ def _bootstrap_verdicts(base: Path, cand: Path, seed: int) -> dict[str, str]:
     """The previous gate: 95 % block-bootstrap interval of the whole-run ratio, per frame."""
     import numpy as np
 
-    from replaybench.comparison.bootstrap import percentile_interval, replicates
     from replaybench.comparison.gate import parse_condition
     from replaybench.comparison.verdict import decide
+    from replaybench.results.bootstrap import percentile_interval, replicates
 
     rng = np.random.default_rng(seed)
     rb = replicates(*_series(base), rng=rng)

@@ -735,28 +735,8 @@ class SweepResult:
         return {'complete': 0, 'failed': 1}.get(self.status, 130)
 
 
-def _pooled_intervals(ordered: Sequence[Any], measured: Sequence[Any]) -> list[float] | None:
-    """Completion-to-completion times of the measured frames (their sum is the throughput
-    window of results.stats)."""
-    if not measured or any(r.done_s is None for r in measured):
-        return None
-    start = measured[0].start_s
-    previous = None
-    for record in ordered:
-        if record is measured[0]:
-            break
-        if record.status == 'ok':
-            previous = record
-    if previous is not None and previous.done_s is not None:
-        start = previous.done_s
-    if start is None:
-        return None
-    done = [start, *(r.done_s for r in measured)]
-    return [b - a for a, b in itertools.pairwise(done)]
-
-
 def _interval(values: Any) -> list[float] | None:
-    from replaybench.comparison.bootstrap import percentile_interval
+    from replaybench.results.bootstrap import percentile_interval
 
     if values is None:
         return None
@@ -769,7 +749,8 @@ def cell_metrics(run_dir: Path, key: str) -> dict[str, Any]:
     measured frames (every topic together), and mAP@0.5 (the mean over its topics)."""
     import numpy as np
 
-    from replaybench.comparison.bootstrap import replicates
+    from replaybench.results.bootstrap import replicates
+    from replaybench.results.intervals import measured_series
     from replaybench.results.io import read_run_result
     from replaybench.results.records import read_frames_csv
     from replaybench.results.stats import summarize
@@ -794,17 +775,9 @@ def cell_metrics(run_dir: Path, key: str) -> dict[str, Any]:
             'p50_ms': summary.latency_ms_p50 if summary else None,
             'p99_ms': summary.latency_ms_p99 if summary else None,
         }
-    ordered = sorted(records, key=lambda r: r.release_s)
-    measured = [
-        r for r in ordered if r.status == 'ok' and not r.warmup and r.latency_ms is not None
-    ]
-    latency = np.asarray([r.latency_ms for r in measured], dtype=np.float64)
+    series = measured_series(records)  # every topic together, in replay order
     seed = int(key[:16], 16)
-    reps = replicates(
-        latency,
-        _pooled_intervals(ordered, measured),
-        rng=np.random.default_rng(seed),
-    )
+    reps = replicates(*series, rng=np.random.default_rng(seed))
     maps = [
         row.accuracy.map50
         for row in rows

@@ -4,22 +4,6 @@ inconclusive (``replaybench compare``)."""
 
 from __future__ import annotations
 
-from replaybench.comparison.blocks import (
-    BLOCK_FRAMES,
-    MAX_BLOCKS,
-    MIN_BLOCKS,
-    ChangeInterval,
-    change_interval,
-)
-from replaybench.comparison.bootstrap import (
-    CONFIDENCE,
-    DEFAULT_RESAMPLES,
-    MIN_FRAMES,
-    Replicates,
-    block_length,
-    ratio_ci,
-    replicates,
-)
 from replaybench.comparison.core import (
     ACCURACY_METRICS,
     METRICS,
@@ -29,7 +13,6 @@ from replaybench.comparison.core import (
     Row,
     compare_runs,
 )
-from replaybench.comparison.exact import ratio_interval, shift_interval
 from replaybench.comparison.gate import (
     CONDITION_GRAMMAR,
     Condition,
@@ -55,6 +38,23 @@ from replaybench.comparison.output import (
 )
 from replaybench.comparison.runs import CV_LIMIT, RunInfo
 from replaybench.comparison.verdict import EXIT_STATUS, VERDICTS, Verdict, decide
+from replaybench.results.blocks import (
+    BLOCK_FRAMES,
+    MAX_BLOCKS,
+    MIN_BLOCKS,
+    ChangeInterval,
+    change_interval,
+)
+from replaybench.results.bootstrap import (
+    CONFIDENCE,
+    DEFAULT_RESAMPLES,
+    MIN_FRAMES,
+    Replicates,
+    block_length,
+    ratio_ci,
+    replicates,
+)
+from replaybench.results.exact import ratio_interval, shift_interval
 
 __all__ = [
     'ACCURACY_METRICS',

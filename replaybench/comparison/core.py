@@ -7,8 +7,10 @@ from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 import numpy as np
 
-from replaybench.comparison.blocks import change_interval
-from replaybench.comparison.bootstrap import (
+from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match, load_runs, run_flags
+from replaybench.errors import UsageError
+from replaybench.results.blocks import change_interval
+from replaybench.results.bootstrap import (
     CONFIDENCE,
     DEFAULT_RESAMPLES,
     MIN_FRAMES,
@@ -16,8 +18,6 @@ from replaybench.comparison.bootstrap import (
     percentile_interval,
     replicates,
 )
-from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match, load_runs, run_flags
-from replaybench.errors import UsageError
 from replaybench.results.intervals import interval_rng, measured_series
 from replaybench.results.stats import summarize
 
@@ -27,8 +27,8 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
-    from replaybench.comparison.blocks import ChangeInterval
     from replaybench.comparison.runs import RunInfo
+    from replaybench.results.blocks import ChangeInterval
     from replaybench.results.model import RunResult
     from replaybench.results.records import FrameRecord
     from replaybench.results.runfile import RunData

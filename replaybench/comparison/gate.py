@@ -6,11 +6,11 @@ from __future__ import annotations
 import re
 from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench.comparison.blocks import change_interval, point_value
-from replaybench.comparison.bootstrap import CONFIDENCE
 from replaybench.comparison.core import ACCURACY_METRICS, METRICS, TIMING_METRICS
 from replaybench.comparison.verdict import Verdict, decide, overall, past
 from replaybench.errors import UsageError
+from replaybench.results.blocks import change_interval, point_value
+from replaybench.results.bootstrap import CONFIDENCE
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

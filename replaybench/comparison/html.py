@@ -6,12 +6,12 @@ import math
 from html import escape
 from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench.comparison.blocks import BLOCK_FRAMES, MAX_BLOCKS, MIN_BLOCKS
-from replaybench.comparison.bootstrap import MIN_FRAMES
 from replaybench.comparison.core import ACCURACY_METRICS, TIMING_METRICS
 from replaybench.comparison.gate import gate_verdict, method_text
 from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match
 from replaybench.report.svg import colour, nice_ticks, step_cdf
+from replaybench.results.blocks import BLOCK_FRAMES, MAX_BLOCKS, MIN_BLOCKS
+from replaybench.results.bootstrap import MIN_FRAMES
 from replaybench.textsafe import visible
 
 if TYPE_CHECKING:

@@ -5,12 +5,12 @@ from __future__ import annotations
 import sys
 from typing import TYPE_CHECKING
 
-from replaybench.comparison.bootstrap import DEFAULT_RESAMPLES
 from replaybench.comparison.core import compare_runs
 from replaybench.comparison.gate import evaluate_gate, gate_verdict, parse_condition
 from replaybench.comparison.output import write_comparison
 from replaybench.comparison.verdict import EXIT_STATUS
 from replaybench.errors import ReplaybenchError
+from replaybench.results.bootstrap import DEFAULT_RESAMPLES
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence

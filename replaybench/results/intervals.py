@@ -46,6 +46,7 @@ from replaybench.results.bootstrap import (
     percentile_interval,
     replicates,
 )
+from replaybench.results.records import written
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -126,11 +127,6 @@ class Drift(NamedTuple):
         return not lo <= 1.0 <= hi
 
 
-def _as_written(value: float, spec: str) -> float:
-    """``value`` as frames.csv holds it (``.4f`` durations, ``.6f`` times)."""
-    return float(format(value, spec))
-
-
 def measured_series(records: Sequence[FrameRecord]) -> Series:
     """The series of one (backend, topic)'s records that the intervals resample.
 
@@ -139,12 +135,12 @@ def measured_series(records: Sequence[FrameRecord]) -> Series:
     series, and run.json the same intervals as ``replaybench compare`` of the run folder.
     """
     # stable, as stats.py; by the release time frames.csv holds (ties keep the record order)
-    ordered = sorted(records, key=lambda r: _as_written(r.release_s, '.6f'))
+    ordered = sorted(records, key=lambda r: written(r.release_s, 'release_s'))
     measured = [
         r for r in ordered if r.status == 'ok' and not r.warmup and r.latency_ms is not None
     ]
     latency = np.asarray(
-        [_as_written(r.latency_ms, '.4f') for r in measured if r.latency_ms is not None],
+        [written(r.latency_ms, 'latency_ms') for r in measured if r.latency_ms is not None],
         dtype=np.float64,
     )
     if not measured or any(r.done_s is None for r in measured):
@@ -161,7 +157,7 @@ def measured_series(records: Sequence[FrameRecord]) -> Series:
     if start is None:
         return Series(latency, None)
     done = np.asarray(
-        [_as_written(t, '.6f') for t in [start] + [r.done_s for r in measured] if t is not None],
+        [written(t, 'done_s') for t in [start] + [r.done_s for r in measured] if t is not None],
         dtype=np.float64,
     )
     return Series(latency, np.diff(done))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import math
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, NamedTuple, get_args
@@ -26,6 +27,7 @@ __all__ = [
     'as_written',
     'csv_writer',
     'read_frames_csv',
+    'written',
 ]
 
 FrameStatus = Literal['ok', 'dropped', 'skipped']
@@ -269,6 +271,16 @@ def as_written(record: FrameRecord) -> FrameRecord:
 _ROUNDED: tuple[tuple[int, Callable[[object], str]], ...] = tuple(
     (i, _CELLS[i]) for i, name in enumerate(FRAMES_CSV_COLUMNS) if name in _FLOAT_FORMAT
 )
+_ROUNDED_BY_NAME: dict[str, Callable[[object], str]] = {
+    FRAMES_CSV_COLUMNS[i]: cell for i, cell in _ROUNDED
+}
+
+
+def written(value: float, column: str) -> float:
+    """One value of the float ``column`` as frames.csv holds it (``as_written`` for a single
+    field, where rounding the whole record would be wasted); NaN for a non-finite value."""
+    text = _ROUNDED_BY_NAME[column](value)
+    return float(text) if text else math.nan
 
 
 def _parse_bool(text: str) -> bool:

@@ -5,7 +5,7 @@ import time
 import numpy as np
 import pytest
 
-from replaybench.comparison.bootstrap import (
+from replaybench.results.bootstrap import (
     MIN_FRAMES,
     block_length,
     block_starts,

@@ -26,8 +26,8 @@ from replaybench.comparison import (
     ratio_interval,
     shift_interval,
 )
-from replaybench.comparison.exact import mann_whitney_null, moses_cut
 from replaybench.errors import UsageError
+from replaybench.results.exact import mann_whitney_null, moses_cut
 
 if TYPE_CHECKING:
     import numpy.typing as npt

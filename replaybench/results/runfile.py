@@ -243,7 +243,8 @@ def write_run_json(path: str | Path, run: dict[str, Any]) -> None:
     write_json_atomic(path, run)
 
 
-def _summary_cell(value: Any) -> str:
+def summary_cell(value: Any) -> str:
+    """One summary.csv cell: floats to 4 decimals, non-finite and None empty, text escaped."""
     if value is None:
         return ''
     if isinstance(value, bool):
@@ -260,7 +261,7 @@ def write_summary_csv(path: str | Path, summaries: Iterable[Summary]) -> None:
     writer.writerow(SUMMARY_CSV_COLUMNS)
     for summary in summaries:
         row = summary_row(summary)
-        writer.writerow([_summary_cell(row[name]) for name in SUMMARY_CSV_COLUMNS])
+        writer.writerow([summary_cell(row[name]) for name in SUMMARY_CSV_COLUMNS])
     write_text_atomic(path, buffer.getvalue())
 
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import csv
 import functools
-import math
 import types
 import typing
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 from replaybench.errors import SourceError
 from replaybench.results.model import PeakTrial, SummaryRow
 from replaybench.results.records import FRAMES_CSV_COLUMNS, FrameRecord, as_written
+from replaybench.results.runfile import summary_cell
 from replaybench.results.stats import SUMMARY_CSV_COLUMNS
 from replaybench.textsafe import from_csv
 
@@ -85,19 +85,17 @@ def frames_table(records: Iterable[FrameRecord]) -> pd.DataFrame:
     return _frame(columns, FRAMES_DTYPES)
 
 
-def _summary_value(value: Any) -> Any:
-    """One summary.csv cell's value as the file holds it (``write_summary_csv``)."""
-    if isinstance(value, float):
-        return float(format(value, '.4f')) if math.isfinite(value) else None
-    if isinstance(value, tuple):
-        return '; '.join(value)
-    return value
-
-
 def summary_table(rows: Sequence[SummaryRow]) -> pd.DataFrame:
-    """summary.csv as a DataFrame, from run.json's ``summary`` rows."""
+    """summary.csv as a DataFrame, from run.json's ``summary`` rows: each value is written as
+    the file's cell (``summary_cell``) and read back as ``read_summary_csv`` reads it."""
+    parsers = _parsers()
+
+    def cell(value: Any) -> str:
+        return summary_cell('; '.join(value) if isinstance(value, tuple) else value)
+
     columns = {
-        name: [_summary_value(getattr(row, name)) for row in rows] for name in SUMMARY_CSV_COLUMNS
+        name: [parsers[name](cell(getattr(row, name))) for row in rows]
+        for name in SUMMARY_CSV_COLUMNS
     }
     return _frame(columns, SUMMARY_DTYPES)
 

@@ -111,8 +111,6 @@ def compare(
     with ``table``, the comparison.csv rows as a pandas DataFrame, and ``verdict``
     (``passed``, ``failed``, ``inconclusive``; None without conditions).
     """
-    import pandas as pd
-
     from replaybench.comparison.core import compare_runs
     from replaybench.comparison.gate import evaluate_gate, parse_condition
     from replaybench.comparison.output import (
@@ -159,8 +157,9 @@ def compare(
         allow_inconclusive=allow_inconclusive,
     )
     result = from_json(Comparison, document, where='comparison')
-    table = pd.DataFrame.from_records(csv_rows(comparison, gate), columns=list(CSV_COLUMNS))
-    return dataclasses.replace(result, table=table)
+    return dataclasses.replace(
+        result, table_rows=tuple(csv_rows(comparison, gate)), table_columns=tuple(CSV_COLUMNS)
+    )
 
 
 def peak(

@@ -12,6 +12,7 @@ __all__ = [
     'BackendUnavailableError',
     'DecodeError',
     'EngineError',
+    'MissingDependencyError',
     'OutputError',
     'ReplaybenchError',
     'RunAborted',
@@ -56,6 +57,10 @@ class OutputError(ReplaybenchError):
     """An output that cannot be written: disk full, file too large, an I/O error."""
 
     exit_code = 1
+
+
+class MissingDependencyError(ReplaybenchError, ImportError):
+    """An optional package a feature needs is not installed; the message names the extra."""
 
 
 class EngineError(ReplaybenchError):

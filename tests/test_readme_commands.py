@@ -4,7 +4,9 @@ A newcomer copies the commands of the README (after ``make run`` and ``. .venv/b
 into a fresh shell at the repository root. This test does the same: it extracts each command
 from the code blocks (indented or fenced; a trailing ``\\`` continues it on the next line) and
 runs it with bash in a copy of the repository root (``fixtures/``, ``docs/``, and ``shared/``
-beside it), the commands of one file one after another in their order, the files in parallel.
+beside it), the commands of one file one after another in their order, the files in parallel,
+with pandas made unimportable: the command line must work on the default install, which leaves
+pandas (the Python API's ``pandas`` extra) out.
 
 A command is expected to exit 0, unless it says otherwise in a trailing comment
 (``replaybench compare ... # exits 3: ...``, or ``# exits 0, 1 or 3: ...`` where the document
@@ -193,13 +195,29 @@ def _workspace(root: Path) -> Path:
     shared = REPO.parent / 'shared'
     if shared.is_dir():
         (root / 'shared').symlink_to(shared)
+    # the default install has no pandas (the `pandas` extra): a package in its place that
+    # cannot be imported, first on PYTHONPATH
+    blocker = root / 'no-pandas' / 'pandas'
+    blocker.mkdir(parents=True)
+    (blocker / '__init__.py').write_text(
+        "raise ImportError('No module named pandas (not in the default install)')\n",
+        encoding='utf-8',
+    )
     return repo
 
 
-def _run_doc(commands: list[Command], cwd: Path) -> list[tuple[Command, int, str, float]]:
+def _environment(cwd: Path) -> dict[str, str]:
+    """A person's shell with the default install: the venv's bin first on PATH, no pandas."""
     env = dict(os.environ)
     env['PATH'] = f'{Path(sys.executable).parent}{os.pathsep}{env.get("PATH", "")}'
+    no_pandas = str(cwd.parent / 'no-pandas')
+    env['PYTHONPATH'] = os.pathsep.join([no_pandas, *filter(None, [env.get('PYTHONPATH')])])
     env.pop('CI', None)  # what a person's shell has
+    return env
+
+
+def _run_doc(commands: list[Command], cwd: Path) -> list[tuple[Command, int, str, float]]:
+    env = _environment(cwd)
     results = []
     for command in commands:
         text = command.text
@@ -313,9 +331,9 @@ def test_the_default_install_leaves_out_what_only_development_needs() -> None:
     project = tomllib.loads((REPO / 'pyproject.toml').read_text(encoding='utf-8'))['project']
     core = {re.split(r'[\s<>=!~\[;]', d, maxsplit=1)[0].lower() for d in project['dependencies']}
     assert 'onnxruntime' in core
-    assert not core & {'torch', 'playwright', 'mypy', 'ruff', 'pytest', 'scipy', 'ray'}
+    assert not core & {'torch', 'playwright', 'mypy', 'ruff', 'pytest', 'scipy', 'ray', 'pandas'}
     extras = project['optional-dependencies']
-    assert {'dev', 'train', 'gpu', 'sweep'} <= set(extras)
+    assert {'dev', 'train', 'gpu', 'sweep', 'pandas'} <= set(extras)
     dev = ' '.join(extras['dev'])
     for tool in ('pytest', 'ruff', 'mypy', 'playwright'):
         assert tool in dev

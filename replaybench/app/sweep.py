@@ -727,7 +727,15 @@ class SweepResult:
     out: Path
     status: str  # 'complete' | 'failed' | 'interrupted'
     record: dict[str, Any]
-    cells: pd.DataFrame = field(repr=False)
+    #: sweep.csv's rows, one mapping per cell keyed by ``CSV_COLUMNS``
+    cell_rows: tuple[Mapping[str, Any], ...] = field(repr=False)
+
+    @property
+    def cells(self) -> pd.DataFrame:
+        """sweep.csv as a pandas DataFrame (``pip install 'replaybench[pandas]'``)."""
+        from replaybench.results.tables import records_table
+
+        return records_table(self.cell_rows, CSV_COLUMNS)
 
     @property
     def exit_code(self) -> int:
@@ -1453,13 +1461,7 @@ def sweep(
     else:
         status = 'complete'
     record = driver.write_outputs(status)
-    return SweepResult(Path(out), status, record, _frame(csv_rows(record)))
-
-
-def _frame(rows: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
-    import pandas as pd
-
-    return pd.DataFrame(list(rows), columns=list(CSV_COLUMNS))
+    return SweepResult(Path(out), status, record, tuple(csv_rows(record)))
 
 
 # --------------------------------------------------------------------------- command line

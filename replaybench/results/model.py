@@ -726,9 +726,27 @@ class Comparison:
     runs: tuple[ComparisonRun, ...] = ()
     rows: tuple[ComparisonRow, ...] = ()
     gate: ComparisonGate | None = None
-    #: comparison.csv's rows as a pandas DataFrame (not in comparison.json): set by
-    #: ``replaybench.compare``, None on a Comparison read from comparison.json
-    table: Any = field(default=None, compare=False, repr=False, metadata=_NOT_IN_FILE)
+    #: comparison.csv's rows, one mapping per row with the file's columns as keys, in order
+    #: (not in comparison.json): set by ``replaybench.compare``, None on a Comparison read from
+    #: comparison.json
+    table_rows: tuple[Mapping[str, Any], ...] | None = field(
+        default=None, compare=False, repr=False, metadata=_NOT_IN_FILE
+    )
+    #: comparison.csv's columns, in order (not in comparison.json)
+    table_columns: tuple[str, ...] = field(
+        default=(), compare=False, repr=False, metadata=_NOT_IN_FILE
+    )
+
+    @property
+    def table(self) -> 'pd.DataFrame':
+        """comparison.csv's rows as a pandas DataFrame (``pip install 'replaybench[pandas]'``);
+        ValueError on a Comparison read from comparison.json, which does not hold them."""
+        if self.table_rows is None:
+            msg = 'this Comparison holds no table: make it with rb.compare'
+            raise ValueError(msg)
+        from replaybench.results.tables import records_table
+
+        return records_table(self.table_rows, self.table_columns)
 
     @property
     def verdict(self) -> str | None:

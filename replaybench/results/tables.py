@@ -6,7 +6,9 @@ equals the one read back from its folder. Column types: float columns ``float64`
 the cell is empty), integer columns ``Int64`` (``<NA>`` where empty), ``warmup`` / ``dropped``
 and ``ok`` ``bool``, text columns ``str``.
 
-pandas is imported when a table is made, never when this module is.
+pandas is imported when a table is made, never when this module is. It is not part of the
+default install (the command line needs none of it): ``pip install 'replaybench[pandas]'``;
+without it a table raises ``MissingDependencyError`` naming that command.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import typing
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from replaybench.errors import SourceError
+from replaybench.errors import MissingDependencyError, SourceError
 from replaybench.results.model import PeakTrial, SummaryRow
 from replaybench.results.records import FRAMES_CSV_COLUMNS, FrameRecord, as_written
 from replaybench.results.runfile import summary_cell
@@ -32,14 +34,33 @@ if TYPE_CHECKING:
 
 __all__ = [
     'FRAMES_DTYPES',
+    'PANDAS_HINT',
     'SUMMARY_DTYPES',
     'TRIALS_COLUMNS',
     'TRIALS_DTYPES',
     'frames_table',
     'read_summary_csv',
+    'records_table',
+    'require_pandas',
     'summary_table',
     'trials_table',
 ]
+
+
+#: how to get the DataFrames when pandas is missing
+PANDAS_HINT = "pip install 'replaybench[pandas]'"
+
+
+def require_pandas() -> None:
+    """Import pandas; ``MissingDependencyError`` naming the extra when it is not installed."""
+    try:
+        import pandas  # noqa: F401
+    except ImportError as err:
+        msg = (
+            "the Python API's DataFrames need pandas, which the default install leaves out: "
+            + PANDAS_HINT
+        )
+        raise MissingDependencyError(msg) from err
 
 
 def _dtype(tp: Any) -> str:
@@ -71,6 +92,7 @@ TRIALS_DTYPES: dict[str, str] = _dtypes(PeakTrial, TRIALS_COLUMNS)
 
 
 def _frame(columns: Mapping[str, list[Any]], dtypes: Mapping[str, str]) -> pd.DataFrame:
+    require_pandas()
     import pandas as pd
 
     return pd.DataFrame(
@@ -138,3 +160,12 @@ def trials_table(trials: Sequence[PeakTrial]) -> pd.DataFrame:
     """A peak search's trials, in run order: ``rate_hz``, ``ok`` and the other trial fields."""
     columns = {name: [getattr(t, name) for t in trials] for name in TRIALS_COLUMNS}
     return _frame(columns, TRIALS_DTYPES)
+
+
+def records_table(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> pd.DataFrame:
+    """A DataFrame of ``rows`` (mappings keyed by ``columns``; None = empty cell), columns in
+    order: comparison.csv's and sweep.csv's rows."""
+    require_pandas()
+    import pandas as pd
+
+    return pd.DataFrame.from_records(list(rows), columns=list(columns))

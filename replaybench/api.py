@@ -190,30 +190,28 @@ def peak(
     ``progress(trial)`` is called after each trial. Returns the ``PeakResult`` (peak.json's
     contents) with ``peak_hz`` and ``trials``, a pandas DataFrame (``rate_hz``, ``ok``, ...).
     """
-    from replaybench.app.peak import find_peak
-    from replaybench.app.run import backend_options
+    from replaybench.app.peak import peak_config, run_peak
     from replaybench.results.io import from_json, to_json
     from replaybench.results.model import PeakResult
 
-    names = [topics] if isinstance(topics, str) else list(topics or ())
-    record = find_peak(
-        Path(input),
-        backend,
-        Path(out) if out is not None else None,
-        options=backend_options(threads=threads, **options),
-        topics=names or None,
+    settings = peak_config(
+        input,
+        backend=backend,
+        out=out,
         max_drop=max_drop,
-        p99_bound_ms=p99_ms,
+        p99_ms=p99_ms,
         trial_frames=trial_frames,
         min_hz=min_hz,
         max_hz=max_hz,
         refine_steps=refine_steps,
+        topics=topics,
+        threads=threads,
         force=force,
         report=report,
-        threads=threads,
-        progress=progress,
-        stop=stop,
+        **options,
     )
+    record = run_peak(settings, progress=progress, stop=stop).record
+    assert record is not None  # the search always sets it
     # what peak.json holds (JSON values), whether or not it was written
     return from_json(PeakResult, to_json(record), where='peak')
 

@@ -800,8 +800,7 @@ def peak(
 
     Example: replaybench peak fixtures/bags/jpeg.mcap --backend hsv --max-drop 0.05 --out runs/peak
     """
-    from replaybench.app.peak import find_peak_rate
-    from replaybench.app.run import backend_options
+    from replaybench.app.peak import peak_config, run_peak
     from replaybench.app.signals import stop_on_signals
     from replaybench.replay.runner import new_run_dir
 
@@ -813,42 +812,39 @@ def peak(
             err=True,
         )
 
-    folder = out if out is not None else new_run_dir()
     token = threading.Event()
     try:
+        settings = peak_config(
+            bag,
+            backend=backend,
+            out=out if out is not None else new_run_dir(),
+            max_drop=max_drop,
+            p99_ms=p99_ms,
+            trial_frames=trial_frames,
+            min_hz=min_hz,
+            max_hz=max_hz,
+            refine_steps=refine_steps,
+            topics=topic,
+            threads=threads,
+            force=force,
+            report=not no_report,
+            command=['replaybench', *sys.argv[1:]],
+            config=config,
+            model=model,
+            model_family=model_family,
+            labels=labels,
+            conf=conf,
+            iou=iou,
+            device=device,
+            engine=engine,
+            precision=precision,
+        )
         with stop_on_signals(token):
-            result = find_peak_rate(
-                bag,
-                backend,
-                folder,
-                options=backend_options(
-                    threads=threads,
-                    config=config,
-                    model=model,
-                    model_family=model_family,
-                    labels=labels,
-                    conf=conf,
-                    iou=iou,
-                    device=device,
-                    engine=engine,
-                    precision=precision,
-                ),
-                topics=topic or None,
-                max_drop=max_drop,
-                p99_bound_ms=p99_ms,
-                trial_frames=trial_frames,
-                min_hz=min_hz,
-                max_hz=max_hz,
-                refine_steps=refine_steps,
-                force=force,
-                report=not no_report,
-                threads=threads,
-                command=['replaybench', *sys.argv[1:]],
-                progress=show,
-                stop=token,
-            )
+            result = run_peak(settings, progress=show, stop=token)
     except ReplaybenchError as err:
         raise _fail(err) from None
+    folder = settings.out
+    assert folder is not None  # the command line always writes a folder
     typer.echo(f'{"rate Hz":>10}  {"frames":>6}  {"dropped":>7}  {"p99 ms":>8}  verdict')
     for t in result.trials:
         verdict = 'pass' if t.ok else 'fail'

@@ -57,6 +57,7 @@ __all__ = [
     'PEAK_SCHEMA_VERSION',
     'PeakResult',
     'Trial',
+    'check_search',
     'find_peak_rate',
     'peak_rule',
     'trial_verdict',
@@ -220,7 +221,7 @@ def _in_run_folder(sweep: Callable[_P, PeakResult]) -> Callable[_P, PeakResult]:
     return staged
 
 
-def _check(
+def check_search(
     max_drop: float,
     p99_bound_ms: float | None,
     trial_frames: int | None,
@@ -228,6 +229,7 @@ def _check(
     max_hz: float | None,
     refine_steps: int,
 ) -> None:
+    """``UsageError`` naming every search limit out of range."""
     problems = []
     if not 0 <= max_drop < 1:
         problems.append(f'--max-drop must be in [0, 1), not {max_drop}')
@@ -503,7 +505,7 @@ def find_peak_rate(
     """
     bag = Path(bag)
     out_dir = Path(out_dir) if out_dir is not None else None
-    _check(max_drop, p99_bound_ms, trial_frames, min_hz, max_hz, refine_steps)
+    check_search(max_drop, p99_bound_ms, trial_frames, min_hz, max_hz, refine_steps)
     if confirm_trials < 1:
         msg = f'confirmation trials must be 1 or more, not {confirm_trials}'
         raise UsageError(msg)

@@ -233,15 +233,8 @@ def sweep(
     ``SweepResult``; its ``cells`` is a pandas DataFrame (sweep.csv).
     """
     from replaybench.app.run import input_paths
-    from replaybench.app.sweep import sweep as run_sweep
+    from replaybench.app.sweep import run_sweep, sweep_config
 
     names = [backends] if isinstance(backends, str) else list(backends)
-    options.setdefault('command', ())
-    return run_sweep(
-        input_paths(inputs),
-        backends=names,
-        out=Path(out),
-        progress=progress,
-        stop=stop,
-        **options,
-    )
+    settings = sweep_config(input_paths(inputs), backends=names, out=Path(out), **options)
+    return run_sweep(settings, progress=progress, stop=stop)

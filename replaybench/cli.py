@@ -960,49 +960,45 @@ def sweep(
 
     Example: replaybench sweep fixtures/bags/*.mcap --backend hsv --backend null --out sweeps/s1
     """
-    from replaybench.app.run import check_gpu_options
     from replaybench.app.signals import stop_on_signals
-    from replaybench.app.sweep import progress_bar, result_lines
-    from replaybench.app.sweep import sweep as run_sweep
+    from replaybench.app.sweep import progress_bar, result_lines, run_sweep, sweep_config
 
     bar = progress_bar(sys.stderr)
     token = threading.Event()
     try:
-        check_gpu_options(engine, precision)
+        settings = sweep_config(
+            bags,
+            backends=backend,
+            out=out,
+            params=param,
+            address=address,
+            pack=pack,
+            max_retries=max_retries,
+            rate=rate,
+            queue_depth=queue_depth,
+            warmup=warmup,
+            threads=threads,
+            max_frames=max_frames,
+            start=start,
+            duration=duration,
+            topics=topic,
+            ground_truth=ground_truth,
+            config=config,
+            model=model,
+            model_family=model_family,
+            labels=labels,
+            conf=conf,
+            iou=iou,
+            engine=engine,
+            precision=precision,
+            recorded_topic=recorded_topic,
+            annotations=annotations,
+            copy_images=copy_images,
+            report=not no_report,
+            command=['replaybench', *sys.argv[1:]],
+        )
         with stop_on_signals(token):
-            result = run_sweep(
-                bags,
-                backends=backend,
-                out=out,
-                params=param,
-                address=address,
-                pack=pack,
-                max_retries=max_retries,
-                rate=rate,
-                queue_depth=queue_depth,
-                warmup=warmup,
-                threads=threads,
-                max_frames=max_frames,
-                start=start,
-                duration=duration,
-                topics=topic,
-                ground_truth=ground_truth,
-                config=config,
-                model=model,
-                model_family=model_family,
-                labels=labels,
-                conf=conf,
-                iou=iou,
-                engine=engine,
-                precision=precision,
-                recorded_topic=recorded_topic,
-                annotations=annotations,
-                copy_images=copy_images,
-                report=not no_report,
-                command=['replaybench', *sys.argv[1:]],
-                progress=bar,
-                stop=token,
-            )
+            result = run_sweep(settings, progress=bar, stop=token)
     except ReplaybenchError as err:
         raise _fail(err) from None
     finally:

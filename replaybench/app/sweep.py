@@ -70,6 +70,7 @@ __all__ = [
     'InputId',
     'ParamAxis',
     'ProgressBar',
+    'SweepConfig',
     'SweepProgress',
     'SweepResult',
     'SweepSettings',
@@ -84,7 +85,9 @@ __all__ = [
     'plan_cells',
     'progress_bar',
     'result_lines',
+    'run_sweep',
     'sweep',
+    'sweep_config',
 ]
 
 #: Version of the sweep.json layout.
@@ -401,32 +404,31 @@ def plan_cells(
 def _run_config(
     cell: Cell, settings: SweepSettings, out_dir: Path, command: Sequence[str]
 ) -> RunConfig:
-    """The ``RunConfig`` the ``run`` command builds for this input, backend and options."""
-    from replaybench.replay.rate import parse_rate
-    from replaybench.replay.runner import DEFAULT_GROUND_TRUTH_TOPIC, RunConfig
+    """The ``RunConfig`` the ``run`` command builds for this input, backend and options
+    (``replaybench.app.run.run_config``), with the cell's ``--param`` values applied."""
+    from replaybench.app.run import run_config
 
     options = cell_options(settings.backend_options(), dict(cell.params))
-    return RunConfig(
-        inputs=[cell.input.path],
+    config = run_config(
+        [cell.input.path],
         backends=[cell.backend],
-        out_dir=out_dir,
-        rate=parse_rate(settings.rate),
+        out=out_dir,
+        rate=settings.rate,
         queue_depth=settings.queue_depth,
         warmup=settings.warmup,
         threads=options.threads,
         max_frames=settings.max_frames,
-        start_s=settings.start,
-        duration_s=settings.duration,
-        topics=list(settings.topics) or None,
-        ground_truth_topic=settings.ground_truth or DEFAULT_GROUND_TRUTH_TOPIC,
-        ground_truth_explicit=settings.ground_truth is not None,
-        options=options,
-        command=list(command),
-        report=settings.report,
+        start=settings.start,
+        duration=settings.duration,
+        topics=settings.topics,
+        ground_truth=settings.ground_truth,
         recorded_topic=settings.recorded_topic,
         annotations=settings.annotations,
         copy_images=settings.copy_images,
+        report=settings.report,
+        command=command,
     )
+    return replace(config, options=options)
 
 
 def _check_input(inp: InputId, host: str) -> None:
@@ -1340,7 +1342,27 @@ def _check_backend_options(cells: Sequence[Cell], settings: SweepSettings) -> No
             continue
 
 
-def sweep(
+@dataclass(frozen=True, slots=True)
+class SweepConfig:
+    """``replaybench sweep``'s options, checked (``sweep_config``): what ``run_sweep`` runs."""
+
+    inputs: tuple[Path, ...]
+    backends: tuple[str, ...]
+    #: the sweep folder (the same one resumes)
+    out: Path
+    #: the ``--param`` axes, parsed
+    axes: tuple[ParamAxis, ...] = ()
+    #: a Ray cluster to join; None starts a local Ray instance
+    address: str | None = None
+    pack: bool = False
+    max_retries: int = DEFAULT_MAX_RETRIES
+    #: the run options every cell shares
+    settings: SweepSettings = SweepSettings()
+    #: the command line recorded in sweep.json
+    command: tuple[str, ...] = ()
+
+
+def sweep_config(
     inputs: Sequence[str | Path],
     *,
     backends: Sequence[str],
@@ -1371,20 +1393,11 @@ def sweep(
     copy_images: bool = False,
     report: bool = True,
     command: Sequence[str] | None = None,
-    progress: Callable[[SweepProgress], None] | None = None,
-    stop: threading.Event | None = None,
-) -> SweepResult:
-    """Run every (input, backend, ``params`` combination) as one run on Ray; write ``out``.
-
-    The keyword arguments are the ``replaybench sweep`` options. Without ``address`` a local
-    Ray instance is started and shut down at the end (an already initialised Ray connection is
-    used as it is); with it, that cluster is joined. Re-running with the same ``out`` resumes.
-    Raises ``ReplaybenchError`` subclasses for bad options (nothing run); a failing cell is
-    recorded and the others go on (``status`` 'failed'); setting ``stop`` (the command line
-    does on Ctrl-C and SIGTERM, ``replaybench.app.signals``), or a ``KeyboardInterrupt``,
-    gives ``status`` 'interrupted' with the complete cells kept. No signal handler is
-    installed.
-    """
+) -> SweepConfig:
+    """The ``SweepConfig`` of ``replaybench sweep``'s options (each keyword the flag of the same
+    name in snake_case; ``--param`` is ``params``, ``--topic`` is ``topics``). Raises
+    ``UsageError`` naming the option for a bad value, before anything is read or run."""
+    from replaybench.app.run import check_gpu_options
     from replaybench.replay.rate import parse_rate
 
     if not inputs:
@@ -1399,6 +1412,7 @@ def sweep(
     if max_retries < 0:
         msg = f'--max-retries must be >= 0, not {max_retries}'
         raise UsageError(msg)
+    check_gpu_options(engine, precision)
     parse_rate(rate)
     axes = parse_params(params, backends)
     settings = SweepSettings(
@@ -1424,6 +1438,57 @@ def sweep(
         copy_images=copy_images,
         report=report,
     )
+    return SweepConfig(
+        inputs=tuple(Path(i) for i in inputs),
+        backends=tuple(backends),
+        out=Path(out),
+        axes=axes,
+        address=address,
+        pack=pack,
+        max_retries=max_retries,
+        settings=settings,
+        command=tuple(command or ()),
+    )
+
+
+def sweep(
+    inputs: Sequence[str | Path],
+    *,
+    backends: Sequence[str],
+    out: str | Path,
+    progress: Callable[[SweepProgress], None] | None = None,
+    stop: threading.Event | None = None,
+    **options: Any,
+) -> SweepResult:
+    """``run_sweep(sweep_config(inputs, backends=..., out=..., **options))``: the keyword
+    arguments are ``sweep_config``'s, the ``replaybench sweep`` options."""
+    config = sweep_config(inputs, backends=backends, out=out, **options)
+    return run_sweep(config, progress=progress, stop=stop)
+
+
+def run_sweep(
+    config: SweepConfig,
+    *,
+    progress: Callable[[SweepProgress], None] | None = None,
+    stop: threading.Event | None = None,
+) -> SweepResult:
+    """Run every (input, backend, ``--param`` combination) of ``config`` as one run on Ray;
+    write ``config.out``.
+
+    Without ``config.address`` a local Ray instance is started and shut down at the end (an
+    already initialised Ray connection is used as it is); with it, that cluster is joined.
+    Re-running with the same ``out`` resumes. Raises ``ReplaybenchError`` subclasses for an
+    input that cannot be read (nothing run); a failing cell is recorded and the others go on
+    (``status`` 'failed'); setting ``stop`` (the command line does on Ctrl-C and SIGTERM,
+    ``replaybench.app.signals``), or a ``KeyboardInterrupt``, gives ``status`` 'interrupted'
+    with the complete cells kept. No signal handler is installed.
+    """
+    inputs, backends, settings, axes = (
+        config.inputs,
+        list(config.backends),
+        config.settings,
+        config.axes,
+    )
     ids: list[InputId] = []
     for given in inputs:
         identity = input_identity(Path(given), str(given))
@@ -1434,15 +1499,15 @@ def sweep(
     cells = plan_cells(ids, backends, axes, settings)
     _check_backend_options(cells, settings)
     driver = _Sweep(
-        Path(out),
+        config.out,
         cells,
         ids,
         backends,
         axes,
         settings,
-        pack,
-        max_retries,
-        list(command or ()),
+        config.pack,
+        config.max_retries,
+        list(config.command),
         progress,
         stop,
     )
@@ -1450,7 +1515,7 @@ def sweep(
     finished = True
     if todo:
         try:
-            finished = driver.run(todo, address)
+            finished = driver.run(todo, config.address)
         finally:
             driver.finish_concurrency()
     statuses = set(driver.status.values())
@@ -1461,7 +1526,7 @@ def sweep(
     else:
         status = 'complete'
     record = driver.write_outputs(status)
-    return SweepResult(Path(out), status, record, tuple(csv_rows(record)))
+    return SweepResult(config.out, status, record, tuple(csv_rows(record)))
 
 
 # --------------------------------------------------------------------------- command line

@@ -111,22 +111,13 @@ def compare(
     with ``table``, the comparison.csv rows as a pandas DataFrame, and ``verdict``
     (``passed``, ``failed``, ``inconclusive``; None without conditions).
     """
-    from replaybench.comparison.core import compare_runs
-    from replaybench.comparison.gate import evaluate_gate, parse_condition
-    from replaybench.comparison.output import (
-        CSV_COLUMNS,
-        comparison_json,
-        csv_rows,
-        write_comparison,
-    )
+    from replaybench.app.compare import compare_config, run_compare
+    from replaybench.comparison.output import CSV_COLUMNS, comparison_json, csv_rows
     from replaybench.errors import UsageError
     from replaybench.results.io import from_json
     from replaybench.results.model import Comparison, RunResult
     from replaybench.results.runfile import RunData
 
-    conditions = [fail_if] if isinstance(fail_if, str) else list(fail_if)
-    for condition in conditions:
-        parse_condition(condition)
     items: list[str | Path | RunData] = []
     for index, item in enumerate(runs):
         if isinstance(item, RunResult):
@@ -136,23 +127,22 @@ def compare(
             items.append(RunData(item, list(item.frame_records), Path(f'run{index}')))
         else:
             items.append(Path(item))
-    comparison = compare_runs(
-        items, baseline=baseline, baseline_backend=baseline_backend, seed=seed
+    settings = compare_config(
+        items,
+        fail_if=fail_if,
+        strict=strict,
+        allow_inconclusive=allow_inconclusive,
+        baseline=baseline,
+        baseline_backend=baseline_backend,
+        seed=seed,
+        out=out,
     )
-    gate = evaluate_gate(comparison, conditions, strict=strict)
-    if out is not None:
-        write_comparison(
-            comparison,
-            Path(out),
-            gate=gate,
-            conditions=conditions,
-            strict=strict,
-            allow_inconclusive=allow_inconclusive,
-        )
+    outcome = run_compare(settings)
+    comparison, gate = outcome.comparison, list(outcome.gate)
     document = comparison_json(
         comparison,
         gate=gate,
-        conditions=conditions,
+        conditions=settings.fail_if,
         strict=strict,
         allow_inconclusive=allow_inconclusive,
     )

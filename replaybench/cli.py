@@ -1052,18 +1052,22 @@ def compare(
 
     Example: replaybench compare runs/main runs/branch --fail-if "p99_ms > +10%"
     """
-    from replaybench.comparison import main_compare
+    from replaybench.app.compare import compare_config, compare_lines, run_compare
 
-    code = main_compare(
-        run_dirs,
-        out,
-        fail_if,
-        strict,
-        allow_inconclusive=allow_inconclusive,
-        echo=_echo,
-        echo_err=lambda text: _echo(text, err=True),
-    )
-    raise typer.Exit(code)
+    try:
+        settings = compare_config(
+            run_dirs,
+            fail_if=fail_if,
+            strict=strict,
+            allow_inconclusive=allow_inconclusive,
+            out=out,
+        )
+        outcome = run_compare(settings)
+    except ReplaybenchError as err:
+        raise _fail(err) from None
+    for to_stderr, line in compare_lines(outcome):
+        _echo(line, err=to_stderr)
+    raise typer.Exit(outcome.exit_code)
 
 
 @app.command()

@@ -28,7 +28,6 @@ from replaybench.comparison.main import (
     EXIT_GATE_FAILED,
     EXIT_INCONCLUSIVE,
     format_summary,
-    main_compare,
 )
 from replaybench.comparison.output import (
     COMPARISON_SCHEMA_VERSION,
@@ -94,7 +93,6 @@ __all__ = [
     'gate_failed',
     'gate_verdict',
     'judge_series',
-    'main_compare',
     'parse_condition',
     'ratio_ci',
     'ratio_interval',

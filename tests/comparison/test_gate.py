@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from runbuilder import TOPIC, latencies, write_run
 
+from replaybench.app.compare import main_compare
 from replaybench.comparison import (
     CONDITION_GRAMMAR,
     compare_runs,
     evaluate_gate,
     gate_failed,
-    main_compare,
     parse_condition,
 )
 from replaybench.errors import UsageError

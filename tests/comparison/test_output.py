@@ -8,12 +8,12 @@ from pathlib import Path
 import pytest
 from runbuilder import TOPIC, latencies, write_run
 
+from replaybench.app.compare import main_compare
 from replaybench.comparison import (
     COMPARISON_SCHEMA_VERSION,
     CSV_COLUMNS,
     compare_runs,
     evaluate_gate,
-    main_compare,
     write_comparison,
 )
 

@@ -14,6 +14,7 @@ import pytest
 from runbuilder import TOPIC, latencies, write_run
 from typer.testing import CliRunner
 
+from replaybench.app.compare import main_compare
 from replaybench.cli import app
 from replaybench.comparison import (
     EXIT_STATUS,
@@ -22,7 +23,6 @@ from replaybench.comparison import (
     evaluate_gate,
     gate_verdict,
     judge_series,
-    main_compare,
     ratio_interval,
     shift_interval,
 )

@@ -11,8 +11,8 @@ from typing import Any
 import jsonschema
 import pytest
 
+from replaybench.app.compare import main_compare
 from replaybench.backends.base import BackendOptions
-from replaybench.comparison import main_compare
 from replaybench.errors import OutputError
 from replaybench.replay.peak import find_peak_rate
 from replaybench.replay.runner import RunConfig, run_benchmark

@@ -13,7 +13,8 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from replaybench.cli import _FixtureProgress, app
+from replaybench.cli import app
+from replaybench.cli.progress import FixtureProgress
 
 REPO = Path(__file__).resolve().parents[1]
 RAW = str(REPO / 'fixtures' / 'bags' / 'rgb8_raw.mcap')
@@ -250,7 +251,7 @@ class _Terminal(io.StringIO):
 
 def test_fixture_progress_off_a_terminal_is_a_line_every_ten_seconds_and_none_when_quick():
     clock, stream = _Clock(), io.StringIO()
-    progress = _FixtureProgress(stream, clock=clock)
+    progress = FixtureProgress(stream, clock=clock)
     for done in range(1, 301):
         clock.now = done * 0.1  # 30 s for the bag's 300 frames
         progress('rgb8_raw.mcap', done, 300)
@@ -261,7 +262,7 @@ def test_fixture_progress_off_a_terminal_is_a_line_every_ten_seconds_and_none_wh
         'replaybench: writing rgb8_raw.mcap: 300/300 frames (30 s)',
     ]
     quick, stream = _Clock(), io.StringIO()
-    progress = _FixtureProgress(stream, clock=quick)
+    progress = FixtureProgress(stream, clock=quick)
     for done in range(1, 11):
         quick.now = done * 0.01
         progress('jpeg.mcap', done, 10)
@@ -270,7 +271,7 @@ def test_fixture_progress_off_a_terminal_is_a_line_every_ten_seconds_and_none_wh
 
 def test_fixture_progress_on_a_terminal_redraws_one_line_per_bag():
     clock, stream = _Clock(), _Terminal()
-    progress = _FixtureProgress(stream, clock=clock)
+    progress = FixtureProgress(stream, clock=clock)
     for name in ('rgb8_raw.mcap', 'jpeg.mcap'):
         for done in range(1, 4):
             clock.now += 1.0
@@ -288,7 +289,7 @@ def test_the_fixtures_command_reports_progress_per_bag_and_frame(tmp_path, monke
     real = fixtures_package.generate_fixtures
 
     def recording(*args: object, progress: object = None, **kwargs: object) -> list[Path]:
-        assert isinstance(progress, _FixtureProgress)
+        assert isinstance(progress, FixtureProgress)
 
         def both(name: str, done: int, total: int) -> None:
             calls.append((name, done, total))
@@ -322,3 +323,29 @@ def test_no_hash_records_a_null_sha256_and_says_so_on_the_terminal(two_runs, tmp
     assert compared.exit_code == 0, compared.output
     rows = (cmp / 'comparison.csv').read_text(encoding='utf-8')
     assert 'not checked' in rows
+
+
+def test_help_lists_the_commands_in_the_order_of_the_command_modules() -> None:
+    from replaybench.cli import COMMAND_MODULES
+
+    result = CliRunner().invoke(app, ['--help'])
+    assert result.exit_code == 0
+    listed = [
+        line.split()[0]
+        for line in result.output.split('Commands:', 1)[1].splitlines()
+        if line.startswith('  ') and line.strip()
+    ]
+    assert listed == [
+        'run',
+        'info',
+        'backends',
+        'doctor',
+        'fixtures',
+        'peak',
+        'sweep',
+        'compare',
+        'report',
+    ]
+    package = Path(__file__).resolve().parents[1] / 'replaybench' / 'cli'
+    modules = {p.stem for p in package.glob('*.py')} - {'__init__', '_common', 'progress'}
+    assert modules == set(COMMAND_MODULES)

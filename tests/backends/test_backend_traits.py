@@ -61,7 +61,7 @@ def test_no_backend_name_list_is_kept_outside_the_registry():
     import replaybench
 
     root = Path(replaybench.__file__).parent
-    for path in [root / 'cli.py', *root.glob('replay/*.py'), *root.glob('app/*.py')]:
+    for path in [*root.glob('cli/*.py'), *root.glob('replay/*.py'), *root.glob('app/*.py')]:
         text = path.read_text(encoding='utf-8')
         for name in ("'cuda'", "'tensorrt'", "'hsv-cuda'"):
             code = [line for line in text.splitlines() if name in line and '#' not in line]

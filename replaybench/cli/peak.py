@@ -1,0 +1,131 @@
+"""``replaybench peak``: the highest rate a backend sustains."""
+
+from __future__ import annotations
+
+import sys
+import threading
+from pathlib import Path  # noqa: TC003 - typer reads the annotations at run time
+from typing import Annotated, Any
+
+import typer
+
+from replaybench.cli._common import EXIT_INTERRUPTED, app, echo, fail, fmt
+from replaybench.errors import ReplaybenchError
+
+__all__: list[str] = []
+
+
+@app.command()
+def peak(
+    bag: Annotated[Path, typer.Argument(help='Bag file or rosbag2 folder.', show_default=False)],
+    backend: Annotated[str, typer.Option('--backend', '-b', help='Backend to sweep.')],
+    out: Annotated[
+        Path | None,
+        typer.Option('--out', '-o', help='Folder for peak.json, peak.html and the trial runs.'),
+    ] = None,
+    force: Annotated[
+        bool, typer.Option('--force', help='Replace the peak folder --out, once the sweep ends.')
+    ] = False,
+    max_drop: Annotated[
+        float,
+        typer.Option('--max-drop', min=0.0, max=1.0, help='Largest dropped fraction allowed.'),
+    ] = 0.05,
+    p99_ms: Annotated[
+        float | None, typer.Option('--p99-ms', min=0.0, help='Latency p99 bound in ms.')
+    ] = None,
+    trial_frames: Annotated[
+        int | None,
+        typer.Option('--trial-frames', min=2, help='Frames per trial (default: up to 300).'),
+    ] = None,
+    min_hz: Annotated[float, typer.Option('--min-hz', min=0.001, help='Lowest rate tried.')] = 1.0,
+    max_hz: Annotated[
+        float | None, typer.Option('--max-hz', min=0.001, help='Highest rate tried.')
+    ] = None,
+    refine_steps: Annotated[
+        int, typer.Option('--refine-steps', min=0, help='Bisection steps after the coarse search.')
+    ] = 4,
+    topic: Annotated[
+        list[str], typer.Option('--topic', '-t', help='Image topic(s) to replay.')
+    ] = [],  # noqa: B006
+    threads: Annotated[
+        int | None, typer.Option('--threads', min=1, help='CPU threads for OpenCV and backends.')
+    ] = None,
+    config: Annotated[Path | None, typer.Option('--config', help='Backend TOML file.')] = None,
+    model: Annotated[Path | None, typer.Option('--model', help='ONNX model.')] = None,
+    model_family: Annotated[str | None, typer.Option('--model-family', help='Layout.')] = None,
+    labels: Annotated[str | None, typer.Option('--labels', help='Class names.')] = None,
+    conf: Annotated[float | None, typer.Option('--conf', min=0.0, max=1.0)] = None,
+    iou: Annotated[float | None, typer.Option('--iou', min=0.0, max=1.0)] = None,
+    device: Annotated[int, typer.Option('--device', min=0, help='GPU index.')] = 0,
+    engine: Annotated[str, typer.Option('--engine', help='auto, ort or torch.')] = 'auto',
+    precision: Annotated[
+        str, typer.Option('--precision', help='fp32 (TF32 off), tf32 or fp16.')
+    ] = 'fp32',
+    no_report: Annotated[bool, typer.Option('--no-report', help='Skip peak.html.')] = False,
+) -> None:
+    """Find the highest replay rate a backend sustains without dropping frames.
+
+    Example: replaybench peak fixtures/bags/jpeg.mcap --backend hsv --max-drop 0.05 --out runs/peak
+    """
+    from replaybench.app.peak import peak_config, run_peak
+    from replaybench.app.signals import stop_on_signals
+    from replaybench.replay.runner import new_run_dir
+
+    def show(trial: Any) -> None:
+        verdict = 'pass' if trial.ok else 'fail'
+        typer.echo(
+            f'{trial.rate_hz:g} Hz: dropped {trial.dropped}/{trial.frames}, '
+            f'p99 {fmt(trial.p99_ms)} ms, {verdict}',
+            err=True,
+        )
+
+    token = threading.Event()
+    try:
+        settings = peak_config(
+            bag,
+            backend=backend,
+            out=out if out is not None else new_run_dir(),
+            max_drop=max_drop,
+            p99_ms=p99_ms,
+            trial_frames=trial_frames,
+            min_hz=min_hz,
+            max_hz=max_hz,
+            refine_steps=refine_steps,
+            topics=topic,
+            threads=threads,
+            force=force,
+            report=not no_report,
+            command=['replaybench', *sys.argv[1:]],
+            config=config,
+            model=model,
+            model_family=model_family,
+            labels=labels,
+            conf=conf,
+            iou=iou,
+            device=device,
+            engine=engine,
+            precision=precision,
+        )
+        with stop_on_signals(token):
+            result = run_peak(settings, progress=show, stop=token)
+    except ReplaybenchError as err:
+        raise fail(err) from None
+    folder = settings.out
+    assert folder is not None  # the command line always writes a folder
+    typer.echo(f'{"rate Hz":>10}  {"frames":>6}  {"dropped":>7}  {"p99 ms":>8}  verdict')
+    for t in result.trials:
+        verdict = 'pass' if t.ok else 'fail'
+        typer.echo(
+            f'{t.rate_hz:>10.3f}  {t.frames:>6}  {t.dropped:>7}  {fmt(t.p99_ms):>8}  {verdict}'
+        )
+    if result.peak_hz is None:
+        typer.echo(f'{backend}: no rate tried met the limits')
+    else:
+        typer.echo(f'{backend}: peak sustainable rate {result.peak_hz:.3f} Hz')
+    for warning in result.warnings:
+        echo(f'replaybench: warning: {warning}', err=True)
+    echo(f'Peak folder: {folder}')
+    if (folder / 'peak.html').exists():
+        echo(f'Report: {folder / "peak.html"}')
+    if result.status == 'interrupted':
+        raise typer.Exit(EXIT_INTERRUPTED)

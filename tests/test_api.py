@@ -147,8 +147,12 @@ def test_a_run_without_out_writes_nothing_and_matches_a_run_with_a_folder(tmp_pa
     on_disk = rb.run(BAG, backends=['hsv', 'null'], out=tmp_path / 'run')
     assert_frame_equal(in_memory.frames[FIXED_COLUMNS], on_disk.frames[FIXED_COLUMNS])
     assert_frame_equal(in_memory.summary[FIXED_SUMMARY], on_disk.summary[FIXED_SUMMARY])
-    assert in_memory.outputs.report is None
-    assert in_memory.outputs.samples == ()
+    # a run kept in memory names no file; the folder's run names its own
+    assert in_memory.outputs is None
+    assert on_disk.outputs is not None
+    assert on_disk.outputs.frames_csv == 'frames.csv'
+    assert on_disk.outputs.report == 'report.html'
+    assert on_disk.outputs.samples
 
 
 def test_repeated_calls_give_identical_results():

@@ -1668,5 +1668,7 @@ def _run_record(
             summary_csv='summary.csv',
             report='report.html' if report else None,
             samples=tuple(samples or ()),
-        ),
+        )
+        if config.out_dir is not None
+        else None,
     )

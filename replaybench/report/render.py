@@ -906,7 +906,7 @@ def _sample_entries(run: RunResult) -> list[tuple[str, str, str]]:
         for meta in source.topics:
             known[sample_relpath(source.index, meta.name)] = meta.name
     result = []
-    for rel in run.outputs.samples:
+    for rel in run.outputs.samples if run.outputs is not None else ():
         topic = known.get(rel, '')
         result.append((rel, topic, topic or PurePosixPath(rel).name))
     return result

@@ -461,7 +461,9 @@ class RunResult:
     counts: RunCounts | None = None
     skipped: Mapping[str, int] = field(default_factory=_empty)
     warnings: tuple[str, ...] = ()
-    outputs: RunOutputs = RunOutputs()
+    #: the run folder's files; None for a run kept in memory (``rb.run(..., out=None)``),
+    #: which wrote none (run.json always holds them)
+    outputs: RunOutputs | None = field(default=None, metadata=_OMIT_NONE)
     #: ``replaybench sweep`` adds the cell's section to the run.json of each of its cells
     sweep: Mapping[str, Any] | None = field(default=None, metadata=_OMIT_NONE)
     #: frames.csv's rows as the file holds them (not in run.json): set by ``replaybench.run``

@@ -278,7 +278,7 @@ def load_run(run_dir: str | Path) -> RunData:
         msg = f'{run_dir}: no run.json (not a replaybench run folder, or the run did not finish)'
         raise SourceError(msg) from None
     run = read_run_result(run_json)
-    name = run.outputs.frames_csv
+    name = run.outputs.frames_csv if run.outputs is not None else 'frames.csv'
     frames_csv = run_dir / (name or 'frames.csv')
     if not frames_csv.resolve().is_relative_to(run_dir.resolve()):
         msg = f'{run_json}: outputs.frames_csv {name!r} points outside the run folder'

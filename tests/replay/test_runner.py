@@ -474,6 +474,7 @@ def test_the_sample_is_the_middle_frame_read_again_with_every_backends_boxes(tmp
             ServiceTimeBackend(clock, 0.01) if name == 'service' else _null(options)
         ),
     )
+    assert outcome.run.outputs is not None
     assert outcome.run.outputs.samples == ('samples/input0_cam_image_raw.jpg',)
     with open_source(bag) as source:
         middle = next(m for m in source.messages() if m.seq == 4)

@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from replaybench.comparison.core import Comparison, MetricComparison
     from replaybench.comparison.gate import GateResult
 
-__all__ = ['EXIT_GATE_FAILED', 'EXIT_INCONCLUSIVE', 'format_summary']
+__all__ = ['EXIT_GATE_FAILED', 'EXIT_INCONCLUSIVE', 'format_summary', 'ratio_text']
 
 #: Exit status when a gate condition fails (bad input is ReplaybenchError.exit_code, 2).
 EXIT_GATE_FAILED = EXIT_STATUS['failed']
@@ -25,7 +25,12 @@ EXIT_INCONCLUSIVE = EXIT_STATUS['inconclusive']
 _SHORT: dict[str, str] = {'median_ms': 'median', 'p99_ms': 'p99', 'mean_ms': 'mean', 'fps': 'fps'}
 
 
-def _ratio(m: MetricComparison) -> str:
+def ratio_text(m: MetricComparison) -> str:
+    """A metric's change as the summary prints it: the whole-run ratio and the interval of the
+    typical change (the one the gate judges). Where the whole-run ratio lies outside that
+    interval (interference slowed a few stretches of one run: docs/compare.md), the interval is
+    shown beside the typical ratio it is centred on, so no number sits outside its own
+    brackets."""
     if m.ratio is None:
         return 'n/a'
     text = f'×{m.ratio:.3f}'
@@ -33,7 +38,10 @@ def _ratio(m: MetricComparison) -> str:
         return text + ' (no CI)'
     lo, hi = m.ratio_ci
     mark = '' if m.significant else ' n.s.'
-    return f'{text} [{lo:.3f}, {hi:.3f}]{mark}'
+    interval = f'[{lo:.3f}, {hi:.3f}]'
+    if not lo <= m.ratio <= hi and m.typical_ratio is not None:
+        return f'{text} (typical ×{m.typical_ratio:.3f} {interval}){mark}'
+    return f'{text} {interval}{mark}'
 
 
 def format_summary(
@@ -46,14 +54,15 @@ def format_summary(
         + (f' (backend {comparison.baseline_backend})' if comparison.baseline_backend else ''),
         (
             f'ratios candidate/baseline; {level}% CIs of the typical change, exact rank '
-            'intervals between blocks of frames (n.s. = not significant):'
+            'intervals between blocks of frames, or between frames below 20 (n.s. = not '
+            'significant):'
         ),
     ]
     for row in comparison.rows:
         if row.role != 'candidate':
             continue
         versus = f' vs {row.baseline_backend}' if row.baseline_backend != row.backend else ''
-        parts = [f'{_SHORT[k]} {_ratio(row.metrics[k])}' for k in _SHORT]
+        parts = [f'{_SHORT[k]} {ratio_text(row.metrics[k])}' for k in _SHORT]
         acc = row.metrics['map50']
         if acc.diff is not None:
             parts.append(f'map50 {acc.diff:+.4f} (no CI)')

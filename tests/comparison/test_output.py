@@ -192,3 +192,21 @@ def test_one_real_run_compares_hsv_with_null(real_runs: tuple[Path, Path], tmp_p
     )  # fmt: skip
     assert code == 0  # hsv finds the fixture's blobs, null finds nothing: map50 goes up
     assert any('hsv' in line and 'vs null' in line for line in out)
+
+
+def test_a_whole_run_ratio_outside_the_interval_is_printed_beside_the_typical_ratio() -> None:
+    from replaybench.comparison.core import MetricComparison
+    from replaybench.comparison.main import ratio_text
+
+    inside = MetricComparison(
+        'p99_ms', 9.0, ratio=1.02, ratio_ci=(0.8, 1.27), typical_ratio=1.03, method='per-frame'
+    )
+    assert ratio_text(inside) == '×1.020 [0.800, 1.270] n.s.'
+    outside = MetricComparison(
+        'p99_ms', 7.0, ratio=0.775, ratio_ci=(0.797, 1.267), typical_ratio=1.027
+    )
+    assert ratio_text(outside) == '×0.775 (typical ×1.027 [0.797, 1.267]) n.s.'
+    slower = MetricComparison('median_ms', 20.0, ratio=2.0, ratio_ci=(1.9, 2.1), typical_ratio=2.0)
+    assert ratio_text(slower) == '×2.000 [1.900, 2.100]'
+    assert ratio_text(MetricComparison('mean_ms', None)) == 'n/a'
+    assert ratio_text(MetricComparison('fps', 5.0, ratio=1.1)) == '×1.100 (no CI)'

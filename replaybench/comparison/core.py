@@ -212,7 +212,7 @@ def _timing(
 ) -> MetricComparison:
     """``change`` is None for a row without a baseline (baseline and unpaired rows)."""
     mine = _reps(own, metric)
-    value_ci = percentile_interval(mine, confidence) if mine is not None else None
+    value_ci = percentile_interval(mine, confidence, point=value) if mine is not None else None
     if change is None:
         return MetricComparison(metric, value, value_ci)
     ratio = diff = None

@@ -3,11 +3,11 @@ and how well the two agree, in one table narrow enough for a laptop screen.
 
 * **Fastest**: the highest throughput (summary ``throughput_fps``) among the backends that
   detect; ``null`` (the harness alone) is a reference and is only named when it ran alone. Its
-  FPS, p50 and p99 latency come with 95 % block-bootstrap intervals computed from the measured
-  frames of frames.csv by the function that gives run.json and summary.csv theirs and
-  ``replaybench compare`` a row's own interval (``replaybench.results.intervals``, the same
-  seed: the same intervals everywhere; none below ``MIN_FRAMES`` measured frames), so the same
-  run folder gives the same page.
+  FPS, p50 and p99 latency come with the 95 % block-bootstrap intervals of its summary row, the
+  ones run.json and summary.csv hold (``replaybench.results.intervals``, which also gives
+  ``replaybench compare`` a row's own interval: the same intervals everywhere; none below
+  ``MIN_FRAMES`` measured frames); a run.json without them gets the same computation on the
+  row's frames. The same run folder gives the same page.
 * **Most accurate**: the highest mAP@0.5 against ground truth; none without ground truth.
 * **Agreement**: from run.json ``agreement``, the share of each of the two backends' detections
   that the other one matched, and their mean IoU.
@@ -80,11 +80,25 @@ def _map50(row: SummaryRow) -> float | None:
     return _num(row.map50)
 
 
+def _pair(low: float | None, high: float | None) -> Interval | None:
+    lo, hi = _num(low), _num(high)
+    return (lo, hi) if lo is not None and hi is not None else None
+
+
 def _intervals(
-    backend: str, topic: str, records: Sequence[FrameRecord]
+    row: SummaryRow, records: Sequence[FrameRecord]
 ) -> tuple[Interval | None, Interval | None, Interval | None]:
-    """95 % intervals of (FPS, p50, p99) of one backend on one topic, or None each."""
-    found = row_intervals(backend, topic, measured_series(records))
+    """The 95 % intervals of (FPS, p50, p99) of ``row``: those run.json holds, or where it
+    holds none (a run.json written without them), the same computation on the row's frames."""
+    held = (
+        _pair(row.throughput_fps_ci_low, row.throughput_fps_ci_high),
+        _pair(row.latency_ms_p50_ci_low, row.latency_ms_p50_ci_high),
+        _pair(row.latency_ms_p99_ci_low, row.latency_ms_p99_ci_high),
+    )
+    if any(held):
+        return held
+    points = (_num(row.latency_ms_p50), _num(row.latency_ms_p99), _num(row.throughput_fps))
+    found = row_intervals(row.backend, row.topic, measured_series(records), points=points)
     return found.fps, found.p50, found.p99
 
 
@@ -133,10 +147,8 @@ def topic_headlines(
         fast_name = fastest.backend if fastest is not None else None
         acc_name = accurate.backend if accurate is not None else None
         fps_ci = p50_ci = p99_ci = None
-        if fast_name is not None:
-            fps_ci, p50_ci, p99_ci = _intervals(
-                fast_name, topic, groups.get((fast_name, topic), [])
-            )
+        if fastest is not None:
+            fps_ci, p50_ci, p99_ci = _intervals(fastest, groups.get((fastest.backend, topic), []))
         agreement = None
         if fast_name is not None and acc_name is not None and fast_name != acc_name:
             agreement = _agreement(run, topic, fast_name, acc_name)

@@ -179,8 +179,10 @@ def row_intervals(
     run: int = 0,
     n_boot: int = DEFAULT_RESAMPLES,
     confidence: float = CONFIDENCE,
+    points: tuple[float | None, float | None, float | None] = (None, None, None),
 ) -> Intervals:
-    """The 95 % intervals of p50, p99 and FPS of one (backend, topic)."""
+    """The 95 % intervals of p50, p99 and FPS of one (backend, topic); ``points``, the
+    reported (p50, p99, FPS), each lies in its interval (``percentile_interval``)."""
     reps = replicates(
         series.latency_ms,
         series.intervals_s,
@@ -189,10 +191,11 @@ def row_intervals(
     )
     if reps is None:
         return Intervals(None, None, None, None)
+    p50, p99, fps = points
     return Intervals(
-        percentile_interval(reps.p50, confidence),
-        percentile_interval(reps.p99, confidence),
-        percentile_interval(reps.fps, confidence) if reps.fps is not None else None,
+        percentile_interval(reps.p50, confidence, point=p50),
+        percentile_interval(reps.p99, confidence, point=p99),
+        percentile_interval(reps.fps, confidence, point=fps) if reps.fps is not None else None,
         reps.block,
     )
 
@@ -274,7 +277,13 @@ def with_intervals(
     out = []
     for s in summaries:
         series = measured_series(groups.get((s.backend, s.topic), []))
-        found = row_intervals(s.backend, s.topic, series, seed=seed)
+        found = row_intervals(
+            s.backend,
+            s.topic,
+            series,
+            seed=seed,
+            points=(s.latency_ms_p50, s.latency_ms_p99, s.throughput_fps),
+        )
         p50, p99, fps = found.p50, found.p99, found.fps
         out.append(
             replace(

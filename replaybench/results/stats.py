@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from replaybench.results.records import written
+
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
@@ -151,10 +153,10 @@ def _throughput(ordered: Sequence[FrameRecord], measured: Sequence[FrameRecord])
         start = previous.done_s
     else:
         start = first.start_s
-    ends = [r.done_s for r in measured if r.done_s is not None]
+    ends = [written(r.done_s, 'done_s') for r in measured if r.done_s is not None]
     if start is None or not ends:
         return None
-    window = max(ends) - start
+    window = max(ends) - written(start, 'done_s')
     if not window > 0:
         return None
     return len(measured) / window
@@ -164,8 +166,10 @@ def _summary(backend: str, topic: str, records: Sequence[FrameRecord]) -> Summar
     ordered = _replay_order(records)
     processed = [r for r in ordered if r.status == 'ok']
     measured = [r for r in processed if not r.warmup]
+    # as frames.csv holds them (0.1 µs): summary.csv follows from frames.csv, and from the same
+    # values as the intervals around it (replaybench.results.intervals.measured_series)
     latencies = np.asarray(
-        [r.latency_ms for r in measured if r.latency_ms is not None],
+        [written(r.latency_ms, 'latency_ms') for r in measured if r.latency_ms is not None],
         dtype=np.float64,
     )
     lat: dict[str, float | None] = dict.fromkeys(

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import sys
 import time
 import types
@@ -28,6 +29,7 @@ from replaybench.replay import Rate, VirtualClock, resources
 from replaybench.replay.resources import ResourceSampler
 from replaybench.replay.runner import RunConfig, run_benchmark
 from replaybench.report import render_report
+from replaybench.results.bootstrap import percentile_interval
 from replaybench.results.intervals import (
     CV_LIMIT,
     DRIFT_MIN_FRAMES,
@@ -459,3 +461,40 @@ def test_without_cpufreq_cpu_throttling_cannot_be_judged_and_gives_no_warning(
     assert summary['gpu_throttle_reasons'] is None
     assert all(p['cpu_mhz'] is None for p in sampler.series())
     assert throttle_warnings(summary) == []
+
+
+# ---------------------------------------------------------- estimates inside their intervals
+
+
+def _record(seq: int, latency_ms: float) -> FrameRecord:
+    release = seq * 0.01
+    return FrameRecord(
+        0, 'null', '/cam', seq, seq, seq, 'ok', '', False, False,
+        release, release, release + latency_ms / 1000.0, latency_ms=latency_ms,
+    )  # fmt: skip
+
+
+def test_the_summary_and_its_intervals_come_from_the_values_frames_csv_holds() -> None:
+    # 15.84 µs a frame: frames.csv holds 0.0158 ms. A p99 of the unrounded values (0.01584)
+    # lay above the interval of the written ones ([0.0158, 0.0158]).
+    records = [_record(seq, 0.01584) for seq in range(40)]
+    [summary] = with_intervals(summarize(records), records)
+    assert summary.latency_ms_p50 == summary.latency_ms_p99 == 0.0158
+    for point, low, high in (
+        (summary.latency_ms_p50, summary.latency_ms_p50_ci_low, summary.latency_ms_p50_ci_high),
+        (summary.latency_ms_p99, summary.latency_ms_p99_ci_low, summary.latency_ms_p99_ci_high),
+        (summary.throughput_fps, summary.throughput_fps_ci_low, summary.throughput_fps_ci_high),
+    ):
+        assert low is not None
+        assert high is not None
+        assert point is not None
+        assert low <= point <= high
+
+
+def test_an_interval_is_extended_to_an_estimate_it_would_leave_out() -> None:
+    replicates = np.array([2.0, 2.1, 2.2, 2.3, 2.4])
+    assert percentile_interval(replicates) == pytest.approx((2.01, 2.39))
+    assert percentile_interval(replicates, point=1.5) == pytest.approx((1.5, 2.39))
+    assert percentile_interval(replicates, point=3.0) == pytest.approx((2.01, 3.0))
+    assert percentile_interval(replicates, point=2.2) == pytest.approx((2.01, 2.39))
+    assert percentile_interval(replicates, point=math.nan) == pytest.approx((2.01, 2.39))

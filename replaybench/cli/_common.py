@@ -53,6 +53,8 @@ _METAVARS = {
     'duration': 'S',
     'size': 'WxH',
     'fail_if': 'CONDITION',
+    'baseline': 'INDEX',
+    'baseline_backend': 'NAME',
     'param': 'BACKEND.KEY=V,...',
     'address': 'HOST:PORT',
     'max_drop': 'FRACTION',

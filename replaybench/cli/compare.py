@@ -17,7 +17,9 @@ __all__: list[str] = []
 def compare(
     run_dirs: Annotated[
         list[Path],
-        typer.Argument(help='Run folders; the first is the baseline.', show_default=False),
+        typer.Argument(
+            help='Run folders; the first is the baseline (see --baseline).', show_default=False
+        ),
     ],
     out: Annotated[
         Path | None,
@@ -44,6 +46,18 @@ def compare(
             help='Exit 0, not 3, when no condition failed but the data could not decide one.',
         ),
     ] = False,
+    baseline: Annotated[
+        int,
+        typer.Option('--baseline', min=0, help='Which run folder is the baseline, counted from 0.'),
+    ] = 0,
+    baseline_backend: Annotated[
+        str | None,
+        typer.Option(
+            '--baseline-backend',
+            help="Compare every row with this backend of the baseline run (default: the row's "
+            'own backend; with one run folder, its first backend).',
+        ),
+    ] = None,
 ) -> None:
     """Compare runs across backends, machines or GPUs, with confidence intervals and a CI gate.
 
@@ -61,6 +75,8 @@ def compare(
             fail_if=fail_if,
             strict=strict,
             allow_inconclusive=allow_inconclusive,
+            baseline=baseline,
+            baseline_backend=baseline_backend,
             out=out,
         )
         outcome = run_compare(settings)

@@ -81,3 +81,29 @@ def test_an_unwritable_out_is_bad_input(two_runs: tuple[Path, Path], tmp_path: P
     with pytest.raises(UsageError, match='cannot write into') as caught:
         run_compare(compare_config(two_runs, out=blocker / 'cmp'))
     assert caught.value.exit_code == 2
+
+
+def test_the_command_line_chooses_the_baseline_run_and_backend(
+    two_runs: tuple[Path, Path],
+) -> None:
+    from typer.testing import CliRunner
+
+    from replaybench.cli import app
+
+    a, b = two_runs
+    runner = CliRunner()
+    result = runner.invoke(app, ['compare', str(a), str(b), '--baseline', '1'])
+    assert result.exit_code == 0, result.output
+    assert result.stdout.splitlines()[0].startswith(f'baseline: {b.name} ')
+    result = runner.invoke(app, ['compare', str(a), '--baseline-backend', 'null'])
+    assert result.exit_code == 0, result.output
+    assert '(backend null)' in result.stdout.splitlines()[0]
+    assert any('· hsv · ' in line and 'vs null' in line for line in result.stdout.splitlines())
+    result = runner.invoke(app, ['compare', str(a), str(b), '--baseline', '2'])
+    assert result.exit_code == 2
+    assert result.stderr.strip() == (
+        'replaybench: error: baseline index 2 out of range: 2 run folder(s) given'
+    )
+    result = runner.invoke(app, ['compare', str(a), str(b), '--baseline-backend', 'cuda'])
+    assert result.exit_code == 2
+    assert "baseline backend 'cuda' is not in" in result.stderr

@@ -222,9 +222,10 @@ def sweep(
     setting ``stop`` ends it as interrupted, the complete cells kept. Returns the
     ``SweepResult``; its ``cells`` is a pandas DataFrame (sweep.csv).
     """
-    from replaybench.app.run import input_paths
+    from replaybench.app.run import input_paths, name_list
     from replaybench.app.sweep import run_sweep, sweep_config
 
-    names = [backends] if isinstance(backends, str) else list(backends)
-    settings = sweep_config(input_paths(inputs), backends=names, out=Path(out), **options)
+    settings = sweep_config(
+        input_paths(inputs), backends=name_list(backends), out=Path(out), **options
+    )
     return run_sweep(settings, progress=progress, stop=stop)

@@ -8,10 +8,12 @@ The command line and ``replaybench.compare`` both parse their options into a
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from replaybench.app.run import name_list
 from replaybench.comparison.core import compare_runs
 from replaybench.comparison.gate import evaluate_gate, gate_verdict, parse_condition
 from replaybench.comparison.main import format_summary
@@ -70,7 +72,7 @@ def compare_config(
 ) -> CompareConfig:
     """The ``CompareConfig`` of ``replaybench compare``'s options (``--fail-if`` is
     ``fail_if``); ``UsageError`` for a condition that does not parse, before any run is read."""
-    conditions = (fail_if,) if isinstance(fail_if, str) else tuple(fail_if)
+    conditions = tuple(name_list(fail_if))
     for condition in conditions:
         parse_condition(condition)
     return CompareConfig(
@@ -152,14 +154,12 @@ def compare_lines(outcome: CompareOutcome) -> list[tuple[bool, str]]:
     lines += [(True, f'replaybench: gate: {r.explanation}') for r in gate if r.verdict != 'passed']
     if outcome.written:
         csv_path, html_path, json_path = outcome.written
-        lines += [(False, f'Comparison: {html_path}'), (False, f'CSV: {csv_path}')]
-        lines.append((False, f'JSON: {json_path}'))
+        for name, path in (('Comparison', html_path), ('CSV', csv_path), ('JSON', json_path)):
+            lines.append((False, f'{name}: {path}'))
     return lines
 
 
 def _stderr(line: str) -> None:
-    import sys
-
     print(line, file=sys.stderr)
 
 

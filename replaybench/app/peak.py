@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from replaybench.app.run import backend_options
+from replaybench.app.run import backend_options, name_list
 from replaybench.replay.peak import (
     CONFIRM_TRIALS,
     DEFAULT_TRIAL_FRAMES,
@@ -105,39 +105,20 @@ def peak_config(
     force: bool = False,
     report: bool = True,
     command: Sequence[str] = (),
-    config: str | os.PathLike[str] | None = None,
-    model: str | os.PathLike[str] | None = None,
-    model_family: str | None = None,
-    labels: str | None = None,
-    conf: float | None = None,
-    iou: float | None = None,
-    device: int = 0,
-    engine: str = 'auto',
-    precision: str = 'fp32',
+    **options: Any,
 ) -> PeakConfig:
     """The ``PeakConfig`` of ``replaybench peak``'s options: each keyword is the flag of the
-    same name in snake_case (``--topic`` is ``topics``, ``--no-report`` is ``report=False``).
-    Raises ``UsageError`` naming the option for a value out of range, the backend options
-    included, before anything runs."""
+    same name in snake_case (``--topic`` is ``topics``, ``--no-report`` is ``report=False``);
+    ``options`` are the backend options, the keywords of ``app.run.backend_options``
+    (``config``, ``model``, ``conf``, ``engine``, ...). Raises ``UsageError`` naming the option
+    for a value out of range, the backend options included, before anything runs."""
     check_search(max_drop, p99_ms, trial_frames, min_hz, max_hz, refine_steps)
-    names = [topics] if isinstance(topics, str) else list(topics or ())
     return PeakConfig(
         input=Path(input),
         backend=backend,
         out=Path(out) if out is not None else None,
-        options=backend_options(
-            threads=threads,
-            config=Path(config) if config is not None else None,
-            model=Path(model) if model is not None else None,
-            model_family=model_family,
-            labels=labels,
-            conf=conf,
-            iou=iou,
-            device=device,
-            engine=engine,
-            precision=precision,
-        ),
-        topics=tuple(names),
+        options=backend_options(threads=threads, **options),
+        topics=tuple(name_list(topics)),
         max_drop=max_drop,
         p99_bound_ms=p99_ms,
         trial_frames=trial_frames,

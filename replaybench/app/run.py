@@ -35,6 +35,7 @@ __all__ = [
     'backend_options',
     'check_gpu_options',
     'input_paths',
+    'name_list',
     'run_benchmark',
     'run_config',
 ]
@@ -47,7 +48,8 @@ def input_paths(value: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]
     return [Path(v) for v in value]
 
 
-def _names(value: str | Sequence[str] | None) -> list[str]:
+def name_list(value: str | Sequence[str] | None) -> list[str]:
+    """One name or several (``--backend``, ``--topic``, ``--fail-if``), as a list."""
     if value is None:
         return []
     return [value] if isinstance(value, str) else list(value)
@@ -173,7 +175,7 @@ def run_config(
         raise UsageError(msg)
     return RunConfig(
         inputs=input_paths(inputs),
-        backends=_names(backends),
+        backends=name_list(backends),
         out_dir=Path(out) if out is not None else None,
         force=force,
         rate=parsed,
@@ -183,7 +185,7 @@ def run_config(
         max_frames=max_frames,
         start_s=start,
         duration_s=duration,
-        topics=_names(topics) or None,
+        topics=name_list(topics) or None,
         ground_truth_topic=ground_truth or DEFAULT_GROUND_TRUTH_TOPIC,
         ground_truth_explicit=ground_truth is not None,
         options=backend_options(

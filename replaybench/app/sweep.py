@@ -1483,27 +1483,22 @@ def run_sweep(
     ``replaybench.app.signals``), or a ``KeyboardInterrupt``, gives ``status`` 'interrupted'
     with the complete cells kept. No signal handler is installed.
     """
-    inputs, backends, settings, axes = (
-        config.inputs,
-        list(config.backends),
-        config.settings,
-        config.axes,
-    )
+    settings = config.settings
     ids: list[InputId] = []
-    for given in inputs:
-        identity = input_identity(Path(given), str(given))
+    for given in config.inputs:
+        identity = input_identity(given, str(given))
         if any(i.path == identity.path for i in ids):
             msg = f'{given} is given twice'
             raise UsageError(msg)
         ids.append(identity)
-    cells = plan_cells(ids, backends, axes, settings)
+    cells = plan_cells(ids, config.backends, config.axes, settings)
     _check_backend_options(cells, settings)
     driver = _Sweep(
         config.out,
         cells,
         ids,
-        backends,
-        axes,
+        list(config.backends),
+        config.axes,
         settings,
         config.pack,
         config.max_retries,

@@ -86,7 +86,7 @@ def load_run(path: str | os.PathLike[str]) -> RunResult:
     ``rb.load_run(folder)`` equals the ``RunResult`` that ``rb.run(..., out=folder)`` returned,
     DataFrames included. Raises ``SourceError`` when the folder is not a readable run.
     """
-    from replaybench.results.runfile import load_run as read_folder
+    from replaybench.results.folder import load_run as read_folder
 
     data = read_folder(Path(path))
     return dataclasses.replace(data.run, frame_records=tuple(data.frames))
@@ -114,9 +114,9 @@ def compare(
     from replaybench.app.compare import compare_config, run_compare
     from replaybench.comparison.output import CSV_COLUMNS, comparison_json, csv_rows
     from replaybench.errors import UsageError
+    from replaybench.results.folder import RunData
     from replaybench.results.io import from_json
     from replaybench.results.model import Comparison, RunResult
-    from replaybench.results.runfile import RunData
 
     items: list[str | Path | RunData] = []
     for index, item in enumerate(runs):

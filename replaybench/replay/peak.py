@@ -26,6 +26,7 @@ from replaybench.errors import OutputError, SourceError, UsageError
 from replaybench.replay.rate import Rate
 from replaybench.replay.runner import RunConfig, default_warmup, run_benchmark
 from replaybench.results.io import from_document, write_peak_result
+from replaybench.results.machine import environment
 from replaybench.results.model import (
     PEAK_SCHEMA_VERSION,
     Environment,
@@ -37,7 +38,6 @@ from replaybench.results.model import (
 )
 from replaybench.results.model import PeakResult as PeakRecord
 from replaybench.results.records import as_written, read_frames_csv
-from replaybench.results.runfile import environment
 from replaybench.results.runfolder import RunFolder
 
 if TYPE_CHECKING:

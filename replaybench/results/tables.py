@@ -21,10 +21,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import MissingDependencyError, SourceError
-from replaybench.results.model import PeakTrial, SummaryRow
 from replaybench.results.records import FRAMES_CSV_COLUMNS, FrameRecord, as_written
-from replaybench.results.runfile import summary_cell
-from replaybench.results.stats import SUMMARY_CSV_COLUMNS
+from replaybench.results.stats import SUMMARY_CSV_COLUMNS, Summary
+from replaybench.results.summarycsv import summary_cell
 from replaybench.textsafe import from_csv
 
 if TYPE_CHECKING:
@@ -32,12 +31,12 @@ if TYPE_CHECKING:
 
     import pandas as pd
 
+    from replaybench.results.model import PeakTrial, SummaryRow
+
 __all__ = [
     'FRAMES_DTYPES',
     'PANDAS_HINT',
     'SUMMARY_DTYPES',
-    'TRIALS_COLUMNS',
-    'TRIALS_DTYPES',
     'frames_table',
     'read_summary_csv',
     'records_table',
@@ -76,19 +75,18 @@ def _dtype(tp: Any) -> str:
     return 'str'  # str, and the tuple of texts (``warnings``) joined by '; '
 
 
-def _dtypes(cls: type[Any], columns: Sequence[str]) -> dict[str, str]:
+def _dtypes(cls: type[Any], columns: Sequence[str], default: str = 'float64') -> dict[str, str]:
+    """The pandas dtype of each column, from ``cls``'s annotations; ``default`` for a column
+    ``cls`` has no field for."""
     hints = typing.get_type_hints(cls)
-    return {name: _dtype(hints[name]) for name in columns}
+    return {name: _dtype(hints[name]) if name in hints else default for name in columns}
 
 
 #: frames.csv column -> pandas dtype (``RunResult.frames``)
 FRAMES_DTYPES: dict[str, str] = _dtypes(FrameRecord, FRAMES_CSV_COLUMNS)
-#: summary.csv column -> pandas dtype (``RunResult.summary``)
-SUMMARY_DTYPES: dict[str, str] = _dtypes(SummaryRow, SUMMARY_CSV_COLUMNS)
-#: ``PeakResult.trials`` columns, the fields of a peak.json trial
-TRIALS_COLUMNS: tuple[str, ...] = tuple(PeakTrial.__dataclass_fields__)
-#: ``PeakResult.trials`` column -> pandas dtype
-TRIALS_DTYPES: dict[str, str] = _dtypes(PeakTrial, TRIALS_COLUMNS)
+#: summary.csv column -> pandas dtype (``RunResult.summary``): the statistics' types, and
+#: floats for the accuracy and resource columns
+SUMMARY_DTYPES: dict[str, str] = _dtypes(Summary, SUMMARY_CSV_COLUMNS)
 
 
 def _frame(columns: Mapping[str, list[Any]], dtypes: Mapping[str, str]) -> pd.DataFrame:
@@ -156,10 +154,12 @@ def read_summary_csv(path: str | Path) -> pd.DataFrame:
     return _frame(columns, SUMMARY_DTYPES)
 
 
-def trials_table(trials: Sequence[PeakTrial]) -> pd.DataFrame:
-    """A peak search's trials, in run order: ``rate_hz``, ``ok`` and the other trial fields."""
-    columns = {name: [getattr(t, name) for t in trials] for name in TRIALS_COLUMNS}
-    return _frame(columns, TRIALS_DTYPES)
+def trials_table(trials: Sequence[PeakTrial], cls: type[PeakTrial]) -> pd.DataFrame:
+    """A peak search's trials, in run order: ``rate_hz``, ``ok`` and the other fields of a
+    peak.json trial (``cls``)."""
+    names = tuple(cls.__dataclass_fields__)
+    columns = {name: [getattr(t, name) for t in trials] for name in names}
+    return _frame(columns, _dtypes(cls, names))
 
 
 def records_table(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> pd.DataFrame:

@@ -59,9 +59,6 @@ def run(
     nothing.
     """
     from replaybench.app.run import run_benchmark, run_config
-    from replaybench.results.io import from_json, to_json
-    from replaybench.results.model import RunResult
-    from replaybench.results.records import as_written
 
     config = run_config(
         input,
@@ -72,12 +69,9 @@ def run(
         threads=threads,
         **options,
     )
-    outcome = run_benchmark(config, progress=progress, stop=stop)
-    if outcome.run_dir is not None:
-        return load_run(outcome.run_dir)
-    # in memory: what the files would hold (JSON values, times rounded as in frames.csv)
-    result = from_json(RunResult, to_json(outcome.run), where='run')
-    return dataclasses.replace(result, frame_records=tuple(as_written(r) for r in outcome.records))
+    # built as the files hold it (JSON values, times rounded as in frames.csv), whether or not
+    # they were written: rb.load_run(out) equals it
+    return run_benchmark(config, progress=progress, stop=stop).run
 
 
 def load_run(path: str | os.PathLike[str]) -> RunResult:
@@ -181,8 +175,6 @@ def peak(
     contents) with ``peak_hz`` and ``trials``, a pandas DataFrame (``rate_hz``, ``ok``, ...).
     """
     from replaybench.app.peak import peak_config, run_peak
-    from replaybench.results.io import from_json, to_json
-    from replaybench.results.model import PeakResult
 
     settings = peak_config(
         input,
@@ -202,8 +194,7 @@ def peak(
     )
     record = run_peak(settings, progress=progress, stop=stop).record
     assert record is not None  # the search always sets it
-    # what peak.json holds (JSON values), whether or not it was written
-    return from_json(PeakResult, to_json(record), where='peak')
+    return record
 
 
 def sweep(

@@ -14,6 +14,7 @@ from __future__ import annotations
 import datetime as dt
 import functools
 import inspect
+import math
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -25,11 +26,10 @@ from replaybench._version import __version__
 from replaybench.errors import OutputError, SourceError, UsageError
 from replaybench.replay.rate import Rate
 from replaybench.replay.runner import RunConfig, default_warmup, run_benchmark
-from replaybench.results.io import from_document, write_peak_result
-from replaybench.results.machine import environment
+from replaybench.results.io import write_peak_result
+from replaybench.results.machine import describe_machine
 from replaybench.results.model import (
     PEAK_SCHEMA_VERSION,
-    Environment,
     InputInfo,
     PeakSettings,
     PeakStart,
@@ -37,7 +37,6 @@ from replaybench.results.model import (
     Tool,
 )
 from replaybench.results.model import PeakResult as PeakRecord
-from replaybench.results.records import as_written, read_frames_csv
 from replaybench.results.runfolder import RunFolder
 
 if TYPE_CHECKING:
@@ -310,10 +309,8 @@ class _Sweep:
         attempt = len(done) + 1
         rel = f'trials/{hz:.3f}hz' if attempt == 1 else f'trials/{hz:.3f}hz-{attempt}'
         outcome = self.run(Rate('fixed', hz=hz), rel)
-        if outcome.run_dir is not None:
-            records = read_frames_csv(outcome.run_dir / 'frames.csv')
-        else:  # in memory: the rows as frames.csv would hold them
-            records = [as_written(r) for r in outcome.records]
+        # the rows as frames.csv holds them, whether or not it was written
+        records = list(outcome.run.frame_records or ())
         frames, dropped, p99, ok = trial_verdict(
             records, max_drop=self.max_drop, p99_bound_ms=self.p99_bound_ms
         )
@@ -617,11 +614,17 @@ def find_peak_rate(
         resolution_hz=failing - best if best is not None and failing is not None else None,
         limit_reached=limit_reached,
         warnings=tuple(warnings),
-        trial_rows=tuple(from_document(PeakTrial, t._asdict()) for t in sweep.trials),
-        environment=from_document(Environment, environment()),
+        trial_rows=tuple(_trial_row(t) for t in sweep.trials),
+        environment=describe_machine(),
     )
     if out_dir is not None:
         write_peak_result(out_dir / 'peak.json', record)
         if report and render_report is not None:
             render_report(out_dir)
     return result._replace(record=record)
+
+
+def _trial_row(trial: Trial) -> PeakTrial:
+    """A trial as peak.json holds it (a p99 that is not finite is null)."""
+    p99 = trial.p99_ms if trial.p99_ms is not None and math.isfinite(trial.p99_ms) else None
+    return PeakTrial(**{**trial._asdict(), 'p99_ms': p99})

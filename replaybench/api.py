@@ -15,8 +15,11 @@ nothing.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ParamSpec, TypeVar
+
+from replaybench._environ import kept_environ
 
 if TYPE_CHECKING:
     import os
@@ -29,7 +32,23 @@ if TYPE_CHECKING:
 
 __all__ = ['compare', 'load_run', 'peak', 'run', 'sweep']
 
+_P = ParamSpec('_P')
+_R = TypeVar('_R')
 
+
+def _keeps_environ(call: Callable[_P, _R]) -> Callable[_P, _R]:
+    """``call`` leaves ``os.environ`` as it found it (``kept_environ``): what the libraries it
+    loads set there is undone when it returns."""
+
+    @functools.wraps(call)
+    def kept(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        with kept_environ():
+            return call(*args, **kwargs)
+
+    return kept
+
+
+@_keeps_environ
 def run(
     input: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     *,
@@ -74,6 +93,7 @@ def run(
     return run_benchmark(config, progress=progress, stop=stop).run
 
 
+@_keeps_environ
 def load_run(path: str | os.PathLike[str]) -> RunResult:
     """A run folder read back: run.json as a ``RunResult`` with its frames.csv (``frames``).
 
@@ -86,6 +106,7 @@ def load_run(path: str | os.PathLike[str]) -> RunResult:
     return dataclasses.replace(data.run, frame_records=tuple(data.frames))
 
 
+@_keeps_environ
 def compare(
     *runs: RunResult | str | os.PathLike[str],
     fail_if: str | Sequence[str] = (),
@@ -146,6 +167,7 @@ def compare(
     )
 
 
+@_keeps_environ
 def peak(
     input: str | os.PathLike[str],
     *,
@@ -197,6 +219,7 @@ def peak(
     return record
 
 
+@_keeps_environ
 def sweep(
     inputs: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     *,

@@ -31,8 +31,6 @@ if TYPE_CHECKING:
 
     import pandas as pd
 
-    from replaybench.results.model import PeakTrial, SummaryRow
-
 __all__ = [
     'FRAMES_DTYPES',
     'PANDAS_HINT',
@@ -105,7 +103,7 @@ def frames_table(records: Iterable[FrameRecord]) -> pd.DataFrame:
     return _frame(columns, FRAMES_DTYPES)
 
 
-def summary_table(rows: Sequence[SummaryRow]) -> pd.DataFrame:
+def summary_table(rows: Sequence[object]) -> pd.DataFrame:
     """summary.csv as a DataFrame, from run.json's ``summary`` rows: each value is written as
     the file's cell (``summary_cell``) and read back as ``read_summary_csv`` reads it."""
     parsers = _parsers()
@@ -154,10 +152,11 @@ def read_summary_csv(path: str | Path) -> pd.DataFrame:
     return _frame(columns, SUMMARY_DTYPES)
 
 
-def trials_table(trials: Sequence[PeakTrial], cls: type[PeakTrial]) -> pd.DataFrame:
-    """A peak search's trials, in run order: ``rate_hz``, ``ok`` and the other fields of a
-    peak.json trial (``cls``)."""
-    names = tuple(cls.__dataclass_fields__)
+def trials_table(trials: Sequence[object], cls: type[Any]) -> pd.DataFrame:
+    """A peak search's trials (``cls``: peak.json's trial, ``PeakTrial``), in run order:
+    ``rate_hz``, ``ok`` and its other fields. This module takes the model classes from its
+    callers, so that it does not import the model that imports it."""
+    names = tuple(typing.get_type_hints(cls))
     columns = {name: [getattr(t, name) for t in trials] for name in names}
     return _frame(columns, _dtypes(cls, names))
 

@@ -1,7 +1,8 @@
 """The run record: the summaries (statistics, accuracy, resource use, intervals) and run.json's
 ``RunResult``, built typed from what the passes recorded.
 
-``summaries`` is where a task type's metrics join the statistics of each (backend, topic);
+``summaries`` is where a task type's metrics join the statistics of each (backend, topic)
+(``accuracy`` scores the detections);
 ``input_info`` and ``run_result`` construct the model classes of ``replaybench.results.model``
 directly, with values as run.json holds them (NaN and infinities None, tuples for arrays), so
 that the result kept in memory equals the one read back from the folder.
@@ -27,61 +28,80 @@ from replaybench.results.model import (
     RunOutputs,
     RunResult,
     RunSettings,
-    SummaryRow,
     Tool,
     TopicMeta,
 )
-from replaybench.results.stats import Summary, summarize, summary_json
+from replaybench.results.stats import Summary, summarize
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
 
     from replaybench.replay.config import RunConfig
     from replaybench.replay.inputs import HashOutcome, OpenedInput
-    from replaybench.replay.recording import Recorder
+    from replaybench.replay.recording import Recorder, TruthKey
     from replaybench.results.agreement import Agreement
     from replaybench.results.model import BackendRun, Environment
+    from replaybench.types import Detection
 
-__all__ = ['input_info', 'run_result', 'summaries', 'summary_row']
+__all__ = ['accuracy', 'input_info', 'run_result', 'summaries']
 
 
-def summaries(recorder: Recorder, resources: Mapping[str, dict[str, Any]]) -> list[Summary]:
-    """The statistics of each (backend, topic), with its accuracy against ground truth, its
-    backend's resource use (``resources``, by label) and its intervals."""
-    from replaybench.results.accuracy import evaluate
-
+def summaries(recorder: Recorder, resources: Mapping[str, Mapping[str, Any]]) -> list[Summary]:
+    """The statistics of each (backend, topic) with its metrics: its accuracy against ground
+    truth (``accuracy``), its backend's resource use (``resources``, by label, as
+    ``ResourceSampler.summary()`` gives it) and its intervals and warnings."""
     out: list[Summary] = []
     for s in summarize(recorder.records):
         scored = recorder.scored.get((s.backend, s.topic))
-        if not scored:
-            out.append(s)
-            continue
-        frames_gt = {k: recorder.ground_truth[k] for k in scored}
-        result = evaluate(frames_gt, scored)
-        accuracy = {
-            'frames': len(frames_gt),
-            'precision50': result.precision50,
-            'recall50': result.recall50,
-            'map50': result.map50 if result.map50 >= 0 else None,
-            'map50_95': result.map50_95 if result.map50_95 >= 0 else None,
-            'ap50': result.ap50,
-            'ap50_95': result.ap50_95,
-            'n_gt': result.n_gt,
-            'n_det': result.n_det,
-        }
-        out.append(dataclasses.replace(s, accuracy=accuracy))
-    out = [dataclasses.replace(s, resources=resources.get(s.backend)) for s in out]
-    return with_intervals(out, recorder.records)
+        found = accuracy(recorder, scored) if scored else None
+        if found is not None:
+            s = dataclasses.replace(
+                s,
+                accuracy=found,
+                precision50=found.precision50,
+                recall50=found.recall50,
+                map50=found.map50,
+                map50_95=found.map50_95,
+            )
+        used = resources.get(s.backend)
+        if used is not None:
+            s = dataclasses.replace(
+                s,
+                cpu_percent_mean=_number(used.get('cpu_percent_mean')),
+                private_mb_peak=_number(used.get('private_mb_peak')),
+                mapped_mb_peak=_number(used.get('mapped_mb_peak')),
+                rss_mb_peak=_number(used.get('rss_mb_peak')),
+                gpu_util_mean=_number(used.get('gpu_util_mean')),
+                gpu_mem_mb_peak=_number(used.get('gpu_mem_mb_peak')),
+                gpu_power_w_mean=_number(used.get('gpu_power_w_mean')),
+            )
+        out.append(s)
+    return with_intervals(out, recorder.records, resources=resources)
 
 
-def summary_row(summary: Summary) -> SummaryRow:
-    """One run.json ``summary`` entry (the summary.csv columns and the full accuracy)."""
-    row = to_json(summary_json(summary))
-    accuracy = row.pop('accuracy')
-    return SummaryRow(
-        **{**row, 'warnings': tuple(row['warnings'])},
-        accuracy=Accuracy(**accuracy) if accuracy is not None else None,
+def accuracy(recorder: Recorder, scored: Mapping[TruthKey, tuple[Detection, ...]]) -> Accuracy:
+    """COCO-style accuracy of the ``scored`` frames against their ground truth."""
+    from replaybench.results.accuracy import evaluate
+
+    frames_gt = {k: recorder.ground_truth[k] for k in scored}
+    result = evaluate(frames_gt, scored)
+    return Accuracy(
+        frames=len(frames_gt),
+        precision50=_number(result.precision50),
+        recall50=_number(result.recall50),
+        map50=_number(result.map50) if result.map50 >= 0 else None,
+        map50_95=_number(result.map50_95) if result.map50_95 >= 0 else None,
+        ap50={str(k): float(v) for k, v in result.ap50.items()},
+        ap50_95={str(k): float(v) for k, v in result.ap50_95.items()},
+        n_gt=int(result.n_gt),
+        n_det=int(result.n_det),
     )
+
+
+def _number(value: Any) -> float | None:
+    """A value as run.json holds it: a finite float, or None."""
+    plain = to_json(value)
+    return float(plain) if plain is not None else None
 
 
 def _agreement_row(agreement: Agreement) -> AgreementRow:
@@ -196,7 +216,7 @@ def run_result(
         inputs=tuple(inputs),
         environment=environment,
         backends=tuple(backends),
-        summary_rows=tuple(summary_row(s) for s in summary),
+        summary_rows=tuple(summary),
         agreement=tuple(_agreement_row(a) for a in agreements),
         counts=RunCounts(
             frames=len(records),

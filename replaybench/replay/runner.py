@@ -21,7 +21,6 @@ The sample pictures and report.html are drawn by the application's ``Renderer``
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import datetime as dt
 import time
 from pathlib import Path
@@ -70,6 +69,7 @@ from replaybench.replay.recording import Recorder
 from replaybench.replay.sessions import make_backend, make_backends, open_backends, run_backend
 from replaybench.replay.threads import thread_limits
 from replaybench.results.agreement import AGREEMENT_IOU, agreement_table
+from replaybench.results.io import to_json
 from replaybench.results.machine import describe_machine
 from replaybench.results.runfolder import RunFolder, check_out_dir
 
@@ -318,7 +318,7 @@ def _execute(
         raise _nothing_measured(recorder, inputs, config)
 
     resources = {
-        run.label: dataclasses.asdict(run.resources.summary)
+        run.label: to_json(run.resources.summary)
         for run in backend_runs
         if run.resources is not None and run.resources.summary is not None
     }

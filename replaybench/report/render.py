@@ -29,9 +29,9 @@ from replaybench.report.svg import (
 from replaybench.results.atomic import write_text_atomic
 from replaybench.results.folder import load_run
 from replaybench.results.intervals import with_intervals
-from replaybench.results.io import from_document, read_peak_result, to_json
+from replaybench.results.io import read_peak_result, to_json
 from replaybench.results.model import PEAK_SCHEMA_VERSION, ResourceSummary, SummaryRow
-from replaybench.results.stats import summarize, summary_json
+from replaybench.results.stats import summarize
 from replaybench.textsafe import visible, visible_lines
 
 if TYPE_CHECKING:
@@ -227,10 +227,7 @@ def _summary_rows(run: RunResult, frames: Sequence[FrameRecord]) -> list[Summary
     resource samples)."""
     if run.summary_rows:
         return list(run.summary_rows)
-    return [
-        from_document(SummaryRow, summary_json(s))
-        for s in with_intervals(summarize(frames), frames)
-    ]
+    return with_intervals(summarize(frames), frames)
 
 
 # --------------------------------------------------------------------------- header

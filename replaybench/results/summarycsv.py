@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import io
-import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from replaybench.results.atomic import write_text_atomic
+from replaybench.results.columns import SUMMARY_CSV_COLUMNS, summary_cell
 from replaybench.results.records import csv_writer
-from replaybench.results.stats import SUMMARY_CSV_COLUMNS, summary_row
-from replaybench.textsafe import csv_text
+from replaybench.results.stats import summary_row
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -18,17 +17,6 @@ if TYPE_CHECKING:
     from replaybench.results.stats import Summary
 
 __all__ = ['summary_cell', 'write_summary_csv']
-
-
-def summary_cell(value: Any) -> str:
-    """One summary.csv cell: floats to 4 decimals, non-finite and None empty, text escaped."""
-    if value is None:
-        return ''
-    if isinstance(value, bool):
-        return '1' if value else '0'
-    if isinstance(value, float):
-        return format(value, '.4f') if math.isfinite(value) else ''
-    return csv_text(value) if isinstance(value, str) else str(value)
 
 
 def write_summary_csv(path: str | Path, summaries: Iterable[Summary]) -> None:

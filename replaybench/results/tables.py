@@ -21,9 +21,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import MissingDependencyError, SourceError
+from replaybench.results.columns import (
+    COUNT_COLUMNS,
+    SUMMARY_CSV_COLUMNS,
+    TEXT_COLUMNS,
+    summary_cell,
+)
 from replaybench.results.records import FRAMES_CSV_COLUMNS, FrameRecord, as_written
-from replaybench.results.stats import SUMMARY_CSV_COLUMNS, Summary
-from replaybench.results.summarycsv import summary_cell
 from replaybench.textsafe import from_csv
 
 if TYPE_CHECKING:
@@ -73,18 +77,19 @@ def _dtype(tp: Any) -> str:
     return 'str'  # str, and the tuple of texts (``warnings``) joined by '; '
 
 
-def _dtypes(cls: type[Any], columns: Sequence[str], default: str = 'float64') -> dict[str, str]:
-    """The pandas dtype of each column, from ``cls``'s annotations; ``default`` for a column
-    ``cls`` has no field for."""
+def _dtypes(cls: type[Any], columns: Sequence[str]) -> dict[str, str]:
+    """The pandas dtype of each column, from ``cls``'s annotations."""
     hints = typing.get_type_hints(cls)
-    return {name: _dtype(hints[name]) if name in hints else default for name in columns}
+    return {name: _dtype(hints[name]) for name in columns}
 
 
 #: frames.csv column -> pandas dtype (``RunResult.frames``)
 FRAMES_DTYPES: dict[str, str] = _dtypes(FrameRecord, FRAMES_CSV_COLUMNS)
-#: summary.csv column -> pandas dtype (``RunResult.summary``): the statistics' types, and
-#: floats for the accuracy and resource columns
-SUMMARY_DTYPES: dict[str, str] = _dtypes(Summary, SUMMARY_CSV_COLUMNS)
+#: summary.csv column -> pandas dtype (``RunResult.summary``): integer counts, text, numbers
+SUMMARY_DTYPES: dict[str, str] = {
+    name: 'Int64' if name in COUNT_COLUMNS else 'str' if name in TEXT_COLUMNS else 'float64'
+    for name in SUMMARY_CSV_COLUMNS
+}
 
 
 def _frame(columns: Mapping[str, list[Any]], dtypes: Mapping[str, str]) -> pd.DataFrame:

@@ -483,7 +483,7 @@ def find_peak_rate(
     command: Sequence[str] = (),
     progress: Callable[[Trial], None] | None = None,
     stop: threading.Event | None = None,
-    render_report: Callable[[Path], object] | None = None,
+    render_report: Callable[[Path, PeakRecord], object] | None = None,
 ) -> PeakResult:
     """Find the highest fixed rate at which ``backend`` keeps up with ``bag``; write peak.json.
 
@@ -495,7 +495,8 @@ def find_peak_rate(
     and lies below every rate that failed one; a failed confirmation moves it down). The
     rate applies to each selected topic. ``out_dir`` gets peak.json, peak.html (``report``) and
     ``trials/``: the probe's run folder (``trials/max``) and one per tested rate; peak.html is
-    drawn by ``render_report(folder)`` (the application's, ``replaybench.app.peak``).
+    drawn by ``render_report(folder, record)`` from the record it was written from (the
+    application's, ``replaybench.app.peak``).
     ``out_dir`` None: every trial runs in memory and nothing is written. Setting
     ``stop`` (a cancellation token) ends the trial under way and the search (status
     ``interrupted``).
@@ -620,7 +621,7 @@ def find_peak_rate(
     if out_dir is not None:
         write_peak_result(out_dir / 'peak.json', record)
         if report and render_report is not None:
-            render_report(out_dir)
+            render_report(out_dir, record)
     return result._replace(record=record)
 
 

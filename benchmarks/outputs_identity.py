@@ -82,7 +82,8 @@ _TIMING = re.compile(
     r'|^(started_at|finished_at|load_average|t_s|wall_s|record_s|cpu_percent|private_mb|'
     r'mapped_mb|rss_mb|samples|used|probe_frames|jitter_ms|throughput_fps)$'
 )
-#: subtrees compared by their keys only (what the machine did meanwhile)
+#: subtrees compared by their keys only (what the machine did meanwhile: a resource figure is
+#: null when the pass ended before the sampler's first timed sample)
 _SHAPE_ONLY = {'resources', 'environment'}
 #: keys whose value is a detection count or accuracy, never timing, though the pattern matches
 _NOT_TIMING = {'detections_per_frame'}
@@ -171,7 +172,7 @@ def _shape(value: Any) -> Any:
         return {k: _shape(v) for k, v in value.items()}
     if isinstance(value, list):
         return [_shape(v) for v in value[:1]]
-    return type(value).__name__ if value is not None else None
+    return '<value>'  # what the machine measured meanwhile, present or not
 
 
 def _diff(a: Any, b: Any, where: str, out: list[str]) -> None:

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 from replaybench.errors import SourceError
-from replaybench.results.records import FrameRecord, FramesCsvWriter
 from replaybench.results.atomic import write_json_atomic
 from replaybench.results.folder import load_run
 from replaybench.results.machine import environment
 from replaybench.results.model import RUN_SCHEMA_VERSION as SCHEMA_VERSION
-from replaybench.results.summarycsv import write_summary_csv
+from replaybench.results.records import FrameRecord, FramesCsvWriter
 from replaybench.results.stats import SUMMARY_CSV_COLUMNS, summarize
+from replaybench.results.summarycsv import write_summary_csv
 
 if TYPE_CHECKING:
     from pathlib import Path

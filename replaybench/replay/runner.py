@@ -62,6 +62,7 @@ from replaybench.results.model import (
     Tool,
 )
 from replaybench.results.records import FrameRecord, FramesCsvWriter
+from replaybench.results.repeats import repeat_statistics
 from replaybench.results.runfile import (
     environment,
     write_summary_csv,
@@ -152,6 +153,8 @@ class RunConfig:
     hash_inputs: bool = True
     #: the inputs' sha256 when already known (a peak search's later trials): not hashed again
     input_sha256: tuple[str | None, ...] | None = None
+    #: --repeat N: every backend replays the inputs N times, interleaved across backends
+    repeat: int = 1
 
 
 class SampleImage(NamedTuple):
@@ -203,7 +206,8 @@ class _Input(NamedTuple):
     recorded_topic: str | None
     external: ExternalGroundTruth | None = None  # --ground-truth-file; replaces ground_truth
     notes: tuple[str, ...] = ()  # warnings found while opening (detections left out)
-    sha256: InputHash | None = None  # started when the input opened (``_start_hash``)
+    sha256: InputHash | None = None  # made when the input opened (``_deferred_hash``)
+    files_state: tuple[tuple[int, int], ...] = ()  # (size, mtime_ns) per file when opened
 
 
 class _Sample:
@@ -217,24 +221,6 @@ class _Sample:
         self.log_time_ns = log_time_ns
         self.title = title
         self.detections: dict[str, tuple[Detection, ...]] = {}
-
-
-def _start_hash(
-    inp: _Input,
-    config: RunConfig,
-    hasher: Callable[[Sequence[Path]], InputHash] | None,
-    notice: Callable[[str], None] | None,
-) -> InputHash | None:
-    """The input's sha256, started now: in a thread for a large input, announced on the
-    terminal (``notice``) over ``ANNOUNCE_MIN_BYTES``; None when not computed here (--no-hash,
-    or known already)."""
-    if not config.hash_inputs or config.input_sha256 is not None:
-        return None
-    found = (hasher or InputHash)(list(inp.source.files))
-    if notice is not None and found.size_bytes > ANNOUNCE_MIN_BYTES:
-        size = describe_size(found.size_bytes)
-        notice(f'replaybench: hashing {inp.path.name} ({size}, sha256) in the background')
-    return found.start()
 
 
 def _record_hash(
@@ -266,16 +252,73 @@ def _record_hash(
         meta['sha256'] = None
         meta['warnings'].append('sha256 not computed: the run was interrupted before it ended')
         return
-    if not found.done and notice is not None:
+    deferred = _hash_after_passes(inp, found, notice)
+    if not found.done and notice is not None and not deferred:
         notice(f'replaybench: waiting for the sha256 of {inp.path.name}')
     meta['sha256'] = found.wait()
     if found.error is not None:
         meta['warnings'].append(f'sha256 not computed: {found.error}')
     overlap = found.overlap_s(passes_began)
-    if found.background and overlap > 0:
+    _check_unchanged(inp, meta)
+    if found.background and overlap > 0 and not deferred:
         meta['warnings'].append(
             f'its sha256 was computed during the first {overlap:.1f} s of the measured passes, '
             'sharing the CPU and the disk with them (--no-hash leaves it out)'
+        )
+
+
+def _files_state(inp: _Input) -> tuple[tuple[int, int], ...]:
+    """(size, mtime_ns) of each file of the input, to tell that it did not change."""
+    out = []
+    for path in inp.source.files:
+        st = path.stat()
+        out.append((st.st_size, st.st_mtime_ns))
+    return tuple(out)
+
+
+def _deferred_hash(
+    inp: _Input, config: RunConfig, hasher: Callable[[Sequence[Path]], InputHash] | None
+) -> _Input:
+    """The input with its ``InputHash``: an input of at most ``INLINE_MAX_BYTES`` is hashed
+    now (a fraction of a second, before anything is timed); a larger one is hashed after the
+    passes (``_hash_after_passes``), so that nothing reads and digests beside the measured
+    frames. Its files' size and mtime are noted now and checked then."""
+    if not config.hash_inputs or config.input_sha256 is not None:
+        return inp
+    found = (hasher or InputHash)(list(inp.source.files))
+    state = _files_state(inp)
+    return inp._replace(sha256=found if found.background else found.start(), files_state=state)
+
+
+def _hash_after_passes(inp: _Input, found: InputHash, notice: Callable[[str], None] | None) -> bool:
+    """Start the hashing of an input left for after the passes (``_deferred_hash``); True when
+    it was (the caller waits for it), False when it had started before them."""
+    if found.started_s is not None:
+        return False
+    if notice is not None and found.size_bytes > ANNOUNCE_MIN_BYTES:
+        size = describe_size(found.size_bytes)
+        notice(f'replaybench: hashing {inp.path.name} ({size}, sha256) after the passes')
+    found.start()
+    return True
+
+
+def _check_unchanged(inp: _Input, meta: dict[str, Any]) -> None:
+    """Drop the sha256 (with a warning) when the input's files changed size or mtime between
+    its opening and its hashing: the digest would not be that of the frames replayed."""
+    if not inp.files_state or meta.get('sha256') is None:
+        return
+    try:
+        now = _files_state(inp)
+    except OSError as err:
+        now = ((-1, -1),)
+        why = f'cannot stat it: {err.strerror or err}'
+    else:
+        why = 'its size or modification time changed'
+    if now != inp.files_state:
+        meta['sha256'] = None
+        meta['warnings'].append(
+            f'sha256 not recorded: the input changed during the run ({why}), so its digest '
+            'would not describe the frames replayed'
         )
 
 
@@ -549,6 +592,7 @@ class _Pass:
         self.measures_latency = backend_traits(backend).measures_latency
         # at max rate: whether frames were read ahead in a thread, and why (run.json)
         self.read_ahead: dict[str, Any] | None = None
+        self.repeat = 0  # the pass of --repeat N (``_run_repeated``)
 
     def messages(self) -> Iterator[RawMessage]:
         return _replayed(self.inp, self.run.config)
@@ -809,6 +853,7 @@ class _Pass:
                 done_s=None if dropped else done - t0,
                 queue_wait_ms=None if dropped else queue_wait_s * 1e3,
                 read_decode_ms=None if dropped else read_decode_s * 1e3,
+                repeat=self.repeat,
             )
         )
 
@@ -876,6 +921,7 @@ class _Pass:
                 _ms(stages.postprocess_device_ns),
                 _ms(stages.h2d_device_ns),
                 _ms(stages.d2h_device_ns),
+                repeat=self.repeat,
             )
         )
 
@@ -995,11 +1041,12 @@ def run_benchmark(
 
     Order of work: the options and ``config.out_dir`` are checked (nothing read or created
     yet); the folder is locked (``RunFolder``); the inputs are opened and probed; every
-    backend is opened (models loaded); then the inputs are replayed. Each input's sha256 is
-    computed beside the rest from the moment it is opened (``replaybench.replay.hashing``;
-    ``hasher`` makes the ``InputHash``, ``config.hash_inputs`` False skips it) and recorded when
-    the passes have ended; ``notice`` gets the lines a person should see while it lasts (the
-    hashing of an input over 1 GB, a wait for it at the end). The run is
+    backend is opened (models loaded); then the inputs are replayed. Each input's sha256
+    (``replaybench.replay.hashing``; ``hasher`` makes the ``InputHash``, ``config.hash_inputs``
+    False skips it) is computed when nothing is timed: at once for an input of at most 64 MiB,
+    after the passes for a larger one, whose size and mtime must not have changed meanwhile;
+    ``notice`` gets the lines a person should see while it lasts (the hashing of an input over
+    1 GB). The run is
     written into a temporary folder beside ``out_dir`` and swapped in when it has ended, with
     run.json as its last file: whatever fails leaves ``out_dir`` as it was and nothing else.
 
@@ -1020,6 +1067,9 @@ def run_benchmark(
         raise UsageError(msg)
     if len(set(config.backends)) != len(config.backends):
         msg = 'each --backend may be given once'
+        raise UsageError(msg)
+    if config.repeat < 1:
+        msg = f'--repeat must be at least 1, not {config.repeat}'
         raise UsageError(msg)
     if config.detections_format not in {'mcap', 'rosbag2'}:
         msg = f'unknown --format {config.detections_format!r}: use mcap or rosbag2'
@@ -1053,8 +1103,8 @@ def run_benchmark(
             recorded = any(backend_traits(b).uses_recorded_detections for _, b in made)
             for index, path in enumerate(config.inputs):
                 inp = _open_input(index, Path(path), config, external, recorded_detections=recorded)
-                # hashed beside the model loading and the replay; joined when the passes end
-                inputs.append(inp._replace(sha256=_start_hash(inp, config, hasher, notice)))
+                # small inputs hashed now, larger ones after the passes (_deferred_hash)
+                inputs.append(_deferred_hash(inp, config, hasher))
             opened = _open_backends(made, inputs, notice)
             input_meta = [_input_meta(inp) for inp in inputs]
             outcome = _execute(
@@ -1291,7 +1341,7 @@ def _execute(
                 topic, config
             )
     run.set_warmups()
-    run.total = sum(run.topic_frames.values()) * len(config.backends)
+    run.total = sum(run.topic_frames.values()) * len(config.backends) * config.repeat
     backend_meta: list[dict[str, Any]] = []
     copy_problems: dict[int, str] = {}
     status = 'complete'
@@ -1311,7 +1361,9 @@ def _execute(
             _copy_camera_infos(inputs, detections_out)
             passes_began = time.perf_counter()
             try:
-                for entry in opened:
+                if config.repeat > 1:
+                    _run_repeated(run, opened, inputs, backend_meta)
+                for entry in opened if config.repeat == 1 else ():
                     label = entry.name.replace('-', '_')
                     with ResourceSampler(gpu_index=_gpu_index(entry.backend, config)) as sampler:
                         _run_backend(run, entry, label, inputs, sampler, backend_meta)
@@ -1502,6 +1554,101 @@ def _run_backend(
         )
 
 
+def _run_repeated(
+    run: _Run,
+    opened: list[_OpenBackend],
+    inputs: list[_Input],
+    backend_meta: list[dict[str, Any]],
+) -> None:
+    """``--repeat N``: every opened backend over every input, N times, interleaved across the
+    backends (A B A B ...: a phase of background load falls on both, not on one backend's
+    passes). Each pass has its own warm-up (the first frames of each topic, as a single pass)
+    and its own resource sampler; run.json keeps the first pass's resources. The detections
+    of the first pass are written (later passes detect the same frames again). A backend whose
+    ``detect`` raises stops there, the others go on; each backend is closed and recorded once
+    every pass has ended (as ``_run_backend`` records it)."""
+    config = run.config
+    labels = [entry.name.replace('-', '_') for entry in opened]
+    passes: dict[str, list[_Pass]] = {label: [] for label in labels}
+    errors: dict[str, dict[str, Any] | None] = dict.fromkeys(labels)
+    resources: dict[str, dict[str, Any]] = {}
+    writer = run.detections_out
+    try:
+        for repeat in range(config.repeat):
+            run.detections_out = writer if repeat == 0 else _Discard()
+            for entry, label in zip(opened, labels, strict=True):
+                if errors[label] is not None:
+                    continue
+                for key in [k for k in run.processed if k[0] == label]:
+                    del run.processed[key]  # each pass counts its own warm-up frames
+                with ResourceSampler(gpu_index=_gpu_index(entry.backend, config)) as sampler:
+                    try:
+                        for inp in inputs:
+                            p = _Pass(run, label, entry.backend, inp)
+                            p.repeat = repeat
+                            passes[label].append(p)
+                            try:
+                                run.check_stop()
+                                p.warm_short_topics()
+                                if config.rate.timed:
+                                    p.run_timed(config.rate)
+                                else:
+                                    p.run_max()
+                            finally:
+                                p.finalize()
+                    except _DetectError as failure:
+                        errors[label] = failure.where
+                    finally:
+                        sampler.stop()
+                        if label not in resources:
+                            resources[label] = {
+                                'summary': sampler.summary(),
+                                'series': sampler.series(),
+                            }
+    finally:
+        run.detections_out = writer
+        for entry, label in zip(opened, labels, strict=True):
+            backend_meta.append(
+                _backend_record(
+                    run, entry, label, passes[label], errors[label], resources.get(label)
+                )
+            )
+
+
+def _backend_record(
+    run: _Run,
+    entry: _OpenBackend,
+    label: str,
+    passes: Sequence[_Pass],
+    error: dict[str, Any] | None,
+    resources: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """A backend's run.json entry once its passes of ``--repeat`` have ended; it is closed."""
+    if resources is not None:
+        run.resources[label] = resources['summary']
+    try:
+        info = entry.backend.info()
+    except Exception as err:  # noqa: BLE001  a plugin's info() must not lose the run
+        info = {'error': f'{type(err).__name__}: {err}'.splitlines()[0]}
+    closing = entry.close()
+    if closing is not None:
+        run.warnings.append(f'backend {entry.name!r}: close() raised {closing}')
+    return {
+        'name': entry.name,
+        'label': label,
+        'status': 'ok' if error is None else 'failed',
+        'error': error,
+        'info': info,
+        'resources': resources,
+        'read_ahead': [
+            {'input': p.inp.number, **p.read_ahead}
+            for p in passes
+            if p.read_ahead is not None and p.repeat == 0
+        ],
+        'record_s': sum(p.record_s for p in passes),
+    }
+
+
 def _make_backend(name: str, options: BackendOptions) -> Backend:
     cls = get_backend(name)
     backend: Backend = cls(options)  # type: ignore[call-arg]
@@ -1648,6 +1795,7 @@ def _run_record(
             copy_images=config.copy_images,
             detections_format=config.detections_format,
             agreement_iou=AGREEMENT_IOU,
+            repeat=config.repeat,
         ),
         inputs=tuple(from_document(InputInfo, meta) for meta in input_meta),
         environment=from_document(Environment, run.environment),
@@ -1662,6 +1810,7 @@ def _run_record(
         ),
         skipped=dict(run.skipped),
         warnings=tuple(run.warnings),
+        repeats=repeat_statistics(run.records) if config.repeat > 1 else None,
         outputs=RunOutputs(
             detections_mcap='detections.mcap',
             frames_csv='frames.csv',

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from replaybench.results.records import written
+from replaybench.results.repeats import pooled_throughput
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -134,8 +135,9 @@ def _mean(values: Sequence[float | int | None]) -> float | None:
 
 
 def _replay_order(records: Sequence[FrameRecord]) -> list[FrameRecord]:
-    # Stable: frames released at the same instant keep their order in the records.
-    return sorted(records, key=lambda r: r.release_s)
+    # Stable: frames released at the same instant keep their order in the records; the passes
+    # of --repeat one after the other (their times count from their own start)
+    return sorted(records, key=lambda r: (r.repeat, r.release_s))
 
 
 def _throughput(ordered: Sequence[FrameRecord], measured: Sequence[FrameRecord]) -> float | None:
@@ -196,7 +198,7 @@ def _summary(backend: str, topic: str, records: Sequence[FrameRecord]) -> Summar
         warmup=sum(1 for r in records if r.warmup),
         dropped=sum(1 for r in records if r.status == 'dropped'),
         skipped=sum(1 for r in records if r.status == 'skipped'),
-        throughput_fps=_throughput(ordered, measured),
+        throughput_fps=pooled_throughput(ordered, measured, _throughput),
         latency_ms_mean=lat['mean'],
         latency_ms_std=lat['std'],
         latency_ms_min=lat['min'],

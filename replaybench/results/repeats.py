@@ -1,0 +1,116 @@
+"""Runs made of several passes (``replaybench run --repeat N``): the records of each pass, and
+the statistics of each pass that ``compare`` judges between repeats.
+
+A run with ``--repeat N`` replays every backend over the inputs N times, interleaved across
+backends (A B A B ...), each pass with its own warm-up. frames.csv tells the passes apart by
+its ``repeat`` column (0 to N - 1); the times of a frame (``release_s``, ``done_s``) count from
+the start of its own pass. So a backend's series is its passes one after the other: latencies
+are pooled, and the throughput of the run is its measured frames over the sum of the passes'
+processing windows (the time between the passes, spent by the other backends, is no part of
+it).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, TypeVar
+
+import numpy as np
+
+from replaybench.results.model import RepeatStats
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+    from replaybench.results.intervals import Series
+    from replaybench.results.records import FrameRecord
+
+__all__ = [
+    'by_repeat',
+    'join_repeats',
+    'pooled_throughput',
+    'repeat_count',
+    'repeat_statistics',
+]
+
+_S = TypeVar('_S', bound='Series')
+
+
+def by_repeat(records: Sequence[FrameRecord]) -> dict[int, list[FrameRecord]]:
+    """The records of each pass, by repeat number (ascending), each in record order."""
+    groups: dict[int, list[FrameRecord]] = {}
+    for record in records:
+        groups.setdefault(record.repeat, []).append(record)
+    return dict(sorted(groups.items()))
+
+
+def repeat_count(records: Sequence[FrameRecord]) -> int:
+    """How many passes the records come from (1 for a run without ``--repeat``)."""
+    return len({r.repeat for r in records}) or 1
+
+
+def pooled_throughput(
+    ordered: Sequence[FrameRecord],
+    measured: Sequence[FrameRecord],
+    throughput: Callable[[Sequence[FrameRecord], Sequence[FrameRecord]], float | None],
+) -> float | None:
+    """The throughput of one (backend, topic) over its passes: measured frames over the sum of
+    each pass's window (``throughput`` gives one pass's frames per second); a single pass is
+    ``throughput(ordered, measured)`` itself."""
+    if len({r.repeat for r in ordered}) < 2:
+        return throughput(ordered, measured)
+    frames = 0
+    window = 0.0
+    for number, group in by_repeat(ordered).items():
+        mine = [r for r in measured if r.repeat == number]
+        if not mine:
+            continue
+        fps = throughput(group, mine)
+        if fps is None or not fps > 0:
+            return None
+        frames += len(mine)
+        window += len(mine) / fps
+    return frames / window if window > 0 else None
+
+
+def join_repeats(
+    records: Sequence[FrameRecord], series: Callable[[Sequence[FrameRecord]], _S]
+) -> _S | None:
+    """The series of a run of several passes: each pass's ``series``, one after the other;
+    None for the records of a single pass (``series`` applies to them as they are)."""
+    groups = by_repeat(records)
+    if len(groups) < 2:
+        return None
+    parts = [series(group) for group in groups.values()]
+    latency = np.concatenate([p.latency_ms for p in parts])
+    gaps = [p.intervals_s for p in parts if p.intervals_s is not None]
+    intervals = np.concatenate(gaps) if len(gaps) == len(parts) else None
+    return parts[0]._replace(latency_ms=latency, intervals_s=intervals)
+
+
+def repeat_statistics(records: Sequence[FrameRecord]) -> tuple[RepeatStats, ...]:
+    """Per (backend, topic) and pass, in record order of the (backend, topic) and then by
+    repeat: the measured frames, median, p99 and mean latency, throughput and its window."""
+    from replaybench.results.stats import summarize
+
+    out: list[RepeatStats] = []
+    keys: dict[tuple[str, str], list[FrameRecord]] = {}
+    for record in records:
+        keys.setdefault((record.backend, record.topic), []).append(record)
+    for (backend, topic), group in keys.items():
+        for number, part in by_repeat(group).items():
+            (s,) = summarize(part)
+            fps = s.throughput_fps
+            out.append(
+                RepeatStats(
+                    backend=backend,
+                    topic=topic,
+                    repeat=number,
+                    measured=s.measured,
+                    latency_ms_p50=s.latency_ms_p50,
+                    latency_ms_p99=s.latency_ms_p99,
+                    latency_ms_mean=s.latency_ms_mean,
+                    throughput_fps=fps,
+                    window_s=s.measured / fps if fps else None,
+                )
+            )
+    return tuple(out)

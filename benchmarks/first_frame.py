@@ -31,7 +31,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, cast
 
 __all__ = ['TARGET_S', 'main', 'time_to_first_frame', 'write_sparse_bag']
 
@@ -102,7 +102,7 @@ def write_sparse_bag(path: Path, size_bytes: int) -> int:
     frame = np.zeros((HEIGHT, WIDTH, 3), dtype=np.uint8)
     frames = max(1, size_bytes // frame.nbytes)
     stream = _SparseStream(path.open('wb'))
-    writer: Any = Writer(stream, chunk_size=8 << 20, compression=CompressionType.NONE)
+    writer: Any = Writer(cast('Any', stream), chunk_size=8 << 20, compression=CompressionType.NONE)
     writer.start(profile='ros2', library='replaybench benchmarks')
     schema = writer.register_schema(
         name=IMAGE, encoding='ros2msg', data=ros2msg_schema(IMAGE).encode()

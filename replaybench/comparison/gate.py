@@ -182,8 +182,11 @@ _UNIT = {'between-block': 'block', 'between-repeat': 'repeat'}
 
 def _held_back(m: MetricComparison, row: Row, baseline: Row | None) -> str | None:
     """Why a failed timing condition is only inconclusive: a side is a short single pass with
-    a stability warning (``repeats.single_pass_caution``); None when none is."""
-    if m.method == 'between-repeat':
+    a stability warning (``repeats.single_pass_caution``); None when none is. Intervals between
+    repeats already hold the variation between passes, and frame-by-frame intervals (under 20
+    frames) fail only a change that nearly every frame shows (nine-fold on ten frames), so the
+    rule holds for intervals between blocks."""
+    if m.method != 'between-block':
         return None
     for side, which in ((row, 'the candidate'), (baseline, 'the baseline')):
         if side is not None and side.caution is not None:

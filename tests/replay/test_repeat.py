@@ -18,9 +18,10 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'comparison'))
 
 from bagtools import image_msg, noise_frames, write_mcap
-from comparison.runbuilder import latencies, write_run
+from runbuilder import latencies, write_run
 
 import replaybench as rb
 from replaybench.backends.base import Availability

@@ -1565,8 +1565,8 @@ def _run_repeated(
     passes). Each pass has its own warm-up (the first frames of each topic, as a single pass)
     and its own resource sampler; run.json keeps the first pass's resources. The detections
     of the first pass are written (later passes detect the same frames again). A backend whose
-    ``detect`` raises stops there, the others go on; each backend is closed and recorded once
-    every pass has ended (as ``_run_backend`` records it)."""
+    ``detect`` raises stops there, the others go on; each backend that ran is closed and
+    recorded once every pass has ended (as ``_run_backend`` records it)."""
     config = run.config
     labels = [entry.name.replace('-', '_') for entry in opened]
     passes: dict[str, list[_Pass]] = {label: [] for label in labels}
@@ -1608,6 +1608,8 @@ def _run_repeated(
     finally:
         run.detections_out = writer
         for entry, label in zip(opened, labels, strict=True):
+            if not passes[label]:
+                continue  # never ran (the run was interrupted): closed by run_benchmark
             backend_meta.append(
                 _backend_record(
                     run, entry, label, passes[label], errors[label], resources.get(label)

@@ -284,3 +284,29 @@ def test_a_stable_or_long_single_pass_still_fails(tmp_path):
     for base, cand in (stable, long):
         verdicts, _, _ = _verdicts(base, cand, gate=['median_ms > +10%'])
         assert verdicts == {'failed'}
+
+
+def test_a_run_interrupted_in_its_first_pass_keeps_what_ran_and_a_valid_run_json(tmp_path):
+    import threading
+
+    bag = _bag(tmp_path / 'cam.mcap')
+    clock = VirtualClock()
+    stop = threading.Event()
+
+    class Stopping(PassBackend):
+        def detect(self, frame: Frame) -> BackendResult:
+            if self.count == 20:
+                stop.set()  # as Ctrl-C does through the command line's signal handler
+            return super().detect(frame)
+
+    made = {'a': Stopping(clock, 'a', [1.0], []), 'b': PassBackend(clock, 'b', [1.0], [])}
+    outcome = run_benchmark(
+        RunConfig(inputs=[bag], backends=['a', 'b'], out_dir=tmp_path / 'run', repeat=2),
+        clock=clock,
+        stop=stop,
+        backend_factory=lambda n, options: made[n],
+    )
+    assert outcome.status == 'interrupted'
+    doc = json.loads((tmp_path / 'run' / 'run.json').read_text())
+    assert [b['name'] for b in doc['backends']] == ['a']
+    assert {r.backend for r in read_frames_csv(tmp_path / 'run' / 'frames.csv')} == {'a'}

@@ -29,6 +29,7 @@ from replaybench.report.svg import (
 from replaybench.results.intervals import with_intervals
 from replaybench.results.io import from_document, read_peak_result, to_json
 from replaybench.results.model import PEAK_SCHEMA_VERSION, ResourceSummary, SummaryRow
+from replaybench.results.repeats import one_timeline
 from replaybench.results.runfile import load_run, write_text_atomic
 from replaybench.results.stats import summarize, summary_json
 from replaybench.textsafe import visible, visible_lines
@@ -1003,7 +1004,8 @@ def _footer(run: RunResult) -> str:
 
 
 def _by_release(groups: Mapping[str, list[FrameRecord]]) -> dict[str, list[FrameRecord]]:
-    return {b: sorted(rs, key=lambda r: r.release_s) for b, rs in groups.items() if rs}
+    # the passes of --repeat one after the other (results.repeats.one_timeline)
+    return {b: one_timeline(rs) for b, rs in groups.items() if rs}
 
 
 def render_html(data: RunData) -> str:

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
 __all__ = [
     'by_repeat',
     'join_repeats',
+    'one_timeline',
     'pooled_throughput',
     'repeat_count',
     'repeat_statistics',
@@ -114,3 +115,28 @@ def repeat_statistics(records: Sequence[FrameRecord]) -> tuple[RepeatStats, ...]
                 )
             )
     return tuple(out)
+
+
+def one_timeline(records: Sequence[FrameRecord]) -> list[FrameRecord]:
+    """Records of one (backend, topic) in replay order on one time line, for charts: each pass's
+    times (``release_s``, ``start_s``, ``done_s``) shifted to follow the end of the pass before
+    it. Records of a single pass come back sorted by release time, unshifted."""
+    groups = by_repeat(records)
+    if len(groups) < 2:
+        return sorted(records, key=lambda r: r.release_s)
+    out: list[FrameRecord] = []
+    offset = 0.0
+    for group in groups.values():
+        ordered = sorted(group, key=lambda r: r.release_s)
+        end = 0.0
+        for r in ordered:
+            end = max(end, r.release_s, r.done_s or 0.0)
+            out.append(
+                r._replace(
+                    release_s=r.release_s + offset,
+                    start_s=None if r.start_s is None else r.start_s + offset,
+                    done_s=None if r.done_s is None else r.done_s + offset,
+                )
+            )
+        offset += end
+    return out

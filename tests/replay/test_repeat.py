@@ -310,3 +310,15 @@ def test_a_run_interrupted_in_its_first_pass_keeps_what_ran_and_a_valid_run_json
     doc = json.loads((tmp_path / 'run' / 'run.json').read_text())
     assert [b['name'] for b in doc['backends']] == ['a']
     assert {r.backend for r in read_frames_csv(tmp_path / 'run' / 'frames.csv')} == {'a'}
+
+
+def test_the_report_charts_put_the_passes_one_after_the_other(tmp_path):
+    from replaybench.results.repeats import one_timeline
+
+    run_dir = _run(tmp_path, 'run', {'a': [10.0]}, repeat=3)
+    records = read_frames_csv(run_dir / 'frames.csv')
+    line = one_timeline(records)
+    assert [r.repeat for r in line] == sorted(r.repeat for r in records)
+    releases = [r.release_s for r in line]
+    assert releases == sorted(releases)
+    assert releases[-1] == pytest.approx(3 * FRAMES * 0.010 - 0.010, rel=0.02)

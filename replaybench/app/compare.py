@@ -21,7 +21,7 @@ from replaybench.comparison.output import write_comparison
 from replaybench.comparison.verdict import EXIT_STATUS
 from replaybench.errors import ReplaybenchError, UsageError
 from replaybench.results.bootstrap import DEFAULT_RESAMPLES
-from replaybench.results.runfile import RunData
+from replaybench.results.folder import RunData
 
 if TYPE_CHECKING:
     import os
@@ -157,7 +157,7 @@ def _write_markdown(
     if config.markdown is None:
         return None
     from replaybench.comparison.markdown import comparison_markdown
-    from replaybench.results.runfile import write_text_atomic
+    from replaybench.results.atomic import write_text_atomic
 
     text = comparison_markdown(comparison, gate, allow_inconclusive=config.allow_inconclusive)
     try:

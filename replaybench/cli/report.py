@@ -49,7 +49,7 @@ def _github_benchmark(run_dir: Path, out: Path) -> tuple[Path, ...]:
     """--github-benchmark DIR: the two files, from the run folder read once."""
     from replaybench.errors import UsageError
     from replaybench.report.github_benchmark import write_github_benchmark
-    from replaybench.results.runfile import load_run
+    from replaybench.results.folder import load_run
 
     data = load_run(run_dir)
     try:

@@ -33,7 +33,8 @@ import numpy as np
 
 from replaybench.results.blocks import ChangeInterval
 from replaybench.results.intervals import CV_LIMIT, drift
-from replaybench.results.repeats import by_repeat, repeat_statistics
+from replaybench.results.repeats import by_repeat
+from replaybench.results.stats import repeat_statistics
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

@@ -4,7 +4,7 @@ run.json records each input's sha256 so that ``compare`` can tell whether two ru
 same bytes. Hashing a large recording takes a while (12 GB: some 20 s), which must not hold up
 the first frame, nor share the CPU and the disk with the measured frames: the run hashes an
 input of at most ``INLINE_MAX_BYTES`` at once when it opens (a fraction of a second, before
-anything is timed) and a larger one after the passes (``replaybench.replay.runner``), where
+anything is timed) and a larger one after the passes (``replaybench.replay.inputs``), where
 ``InputHash`` reads and digests its files in a thread of its own (file reads and hashlib's
 digest of a large buffer release the GIL) that the run waits for.
 

@@ -101,7 +101,7 @@ def github_benchmark(run: RunResult) -> tuple[list[dict[str, Any]], list[dict[st
 def write_github_benchmark(run: RunResult, out_dir: Path) -> tuple[Path, Path]:
     """Write ``SMALLER_FILE`` and ``BIGGER_FILE`` into ``out_dir`` (created); their paths.
     ``OSError`` naming the file when one cannot be written."""
-    from replaybench.results.runfile import write_text_atomic
+    from replaybench.results.atomic import write_text_atomic
 
     smaller, bigger = github_benchmark(run)
     paths = (out_dir / SMALLER_FILE, out_dir / BIGGER_FILE)

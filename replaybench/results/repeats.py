@@ -1,5 +1,6 @@
-"""Runs made of several passes (``replaybench run --repeat N``): the records of each pass, and
-the statistics of each pass that ``compare`` judges between repeats.
+"""Runs made of several passes (``replaybench run --repeat N``): the records of each pass, their
+pooled throughput and series, and one time line for charts (the statistics of each pass that
+``compare`` judges between repeats are ``replaybench.results.stats.repeat_statistics``).
 
 A run with ``--repeat N`` replays every backend over the inputs N times, interleaved across
 backends (A B A B ...), each pass with its own warm-up. frames.csv tells the passes apart by
@@ -12,17 +13,20 @@ it).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING
 
 import numpy as np
-
-from replaybench.results.model import RepeatStats
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
-    from replaybench.results.intervals import Series
+    import numpy.typing as npt
+
     from replaybench.results.records import FrameRecord
+
+    #: a pass's measured latencies (ms) and completion-to-completion times (s), as
+    #: ``replaybench.results.intervals.Series`` holds them
+    PassSeries = tuple[npt.NDArray[np.float64], npt.NDArray[np.float64] | None]
 
 __all__ = [
     'by_repeat',
@@ -30,10 +34,7 @@ __all__ = [
     'one_timeline',
     'pooled_throughput',
     'repeat_count',
-    'repeat_statistics',
 ]
-
-_S = TypeVar('_S', bound='Series')
 
 
 def by_repeat(records: Sequence[FrameRecord]) -> dict[int, list[FrameRecord]]:
@@ -74,47 +75,19 @@ def pooled_throughput(
 
 
 def join_repeats(
-    records: Sequence[FrameRecord], series: Callable[[Sequence[FrameRecord]], _S]
-) -> _S | None:
-    """The series of a run of several passes: each pass's ``series``, one after the other;
-    None for the records of a single pass (``series`` applies to them as they are)."""
+    records: Sequence[FrameRecord], series: Callable[[Sequence[FrameRecord]], PassSeries]
+) -> PassSeries | None:
+    """The series of a run of several passes: each pass's ``series`` (latencies, intervals),
+    one after the other; None for the records of a single pass (``series`` applies to them as
+    they are)."""
     groups = by_repeat(records)
     if len(groups) < 2:
         return None
     parts = [series(group) for group in groups.values()]
-    latency = np.concatenate([p.latency_ms for p in parts])
-    gaps = [p.intervals_s for p in parts if p.intervals_s is not None]
+    latency = np.concatenate([latency_ms for latency_ms, _ in parts])
+    gaps = [intervals_s for _, intervals_s in parts if intervals_s is not None]
     intervals = np.concatenate(gaps) if len(gaps) == len(parts) else None
-    return parts[0]._replace(latency_ms=latency, intervals_s=intervals)
-
-
-def repeat_statistics(records: Sequence[FrameRecord]) -> tuple[RepeatStats, ...]:
-    """Per (backend, topic) and pass, in record order of the (backend, topic) and then by
-    repeat: the measured frames, median, p99 and mean latency, throughput and its window."""
-    from replaybench.results.stats import summarize
-
-    out: list[RepeatStats] = []
-    keys: dict[tuple[str, str], list[FrameRecord]] = {}
-    for record in records:
-        keys.setdefault((record.backend, record.topic), []).append(record)
-    for (backend, topic), group in keys.items():
-        for number, part in by_repeat(group).items():
-            (s,) = summarize(part)
-            fps = s.throughput_fps
-            out.append(
-                RepeatStats(
-                    backend=backend,
-                    topic=topic,
-                    repeat=number,
-                    measured=s.measured,
-                    latency_ms_p50=s.latency_ms_p50,
-                    latency_ms_p99=s.latency_ms_p99,
-                    latency_ms_mean=s.latency_ms_mean,
-                    throughput_fps=fps,
-                    window_s=s.measured / fps if fps else None,
-                )
-            )
-    return tuple(out)
+    return latency, intervals
 
 
 def one_timeline(records: Sequence[FrameRecord]) -> list[FrameRecord]:

@@ -18,7 +18,7 @@ from replaybench.cli import app
 from replaybench.comparison import compare_runs, evaluate_gate
 from replaybench.comparison.markdown import comparison_markdown
 from replaybench.report.github_benchmark import github_benchmark
-from replaybench.results.runfile import load_run
+from replaybench.results.folder import load_run
 
 runner = CliRunner()
 

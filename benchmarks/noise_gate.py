@@ -1,14 +1,17 @@
 """Does the compare gate hold under noise? A/A and A/B pairs of runs under a seeded CPU hog.
 
-    python -m benchmarks.noise_gate [--pairs 50] [--frames 300] [--clock wall] [--hsv-pairs 10]
+    python -m benchmarks.noise_gate [--pairs 50] [--repeat 3] [--frames 300] [--cost-ms 1.0]
+                                    [--clock wall] [--hsv-pairs 50]
 
-A backend of known cost (``busy``: spins 10 ms a frame) is run as pairs of runs of
-``--frames`` measured frames each, while a CPU hog — one spinning process per core, switched
-on and off at random every 50 to 300 ms from a fixed seed — runs through all of them:
+A backend of known cost (``busy``: spins ``--cost-ms``, 1 ms, a frame) is run as pairs of runs
+of ``--frames`` measured frames per pass, each run made of ``--repeat`` passes (``run
+--repeat``: ``compare`` then judges the spread between the passes), while a CPU hog — one
+spinning process per core, switched on and off at random every 50 to 300 ms from a fixed seed —
+runs through all of them:
 
-- **A/A**: the same 10 ms backend twice. Every gate condition should pass; a failure is a false
+- **A/A**: the same 1 ms backend twice. Every gate condition should pass; a failure is a false
   alarm.
-- **A/B**: 10 ms against 13 ms (+30 %). Every condition should fail.
+- **A/B**: 1.0 ms against 1.3 ms (+30 %). Every condition should fail.
 
 Each pair is judged with ``--fail-if 'p50_ms > +10%'``, ``'mean_ms > +10%'``,
 ``'p99_ms > +10%'`` and ``'fps < -10%'`` by the gate (``compare_runs`` + ``evaluate_gate``), and,
@@ -19,9 +22,12 @@ hog phases, as the busy runs do), under the same hog.
 
 Runs are made in the order A, B, A' within a pair (A/A = A and A', A/B = A and B), so the two
 runs of a pair are seconds apart. Writes benchmarks/results/noise_gate.json and prints
-the counts. It takes minutes (``--pairs 50``: about 15 on an idle 2-core machine); the hog uses
-every core, so other work on the machine slows it and adds its own noise: run it alone.
-Not part of ``python -m benchmarks``: it measures the statistics, not the speed.
+the counts, the targets (of the first 4 busy A/A and first 3 ``hsv`` A/A pairs, 0 of 7 fail;
+of the first 4 A/B pairs, 4 of 4 fail) and the false-alarm and detection rates over all pairs
+with their 95 % Clopper-Pearson intervals. ``--pairs`` and ``--hsv-pairs`` set the pair counts
+(a smoke test uses 1). It takes minutes; the hog uses every core, so other work on the machine
+slows it and adds its own noise: run it alone, on a quiet machine. Not part of
+``python -m benchmarks``: it measures the statistics, not the speed.
 """
 
 from __future__ import annotations
@@ -121,7 +127,9 @@ def _bag(path: Path, size: tuple[int, int], frames: int) -> Path:
     return path
 
 
-def _run(bag: Path, out: Path, backend: str, frames: int, extra: Mapping[str, str]) -> Path:
+def _run(
+    bag: Path, out: Path, backend: str, frames: int, extra: Mapping[str, str], repeat: int
+) -> Path:
     from replaybench.backends.base import BackendOptions
     from replaybench.replay.runner import RunConfig, run_benchmark
 
@@ -135,6 +143,7 @@ def _run(bag: Path, out: Path, backend: str, frames: int, extra: Mapping[str, st
             threads=1,
             report=False,
             options=BackendOptions(threads=1, extra=extra),
+            repeat=repeat,
         )
     )
     assert outcome.run_dir is not None
@@ -142,19 +151,14 @@ def _run(bag: Path, out: Path, backend: str, frames: int, extra: Mapping[str, st
 
 
 def _series(run_dir: Path) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """Measured latencies (ms) and completion-to-completion intervals (s), in replay order."""
-    import numpy as np
-
+    """Measured latencies (ms) and completion-to-completion intervals (s), in replay order
+    (the passes of --repeat one after the other)."""
+    from replaybench.results.intervals import measured_series
     from replaybench.results.records import read_frames_csv
 
-    records = sorted(read_frames_csv(run_dir / 'frames.csv'), key=lambda r: r.release_s)
-    done = [r.done_s for r in records if r.status == 'ok']
-    measured = [r for r in records if r.status == 'ok' and not r.warmup]
-    latency = np.asarray([r.latency_ms for r in measured], dtype=np.float64)
-    first = done.index(measured[0].done_s)
-    previous = done[first - 1] if first else measured[0].start_s
-    times = np.asarray([previous, *(r.done_s for r in measured)], dtype=np.float64)
-    return latency, np.diff(times)
+    latency, intervals = measured_series(read_frames_csv(run_dir / 'frames.csv'))
+    assert intervals is not None
+    return latency, intervals
 
 
 def _bootstrap_verdicts(base: Path, cand: Path, seed: int) -> dict[str, str]:
@@ -187,6 +191,7 @@ def _bootstrap_verdicts(base: Path, cand: Path, seed: int) -> dict[str, str]:
 
 def _judge(base: Path, cand: Path, seed: int) -> dict[str, Any]:
     from replaybench.comparison import compare_runs, evaluate_gate
+    from replaybench.comparison.gate import method_text
 
     comparison = compare_runs([base, cand], n_boot=1000, seed=seed)
     gate = evaluate_gate(comparison, list(CONDITIONS))
@@ -201,6 +206,7 @@ def _judge(base: Path, cand: Path, seed: int) -> dict[str, Any]:
             'ci': list(m.ratio_ci) if m.ratio_ci else None,
         }
     return {
+        'method': method_text(row.metrics['median_ms']),
         'gate': {r.condition: r.verdict for r in gate},
         'bootstrap': _bootstrap_verdicts(base, cand, seed),
         'ratios': ratios,
@@ -227,15 +233,81 @@ def _counts(pairs: Sequence[dict[str, Any]], method: str) -> dict[str, dict[str,
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog='python -m benchmarks.noise_gate', description=__doc__)
     parser.add_argument('--pairs', type=int, default=50, help='A/A and A/B pairs (default 50)')
-    parser.add_argument('--frames', type=int, default=300, help='measured frames per run')
-    parser.add_argument('--cost-ms', type=float, default=10.0, help='A: busy ms per frame')
+    parser.add_argument('--repeat', type=int, default=3, help='passes per run (run --repeat)')
+    parser.add_argument('--frames', type=int, default=300, help='measured frames per pass')
+    parser.add_argument('--cost-ms', type=float, default=1.0, help='A: busy ms per frame')
     parser.add_argument('--change', type=float, default=0.30, help='B: cost up by this fraction')
     parser.add_argument('--clock', choices=('wall', 'cpu'), default='wall', help='busy clock')
-    parser.add_argument('--hsv-pairs', type=int, default=10, help='A/A pairs of hsv')
+    parser.add_argument('--hsv-pairs', type=int, default=50, help='A/A pairs of hsv')
     parser.add_argument('--seed', type=int, default=14, help='the hog schedule')
     parser.add_argument('--workers', type=int, default=os.cpu_count() or 1, help='hog processes')
     parser.add_argument('--out', type=Path, default=DEFAULT_OUT)
     return parser.parse_args(argv)
+
+
+def _any(verdicts: Mapping[str, str]) -> str:
+    values = set(verdicts.values())
+    return next((v for v in ('failed', 'inconclusive') if v in values), 'passed')
+
+
+def _clopper_pearson(k: int, n: int) -> list[float] | None:
+    """The exact 95 % interval of a rate of ``k`` in ``n`` (bisection on the binomial tails)."""
+    if n == 0:
+        return None
+    from math import comb
+
+    def tail_up(p: float) -> float:  # P(X >= k)
+        return sum(comb(n, i) * p**i * (1 - p) ** (n - i) for i in range(k, n + 1))
+
+    def tail_down(p: float) -> float:  # P(X <= k)
+        return sum(comb(n, i) * p**i * (1 - p) ** (n - i) for i in range(k + 1))
+
+    def solve(f: Callable[[float], float], rising: bool) -> float:
+        lo, hi = 0.0, 1.0
+        for _ in range(60):
+            mid = (lo + hi) / 2
+            if (f(mid) < 0.025) == rising:
+                lo = mid
+            else:
+                hi = mid
+        return (lo + hi) / 2
+
+    low = 0.0 if k == 0 else solve(tail_up, rising=True)
+    high = 1.0 if k == n else solve(tail_down, rising=False)
+    return [low, high]
+
+
+def _rates(
+    aa: Sequence[dict[str, Any]], ab: Sequence[dict[str, Any]], hsv: Sequence[dict[str, Any]]
+) -> dict[str, Any]:
+    """The targets on the first pairs, and the rates over every pair (gate over all conditions)."""
+    null_pairs = [*aa, *hsv]
+    false_alarms = sum(_any(p['gate']) == 'failed' for p in null_pairs)
+    detected = sum(_any(p['gate']) == 'failed' for p in ab)
+    first_aa = [*aa[:4], *hsv[:3]]
+    return {
+        'targets': {
+            'aa_failed_of_first_7': [
+                sum(_any(p['gate']) == 'failed' for p in first_aa),
+                len(first_aa),
+            ],
+            'ab_failed_of_first_4': [sum(_any(p['gate']) == 'failed' for p in ab[:4]), len(ab[:4])],
+            'wanted': 'A/A: 0 of 7 fail; A/B: 4 of 4 fail',
+        },
+        'false_alarm': {
+            'failed': false_alarms,
+            'pairs': len(null_pairs),
+            'rate': false_alarms / len(null_pairs) if null_pairs else None,
+            'ci95': _clopper_pearson(false_alarms, len(null_pairs)),
+        },
+        'detection': {
+            'failed': detected,
+            'pairs': len(ab),
+            'rate': detected / len(ab) if ab else None,
+            'ci95': _clopper_pearson(detected, len(ab)),
+            'inconclusive': sum(_any(p['gate']) == 'inconclusive' for p in ab),
+        },
+    }
 
 
 def _log(line: str) -> None:
@@ -281,7 +353,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         hsv_bag = _bag(work / 'scene.mcap', (640, 480), args.frames + _WARMUP)
 
         def busy(name: str, ms: float) -> Path:
-            return _run(busy_bag, work / name, 'busy', args.frames, spin_options(ms, args.clock))
+            extra = spin_options(ms, args.clock)
+            return _run(busy_bag, work / name, 'busy', args.frames, extra, args.repeat)
 
         with Hog(args.seed, args.workers):
             for i in range(args.pairs):
@@ -297,8 +370,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     f'A/B {sorted(ab[-1]["gate"].values())}'
                 )
             for i in range(args.hsv_pairs):
-                a = _run(hsv_bag, work / 'h1', 'hsv', args.frames, {})
-                a2 = _run(hsv_bag, work / 'h2', 'hsv', args.frames, {})
+                a = _run(hsv_bag, work / 'h1', 'hsv', args.frames, {}, args.repeat)
+                a2 = _run(hsv_bag, work / 'h2', 'hsv', args.frames, {}, args.repeat)
                 hsv.append({'pair': i, **_judge(a, a2, i)})
                 for folder in (a, a2):
                     shutil.rmtree(folder)
@@ -313,6 +386,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         }
 
     clock = args.clock
+    summary = _rates(aa, ab, hsv)
     document = {
         'schema_version': 1,
         'experiment': 'noise_gate',
@@ -325,6 +399,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         'settings': {
             'pairs': args.pairs,
             'frames': args.frames,
+            'repeat': args.repeat,
             'warmup': _WARMUP,
             'cost_ms': [args.cost_ms, cost_b],
             'busy_clock': clock,
@@ -339,9 +414,21 @@ def main(argv: Sequence[str] | None = None) -> int:
             'ab': block(f'A/B {args.cost_ms:g} vs {cost_b:g} ms', ab),
             'hsv_aa': block('A/A hsv', hsv),
         },
+        'summary': summary,
     }
     write_json_atomic(args.out, document)
     print(_table(document))
+    targets, alarms, found = summary['targets'], summary['false_alarm'], summary['detection']
+    print(
+        f'\ntargets: A/A {targets["aa_failed_of_first_7"][0]} of '
+        f'{targets["aa_failed_of_first_7"][1]} failed, A/B {targets["ab_failed_of_first_4"][0]} '
+        f'of {targets["ab_failed_of_first_4"][1]} failed ({targets["wanted"]})'
+    )
+    print(
+        f'false alarms {alarms["failed"]} of {alarms["pairs"]} A/A pairs, 95 % CI '
+        f'{alarms["ci95"]}; detected {found["failed"]} of {found["pairs"]} A/B pairs '
+        f'({found["inconclusive"]} inconclusive), 95 % CI {found["ci95"]}'
+    )
     print(f'\nwrote {args.out}')
     return 0
 

@@ -7,6 +7,11 @@ compares two such folders: detections.mcap and the sample pictures byte for byte
 summary.csv and run.json cell by cell, timing values aside (a timing value is compared only
 for being present or empty). Exit status 0 when every case is identical, 1 otherwise, with
 one line per difference.
+
+Outputs written before ``run --repeat`` existed are read as a single pass: a frames.csv (or an
+API document's frame records) without the ``repeat`` column as holding ``repeat`` 0 in every
+row, and run.json's ``settings`` without ``repeat`` as ``repeat`` 1, both in the place the
+current outputs hold them; any other difference still counts.
 """
 
 from __future__ import annotations
@@ -193,10 +198,29 @@ def _diff(a: Any, b: Any, where: str, out: list[str]) -> None:
         out.append(f'{where}: {a!r} != {b!r}')
 
 
+#: a column added since outputs were kept, and the value an older file stands for
+_ADDED_FRAMES_COLUMN = ('repeat', '0')
+#: a run.json setting added since, and the value an older run.json stands for
+_ADDED_SETTING = ('repeat', 1)
+
+
+def _with_added_column(header: list[str], body: list[list[str]]) -> None:
+    """A frames.csv written before the ``repeat`` column, as a single pass (in place)."""
+    from replaybench.results.records import FRAMES_CSV_COLUMNS
+
+    name, value = _ADDED_FRAMES_COLUMN
+    if tuple(header) == FRAMES_CSV_COLUMNS[:-1] and FRAMES_CSV_COLUMNS[-1] == name:
+        header.append(name)
+        for row in body:
+            row.append(value)
+
+
 def _csv(path: Path) -> list[dict[str, str]]:
     with path.open(encoding='utf-8', newline='') as file:
         rows = list(csv.reader(file))
     header, body = rows[0], rows[1:]
+    if path.name == 'frames.csv':
+        _with_added_column(header, body)
     return [
         {
             k: ('<number>' if v else '')
@@ -213,13 +237,25 @@ def _csv(path: Path) -> list[dict[str, str]]:
 def _frames_records(document: dict[str, Any]) -> list[Any]:
     from replaybench.results.records import FRAMES_CSV_COLUMNS
 
+    rows = document.pop('frame_records')
+    if rows and len(rows[0]) == len(FRAMES_CSV_COLUMNS) - 1:  # before the repeat column
+        rows = [[*row, int(_ADDED_FRAMES_COLUMN[1])] for row in rows]
     return [
         {
             k: ('<number>' if v is not None else None) if _timing(k) else v
             for k, v in zip(FRAMES_CSV_COLUMNS, row, strict=True)
         }
-        for row in document.pop('frame_records')
+        for row in rows
     ]
+
+
+def _with_added_setting(document: dict[str, Any]) -> dict[str, Any]:
+    """A run.json (or API document) written before ``settings.repeat``, as a single pass."""
+    settings = document.get('settings')
+    name, value = _ADDED_SETTING
+    if isinstance(settings, dict) and name not in settings:
+        document['settings'] = {**settings, name: value}
+    return document
 
 
 def _compare_folder(ref: Path, new: Path, where: str, out: list[str]) -> None:
@@ -238,8 +274,8 @@ def _compare_folder(ref: Path, new: Path, where: str, out: list[str]) -> None:
             _diff(_csv(a), _csv(b), f'{where}/{name}', out)
         elif Path(name).name == 'run.json':
             _diff(
-                _masked(json.loads(a.read_text(encoding='utf-8'))),
-                _masked(json.loads(b.read_text(encoding='utf-8'))),
+                _masked(_with_added_setting(json.loads(a.read_text(encoding='utf-8')))),
+                _masked(_with_added_setting(json.loads(b.read_text(encoding='utf-8')))),
                 f'{where}/{name}',
                 out,
             )
@@ -247,6 +283,7 @@ def _compare_folder(ref: Path, new: Path, where: str, out: list[str]) -> None:
             da = json.loads(a.read_text(encoding='utf-8'))
             db = json.loads(b.read_text(encoding='utf-8'))
             _diff(_frames_records(da), _frames_records(db), f'{where}/{name}:frames', out)
+            da, db = _with_added_setting(da), _with_added_setting(db)
             _diff(_masked(da), _masked(db), f'{where}/{name}', out)
 
 

@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
@@ -30,7 +32,7 @@ def test_the_noise_experiment_writes_verdict_counts_for_every_pair_kind(tmp_path
     out = tmp_path / 'noise.json'
     proc = subprocess.run(
         [sys.executable, '-m', 'benchmarks.noise_gate', '--pairs', '1', '--frames', '20',
-         '--hsv-pairs', '1', '--workers', '1', '--out', str(out)],
+         '--hsv-pairs', '1', '--workers', '1', '--repeat', '2', '--out', str(out)],
         cwd=REPO,
         env={**os.environ, 'TMPDIR': str(tmp_path)},
         capture_output=True,
@@ -41,12 +43,31 @@ def test_the_noise_experiment_writes_verdict_counts_for_every_pair_kind(tmp_path
     assert proc.returncode == 0, proc.stderr[-2000:]
     document = json.loads(out.read_text(encoding='utf-8'))
     assert document['settings']['frames'] == 20
-    assert document['settings']['cost_ms'] == [10.0, 13.0]
+    assert document['settings']['cost_ms'] == [1.0, 1.3]
+    assert document['settings']['repeat'] == 2
     for name in ('aa', 'ab', 'hsv_aa'):
         block = document['results'][name]
         assert len(block['pairs']) == 1
+        assert block['pairs'][0]['method'] == 'between-repeat 2/2'
         for method in ('gate', 'bootstrap'):
             counts = block['counts'][method]
             assert set(counts) == {*CONDITIONS, 'any'}
             assert all(sum(tally.values()) == 1 for tally in counts.values())
     assert 'A/A hsv' in proc.stdout
+    summary = document['summary']
+    assert summary['false_alarm']['pairs'] == 2
+    assert summary['detection']['pairs'] == 1
+    assert summary['targets']['aa_failed_of_first_7'][1] == 2
+    assert 'false alarms' in proc.stdout
+
+
+def test_the_rates_carry_exact_binomial_intervals() -> None:
+    from benchmarks.noise_gate import _clopper_pearson
+
+    stats = pytest.importorskip('scipy.stats')
+    for k, n in ((0, 50), (50, 50), (3, 57), (1, 7)):
+        low, high = _clopper_pearson(k, n)  # type: ignore[misc]
+        want_low = stats.beta.ppf(0.025, k, n - k + 1) if k else 0.0
+        want_high = stats.beta.ppf(0.975, k + 1, n - k) if k < n else 1.0
+        assert low == pytest.approx(want_low, abs=1e-9)
+        assert high == pytest.approx(want_high, abs=1e-9)

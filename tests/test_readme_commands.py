@@ -366,3 +366,20 @@ def test_the_readme_states_the_default_install_size_how_and_when_it_was_measured
     assert 'pip install .' in install
     assert 'make run' in install
     assert re.search(r'measured\s+\d{4}-\d{2}-\d{2}', install), install
+
+
+def test_the_readme_ci_example_passes_the_same_code_and_fails_the_slower_backend(
+    tmp_path: Path,
+) -> None:
+    """README's CI example on fixtures/bags/ci.mcap: three runs with --repeat, then an A/A
+    compare that the document expects to exit 0 and a +30 % one that it expects to exit 1;
+    both exit as stated."""
+    ci = [c for c in ALL if c.doc == 'README.md' and ('ci.mcap' in c.text or 'runs/ci-' in c.text)]
+    runs = [c for c in ci if c.text.startswith('replaybench run ')]
+    compares = [c for c in ci if c.text.startswith('replaybench compare ')]
+    assert len(runs) == 3
+    assert all('--repeat ' in c.text and c.skip is None for c in runs)
+    assert [c.expected for c in compares] == [(0,), (1,)]
+    results = _run_doc(ci, _workspace(tmp_path))
+    codes = [code for _, code, _, _ in results]
+    assert codes == [0, 0, 0, 0, 1], [(c.text, code, out) for c, code, out, _ in results]

@@ -56,6 +56,8 @@ class CompareConfig:
     n_boot: int = DEFAULT_RESAMPLES
     #: where comparison.csv/.html/.json go; None writes nothing
     out: Path | None = None
+    #: --markdown FILE: the comparison as GitHub-flavoured Markdown (``comparison.markdown``)
+    markdown: Path | None = None
 
 
 def compare_config(
@@ -69,6 +71,7 @@ def compare_config(
     seed: int = 0,
     n_boot: int = DEFAULT_RESAMPLES,
     out: str | os.PathLike[str] | None = None,
+    markdown: str | os.PathLike[str] | None = None,
 ) -> CompareConfig:
     """The ``CompareConfig`` of ``replaybench compare``'s options (``--fail-if`` is
     ``fail_if``); ``UsageError`` for a condition that does not parse, before any run is read."""
@@ -85,6 +88,7 @@ def compare_config(
         seed=seed,
         n_boot=n_boot,
         out=Path(out) if out is not None else None,
+        markdown=Path(markdown) if markdown is not None else None,
     )
 
 
@@ -97,6 +101,8 @@ class CompareOutcome:
     gate: tuple[GateResult, ...]
     #: comparison.csv, comparison.html and comparison.json; () when ``config.out`` is None
     written: tuple[Path, ...] = ()
+    #: the Markdown file written (``config.markdown``), or None
+    markdown: Path | None = None
 
     @property
     def verdict(self) -> str | None:
@@ -140,7 +146,26 @@ def run_compare(config: CompareConfig) -> CompareOutcome:
             msg = f'cannot write into {config.out}: {err.strerror or err}'
             raise UsageError(msg) from err
         written = (csv_path, html_path, html_path.with_name('comparison.json'))
-    return CompareOutcome(config, comparison, gate, written)
+    markdown = _write_markdown(config, comparison, gate)
+    return CompareOutcome(config, comparison, gate, written, markdown)
+
+
+def _write_markdown(
+    config: CompareConfig, comparison: Comparison, gate: Sequence[GateResult]
+) -> Path | None:
+    """Write ``config.markdown`` (--markdown FILE) from the comparison in memory."""
+    if config.markdown is None:
+        return None
+    from replaybench.comparison.markdown import comparison_markdown
+    from replaybench.results.atomic import write_text_atomic
+
+    text = comparison_markdown(comparison, gate, allow_inconclusive=config.allow_inconclusive)
+    try:
+        write_text_atomic(config.markdown, text)
+    except OSError as err:
+        msg = f'cannot write {config.markdown}: {err.strerror or err}'
+        raise UsageError(msg) from err
+    return config.markdown
 
 
 def compare_lines(outcome: CompareOutcome) -> list[tuple[bool, str]]:
@@ -156,6 +181,8 @@ def compare_lines(outcome: CompareOutcome) -> list[tuple[bool, str]]:
         csv_path, html_path, json_path = outcome.written
         for name, path in (('Comparison', html_path), ('CSV', csv_path), ('JSON', json_path)):
             lines.append((False, f'{name}: {path}'))
+    if outcome.markdown is not None:
+        lines.append((False, f'Markdown: {outcome.markdown}'))
     return lines
 
 

@@ -149,6 +149,7 @@ def run_config(
     report: bool = True,
     hash_inputs: bool = True,
     command: Sequence[str] = (),
+    repeat: int = 1,
 ) -> RunConfig:
     """The ``RunConfig`` of ``replaybench run``'s options, checked: each keyword is the option
     of the same name in snake_case (``--max-frames`` is ``max_frames``, ``--topic`` is
@@ -159,6 +160,7 @@ def run_config(
     from replaybench.replay.rate import Rate, parse_rate
 
     _at_least('--queue-depth', queue_depth, 1)
+    _at_least('--repeat', repeat, 1)
     _at_least('--warmup', warmup, 0)
     _at_least('--max-frames', max_frames, 1)
     _at_least('--start', start, 0)
@@ -211,6 +213,7 @@ def run_config(
         copy_images=copy_images,
         detections_format=detections_format,
         hash_inputs=hash_inputs,
+        repeat=repeat,
     )
 
 

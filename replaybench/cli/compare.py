@@ -46,6 +46,15 @@ def compare(
             help='Exit 0, not 3, when no condition failed but the data could not decide one.',
         ),
     ] = False,
+    markdown: Annotated[
+        Path | None,
+        typer.Option(
+            '--markdown',
+            help='Also write the comparison and the verdict as a GitHub-flavoured Markdown '
+            'table into FILE (a CI job summary or pull-request comment; under 1 MiB).',
+            metavar='FILE',
+        ),
+    ] = None,
     baseline: Annotated[
         int,
         typer.Option('--baseline', min=0, help='Which run folder is the baseline, counted from 0.'),
@@ -78,6 +87,7 @@ def compare(
             baseline=baseline,
             baseline_backend=baseline_backend,
             out=out,
+            markdown=markdown,
         )
         outcome = run_compare(settings)
     except ReplaybenchError as err:

@@ -20,6 +20,14 @@ def fixtures(
     out: Annotated[Path, typer.Option('--out', '-o', help='Folder to write the bags into.')],
     frames: Annotated[int, typer.Option('--frames', min=1, help='Frames per camera.')] = 30,
     size: Annotated[str, typer.Option('--size', help='Image size WxH.')] = '320x240',
+    ci: Annotated[
+        bool,
+        typer.Option(
+            '--ci',
+            help='Write only ci.mcap: 300 frames of 320x240 JPEG with ground truth, the bag '
+            "README's CI example gates on (--frames and --size do not apply).",
+        ),
+    ] = False,
 ) -> None:
     """Generate the synthetic fixture bags (MCAP raw/jpeg, rosbag2 .db3, ROS 1 .bag, two cameras).
 
@@ -28,6 +36,11 @@ def fixtures(
     from replaybench.errors import UsageError
     from replaybench.fixtures import generate_fixtures
 
+    if ci:
+        from replaybench.fixtures.writer import write_ci_fixture
+
+        typer.echo(str(write_ci_fixture(out)))
+        return
     try:
         w, _, h = size.lower().partition('x')
         if not (w.isdigit() and h.isdigit() and int(w) >= 32 and int(h) >= 32):

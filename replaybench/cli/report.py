@@ -18,6 +18,16 @@ def report(
     run_dir: Annotated[
         Path, typer.Argument(help='A run folder written by `replaybench run`.', show_default=False)
     ],
+    github_benchmark: Annotated[
+        Path | None,
+        typer.Option(
+            '--github-benchmark',
+            help="Also write the run's latencies (smaller_is_better.json) and throughput and "
+            "accuracy (bigger_is_better.json) into DIR in github-action-benchmark's custom "
+            'format.',
+            metavar='DIR',
+        ),
+    ] = None,
 ) -> None:
     """Render report.html again from a run folder (run.json, frames.csv, samples/).
 
@@ -27,6 +37,23 @@ def report(
 
     try:
         path = render_report(run_dir)
+        written = _github_benchmark(run_dir, github_benchmark) if github_benchmark else ()
     except ReplaybenchError as err:
         raise fail(err) from None
     echo(f'Report: {path}')
+    for file in written:
+        echo(f'Benchmark: {file}')
+
+
+def _github_benchmark(run_dir: Path, out: Path) -> tuple[Path, ...]:
+    """--github-benchmark DIR: the two files, from the run folder read once."""
+    from replaybench.errors import UsageError
+    from replaybench.report.github_benchmark import write_github_benchmark
+    from replaybench.results.folder import load_run
+
+    data = load_run(run_dir)
+    try:
+        return write_github_benchmark(data.run, out)
+    except OSError as err:
+        msg = f'cannot write into {out}: {err.strerror or err}'
+        raise UsageError(msg) from err

@@ -237,6 +237,15 @@ def run(
         ),
     ] = 'mcap',
     no_report: Annotated[bool, typer.Option('--no-report', help='Skip report.html.')] = False,
+    repeat: Annotated[
+        int,
+        typer.Option(
+            '--repeat',
+            help='Replay the inputs N times per backend, interleaved across backends, each pass '
+            'with its own warm-up; compare then judges the variation between passes '
+            '(docs/compare.md).',
+        ),
+    ] = 1,
     no_hash: Annotated[
         bool,
         typer.Option(
@@ -288,6 +297,7 @@ def run(
             detections_format=detections_format,
             report=not no_report,
             hash_inputs=not no_hash,
+            repeat=repeat,
             command=['replaybench', *sys.argv[1:]],
         )
         outcome = _run_until_stopped(settings, progress)

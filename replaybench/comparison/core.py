@@ -7,6 +7,13 @@ from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 import numpy as np
 
+from replaybench.comparison.repeats import (
+    CAUTION_ADVICE,
+    PassValues,
+    pass_values,
+    repeat_change,
+    single_pass_caution,
+)
 from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match, load_runs, run_flags
 from replaybench.errors import UsageError
 from replaybench.results.blocks import change_interval
@@ -120,6 +127,10 @@ class Row:
     inputs_match: bool | None
     metrics: dict[str, MetricComparison]
     flags: tuple[str, ...]
+    #: why this row's timings cannot fail the gate by themselves (``repeats.single_pass_caution``)
+    caution: str | None = None
+    #: passes of ``--repeat`` (1 for a single pass)
+    repeats: int = 1
 
     @property
     def name(self) -> str:
@@ -166,6 +177,8 @@ class _Series(NamedTuple):
     latency: npt.NDArray[np.float64]
     intervals: npt.NDArray[np.float64] | None
     summary: Summary
+    passes: PassValues | None = None  # --repeat: each pass's value per metric
+    caution: str | None = None
 
 
 def _series(records: Sequence[FrameRecord]) -> dict[tuple[str, str], _Series]:
@@ -178,7 +191,9 @@ def _series(records: Sequence[FrameRecord]) -> dict[tuple[str, str], _Series]:
     for key, group in groups.items():
         # the series run reports take their own intervals from (results.intervals)
         latency, intervals = measured_series(group)
-        result[key] = _Series(latency, intervals, summaries[key])
+        summary = summaries[key]
+        caution = single_pass_caution(group, latency, summary.throughput_fps)
+        result[key] = _Series(latency, intervals, summary, pass_values(group), caution)
     return result
 
 
@@ -344,6 +359,8 @@ def compare_runs(
             flags = list(flags_of_run[run.index])
             if cv is not None and cv > CV_LIMIT:
                 flags.append(f'unstable latency: CV {cv:.3f} > {CV_LIMIT:g}')
+            if s.caution is not None:
+                flags.append(f'{s.caution}: {CAUTION_ADVICE}')
             if s.latency.size < MIN_FRAMES:
                 flags.append(
                     f'{s.latency.size} measured frames: fewer than {MIN_FRAMES}, compared frame by '
@@ -366,6 +383,9 @@ def compare_runs(
                 )
                 change = None
                 if paired and base_series is not None:
+                    # both runs of --repeat: between passes (repeats.py); else between blocks
+                    change = repeat_change(metric, base_series.passes, s.passes, confidence)
+                if paired and base_series is not None and change is None:
                     change = change_interval(
                         metric,
                         base_series.latency,
@@ -394,6 +414,8 @@ def compare_runs(
                 inputs_match=match,
                 metrics=metrics,
                 flags=tuple(flags),
+                caution=s.caution,
+                repeats=len(next(iter(s.passes.values()))) if s.passes else 1,
             )
             rows.append(row)
             extra = [f for f in flags if f not in flags_of_run[run.index]]

@@ -7,6 +7,7 @@ import re
 from typing import TYPE_CHECKING, NamedTuple
 
 from replaybench.comparison.core import ACCURACY_METRICS, METRICS, TIMING_METRICS
+from replaybench.comparison.repeats import CAUTION_ADVICE
 from replaybench.comparison.verdict import Verdict, decide, overall, past
 from replaybench.errors import UsageError
 from replaybench.results.blocks import change_interval, point_value
@@ -176,6 +177,23 @@ def method_text(m: MetricComparison) -> str:
     return m.method
 
 
+_UNIT = {'between-block': 'block', 'between-repeat': 'repeat'}
+
+
+def _held_back(m: MetricComparison, row: Row, baseline: Row | None) -> str | None:
+    """Why a failed timing condition is only inconclusive: a side is a short single pass with
+    a stability warning (``repeats.single_pass_caution``); None when none is. Intervals between
+    repeats already hold the variation between passes, and frame-by-frame intervals (under 20
+    frames) fail only a change that nearly every frame shows (nine-fold on ten frames), so the
+    rule holds for intervals between blocks."""
+    if m.method != 'between-block':
+        return None
+    for side, which in ((row, 'the candidate'), (baseline, 'the baseline')):
+        if side is not None and side.caution is not None:
+            return f'{which} is {side.caution}: {CAUTION_ADVICE}'
+    return None
+
+
 _WORD: dict[Verdict, str] = {'failed': 'FAIL', 'passed': 'pass', 'inconclusive': 'INCONCLUSIVE'}
 _SIDE = {'>': 'above', '>=': 'at or above', '<': 'below', '<=': 'at or below'}
 _OTHER_SIDE = {'>': 'at or below', '>=': 'below', '<': 'at or above', '<=': 'above'}
@@ -243,6 +261,9 @@ def _judge(
                 f'{_no_interval(m, row, baseline)}: undecided (the point estimate is '
                 f'{past_text} {threshold}; strict mode judges it)'
             )
+        elif verdict == 'failed' and (held := _held_back(m, row, baseline)):
+            verdict = 'inconclusive'
+            why = f'the whole CI is {_SIDE[condition.op]} {threshold}, but {held}'
         elif verdict == 'failed':
             why = f'the whole CI is {_SIDE[condition.op]} {threshold}'
         elif verdict == 'passed':
@@ -254,7 +275,7 @@ def _judge(
             )
     shown = _change_text(est, condition)
     typical = _typical(m, condition)
-    unit = 'block' if m.blocks is not None else 'frame'
+    unit = _UNIT.get(m.method or '', 'frame')
     detail = f'typical {unit} {_change_text(typical, condition)}, ' if typical is not None else ''
     if ci:
         ci_text = (

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from replaybench.comparison.gate import gate_verdict
+from replaybench.comparison.gate import gate_verdict, method_text
 from replaybench.comparison.verdict import EXIT_STATUS
 
 if TYPE_CHECKING:
@@ -53,9 +53,10 @@ def format_summary(
         f'baseline: {comparison.baseline_run.label}'
         + (f' (backend {comparison.baseline_backend})' if comparison.baseline_backend else ''),
         (
-            f'ratios candidate/baseline; {level}% CIs of the typical change, exact rank '
-            'intervals between blocks of frames, or between frames below 20 (n.s. = not '
-            'significant):'
+            f'ratios candidate/baseline; {level}% CIs of the typical change: Welch t intervals '
+            'between repeats when both runs have --repeat passes, else exact rank intervals '
+            'between blocks of frames, or between frames below 20 (each row names its method; '
+            'n.s. = not significant):'
         ),
     ]
     for row in comparison.rows:
@@ -66,7 +67,9 @@ def format_summary(
         acc = row.metrics['map50']
         if acc.diff is not None:
             parts.append(f'map50 {acc.diff:+.4f} (no CI)')
-        lines.append(f'  {row.name}{versus}: ' + ', '.join(parts))
+        method = method_text(row.metrics['median_ms'])
+        how = f' [{method}]' if method else ''
+        lines.append(f'  {row.name}{versus}: ' + ', '.join(parts) + how)
     if not any(r.role == 'candidate' for r in comparison.rows):
         lines.append('  (no row to compare with the baseline)')
     if gate:

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 from replaybench._version import __version__
 from replaybench.comparison.core import ACCURACY_METRICS, TIMING_METRICS
 from replaybench.comparison.gate import gate_verdict, method_text
+from replaybench.comparison.repeats import MIN_SINGLE_PASS_S
 from replaybench.comparison.runs import CV_LIMIT, engine_text
 from replaybench.comparison.verdict import EXIT_STATUS
 from replaybench.results.atomic import write_text_atomic
@@ -229,7 +230,9 @@ def comparison_json(
             'ratio_ci': (
                 'exact Mann-Whitney (Moses) interval of the Hodges-Lehmann ratio between '
                 'blocks of consecutive frames, each block summarised by the metric; '
-                f'per frame below {MIN_FRAMES} measured frames'
+                f'per frame below {MIN_FRAMES} measured frames; when both runs have two or more '
+                '--repeat passes: Welch t interval between the passes (log values for ratios), '
+                'the method named per row'
             ),
             'blocks': (
                 f'clamp(n // {BLOCK_FRAMES}, {MIN_BLOCKS}, {MAX_BLOCKS}) blocks per series, '
@@ -238,7 +241,8 @@ def comparison_json(
             'significant': 'ratio CI excludes 1.0',
             'verdicts': (
                 'failed: the whole CI past the threshold; passed: none of it; '
-                'inconclusive: it straddles the threshold or there is no CI'
+                'inconclusive: it straddles the threshold or there is no CI, or a failure rests '
+                f'on a single pass shorter than {MIN_SINGLE_PASS_S:g} s with a stability warning'
             ),
             'value_ci': 'circular block bootstrap over measured frames in replay order',
             'block_length': 'max(ceil(n ** (1/3)), Politis-White estimate) frames, per series',

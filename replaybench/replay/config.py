@@ -84,6 +84,8 @@ class RunConfig:
     hash_inputs: bool = True
     #: the inputs' sha256 when already known (a peak search's later trials): not hashed again
     input_sha256: tuple[str | None, ...] | None = None
+    #: --repeat N: every backend replays the inputs N times, interleaved across backends
+    repeat: int = 1
 
     def input_options(self) -> InputOptions:
         """The part of the config that opens and reads the inputs."""
@@ -106,6 +108,7 @@ class RunConfig:
             queue_depth=self.queue_depth,
             prefetch=self.prefetch,
             warmup=self.warmup,
+            repeat=self.repeat,
         )
 
     def output_options(self, out: Path | None) -> OutputOptions:
@@ -150,12 +153,14 @@ class InputOptions:
 @dataclass(frozen=True, slots=True)
 class PassOptions:
     """How the frames of a pass are released: the rate, the queues, the read-ahead and the
-    warm-up asked for (None: the default per topic)."""
+    warm-up asked for (None: the default per topic, in each pass), and how many passes each
+    backend makes over the inputs (``--repeat``)."""
 
     rate: Rate = field(default_factory=lambda: Rate('max'))
     queue_depth: int = 1
     prefetch: int = 4
     warmup: int | None = None
+    repeat: int = 1
 
 
 @dataclass(frozen=True, slots=True)

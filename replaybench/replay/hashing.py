@@ -1,15 +1,16 @@
-"""The sha256 of a run's inputs, computed beside the replay instead of before it.
+"""The sha256 of a run's inputs, computed when nothing is timed.
 
 run.json records each input's sha256 so that ``compare`` can tell whether two runs replayed the
 same bytes. Hashing a large recording takes a while (12 GB: some 20 s), which must not hold up
-the first frame: an ``InputHash`` reads and digests the input's files in a thread of its own,
-started when the input opens, and the run asks for the digest when it ends. File reads and
-hashlib's digest of a large buffer release the GIL, so the thread runs beside the replay. Inputs
-under ``INLINE_MAX_BYTES`` are hashed at once instead (a fraction of a second), which keeps the
-replay of small inputs free of it.
+the first frame, nor share the CPU and the disk with the measured frames: the run hashes an
+input of at most ``INLINE_MAX_BYTES`` at once when it opens (a fraction of a second, before
+anything is timed) and a larger one after the passes (``replaybench.replay.inputs``), where
+``InputHash`` reads and digests its files in a thread of its own (file reads and hashlib's
+digest of a large buffer release the GIL) that the run waits for.
 
-A hash that is still running while frames are measured shares the CPU and the disk with them;
-the run records for how long (``overlap_s``) and says so in run.json's warnings.
+A hash started before the passes and still running while frames are measured would share the
+CPU and the disk with them; the run records for how long (``overlap_s``) and says so in
+run.json's warnings.
 """
 
 from __future__ import annotations

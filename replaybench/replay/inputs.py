@@ -3,8 +3,9 @@ recorded detections a backend replays, the sample frame of each topic and their 
 
 ``open_input`` opens and probes one BAG argument into an ``OpenedInput``; ``replayed`` is the
 stream of image messages each pass reads from it; ``decoder`` turns one into the ``Frame`` a
-backend gets. The sha256 is started when the input opens (``start_hash``) and settled when the
-passes have ended (``settle_hash``).
+backend gets. The sha256 is taken while nothing is timed: a small input's when it opens, a
+larger one's after the passes (``deferred_hash``), settled with a check that the input did not
+change meanwhile (``settle_hash``).
 """
 
 from __future__ import annotations
@@ -31,12 +32,12 @@ __all__ = [
     'HashOutcome',
     'OpenedInput',
     'decoder',
+    'deferred_hash',
     'expected_frames',
     'load_external',
     'open_input',
     'replayed',
     'settle_hash',
-    'start_hash',
 ]
 
 _NS = 1_000_000_000
@@ -61,9 +62,10 @@ class OpenedInput(NamedTuple):
     recorded_topic: str | None
     external: ExternalGroundTruth | None = None  # --ground-truth-file; replaces ground_truth
     notes: tuple[str, ...] = ()  # warnings found while opening (detections left out)
-    sha256: InputHash | None = None  # started when the input opened (``start_hash``)
+    sha256: InputHash | None = None  # made when the input opened (``deferred_hash``)
     max_frames: int | None = None  # at most this many frames of each topic are replayed
     size_bytes: int = 0  # of its files, when it was opened
+    files_state: tuple[tuple[int, int], ...] = ()  # (size, mtime_ns) per file when hashed
 
 
 def load_external(config: RunConfig) -> ExternalGroundTruth | None:
@@ -308,22 +310,53 @@ def decoder(inp: OpenedInput) -> Callable[[RawMessage], Frame]:
 # -- the sha256 --------------------------------------------------------------------------------
 
 
-def start_hash(
+def deferred_hash(
     inp: OpenedInput,
     options: InputOptions,
     hasher: Callable[[Sequence[Path]], InputHash] | None,
-    notice: Callable[[str], None] | None,
-) -> InputHash | None:
-    """The input's sha256, started now: in a thread for a large input, announced on the
-    terminal (``notice``) over ``ANNOUNCE_MIN_BYTES``; None when not computed here (--no-hash,
-    or known already)."""
+) -> OpenedInput:
+    """The input with its ``InputHash``: an input of at most ``INLINE_MAX_BYTES`` is hashed now
+    (a fraction of a second, before anything is timed); a larger one after the passes
+    (``settle_hash``), so that nothing reads and digests beside the measured frames. Its files'
+    size and mtime are noted now and checked then. Unchanged when not computed here
+    (--no-hash, or known already)."""
     if not options.hash_inputs or options.input_sha256 is not None:
-        return None
+        return inp
     found = (hasher or InputHash)(list(inp.source.files))
+    state = _files_state(inp)
+    return inp._replace(sha256=found if found.background else found.start(), files_state=state)
+
+
+def _files_state(inp: OpenedInput) -> tuple[tuple[int, int], ...]:
+    """(size, mtime_ns) of each file of the input, to tell that it did not change."""
+    out = []
+    for path in inp.source.files:
+        st = path.stat()
+        out.append((st.st_size, st.st_mtime_ns))
+    return tuple(out)
+
+
+def _hash_after_passes(
+    inp: OpenedInput, found: InputHash, notice: Callable[[str], None] | None
+) -> bool:
+    """Start the hashing of an input left for after the passes (``deferred_hash``); True when
+    it was (the caller waits for it), False when it had started before them."""
+    if found.started_s is not None:
+        return False
     if notice is not None and found.size_bytes > ANNOUNCE_MIN_BYTES:
         size = describe_size(found.size_bytes)
-        notice(f'replaybench: hashing {inp.path.name} ({size}, sha256) in the background')
-    return found.start()
+        notice(f'replaybench: hashing {inp.path.name} ({size}, sha256) after the passes')
+    found.start()
+    return True
+
+
+def _changed(inp: OpenedInput) -> str | None:
+    """Why the input's files are not as they were when it opened (size or mtime), or None."""
+    try:
+        now = _files_state(inp)
+    except OSError as err:
+        return f'cannot stat it: {err.strerror or err}'
+    return None if now == inp.files_state else 'its size or modification time changed'
 
 
 class HashOutcome(NamedTuple):
@@ -341,8 +374,10 @@ def settle_hash(
     interrupted: bool,
     notice: Callable[[str], None] | None,
 ) -> HashOutcome:
-    """The input's sha256 once the passes have ended; a hash that ran while frames were
-    measured, was cut short or failed is a warning of the input."""
+    """The input's sha256 once the passes have ended (a larger input's is computed now,
+    ``deferred_hash``); a hash that ran while frames were measured, was cut short or failed is
+    a warning of the input, and one of an input whose size or mtime changed since it was opened
+    is not recorded (null, with a warning)."""
     if not options.hash_inputs:
         return HashOutcome(
             None,
@@ -361,14 +396,22 @@ def settle_hash(
     if interrupted and not found.done:
         found.cancel()
         return HashOutcome(None, ('sha256 not computed: the run was interrupted before it ended',))
-    if not found.done and notice is not None:
+    deferred = _hash_after_passes(inp, found, notice)
+    if not found.done and notice is not None and not deferred:
         notice(f'replaybench: waiting for the sha256 of {inp.path.name}')
     sha256 = found.wait()
     warnings: list[str] = []
     if found.error is not None:
         warnings.append(f'sha256 not computed: {found.error}')
+    why = _changed(inp) if inp.files_state and sha256 is not None else None
+    if why is not None:
+        sha256 = None
+        warnings.append(
+            f'sha256 not recorded: the input changed during the run ({why}), so its digest '
+            'would not describe the frames replayed'
+        )
     overlap = found.overlap_s(passes_began)
-    if found.background and overlap > 0:
+    if found.background and overlap > 0 and not deferred:
         warnings.append(
             f'its sha256 was computed during the first {overlap:.1f} s of the measured passes, '
             'sharing the CPU and the disk with them (--no-hash leaves it out)'

@@ -188,10 +188,14 @@ class Replay:
 
 class Pass:
     """One backend over one input: fetch, decode, detect; one ``LogEntry`` per frame in
-    ``log``, whose times are relative to ``t0``."""
+    ``log``, whose times are relative to ``t0``. ``repeat``: which of the backend's passes over
+    the inputs it is (``--repeat N``: 0 to N - 1)."""
 
-    def __init__(self, replay: Replay, label: str, backend: Backend, inp: OpenedInput) -> None:
+    def __init__(
+        self, replay: Replay, label: str, backend: Backend, inp: OpenedInput, repeat: int = 0
+    ) -> None:
         self.replay = replay
+        self.repeat = repeat
         self.label = label
         self.backend = backend
         self.inp = inp

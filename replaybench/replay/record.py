@@ -31,7 +31,7 @@ from replaybench.results.model import (
     Tool,
     TopicMeta,
 )
-from replaybench.results.stats import Summary, summarize
+from replaybench.results.stats import Summary, repeat_statistics, summarize
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -212,6 +212,7 @@ def run_result(
             copy_images=config.copy_images,
             detections_format=config.detections_format,
             agreement_iou=AGREEMENT_IOU,
+            repeat=config.repeat,
         ),
         inputs=tuple(inputs),
         environment=environment,
@@ -226,6 +227,7 @@ def run_result(
         ),
         skipped=dict(recorder.skipped),
         warnings=tuple(warnings),
+        repeats=repeat_statistics(records) if config.repeat > 1 else None,
         outputs=RunOutputs(
             detections_mcap='detections.mcap',
             frames_csv='frames.csv',

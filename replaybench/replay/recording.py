@@ -7,6 +7,11 @@ detections.mcap, the detections kept for scoring against ground truth and for th
 between backends, and the boxes drawn on the sample picture. A new task type (a result the
 backend returns beside its detections) plugs in there: its sink's writer call, what its
 metrics need kept, and its count in the record.
+
+With ``--repeat N`` every pass has its own warm-up and its records carry its number
+(``FrameRecord.repeat``); the later passes detect the same frames again, so only the first
+pass's results lead to task outputs (detections.mcap holds each frame once, and the scores,
+the agreement and the sample describe the frames it wrote).
 """
 
 from __future__ import annotations
@@ -92,7 +97,8 @@ class Recorder:
         self.frames_csv = frames_csv
         self.detections_out = detections_out
         self.records: list[FrameRecord] = []
-        self.processed: dict[tuple[str, str], int] = {}
+        #: frames processed per (backend label, topic, pass): each pass warms up anew
+        self.processed: dict[tuple[str, str, int], int] = {}
         self.skipped: dict[str, int] = {}
         #: ground truth of the frames scored: from the inputs' topics, and matched from a file
         self.ground_truth: dict[TruthKey, tuple[Detection, ...]] = {
@@ -153,6 +159,7 @@ class Recorder:
                 done_s=None if dropped else entry.done - t0,
                 queue_wait_ms=None if dropped else entry.queue_wait_s * 1e3,
                 read_decode_ms=None if dropped else entry.read_decode_s * 1e3,
+                repeat=done.repeat,
             )
         )
 
@@ -160,10 +167,11 @@ class Recorder:
         """``latency = queue wait + read/decode + backend``: the backend part runs from the
         detector's call to its detections; read/decode was measured where it ran."""
         topic, seq, log_time_ns, stamp_ns, _ = entry.key
-        label_key = (done.label, topic)
-        n_done = self.processed.get(label_key, 0)
-        self.processed[label_key] = n_done + 1
-        self.task_outputs(done, entry, result)
+        counted = (done.label, topic, done.repeat)
+        n_done = self.processed.get(counted, 0)
+        self.processed[counted] = n_done + 1
+        if done.repeat == 0:  # later passes of --repeat detect the same frames again
+            self.task_outputs(done, entry, result)
         t0 = done.t0
         timed = done.measures_latency
         stages = result.stages if timed else _NOT_TIMED
@@ -198,6 +206,7 @@ class Recorder:
                 postprocess_device_ms=_ms(stages.postprocess_device_ns),
                 h2d_device_ms=_ms(stages.h2d_device_ns),
                 d2h_device_ms=_ms(stages.d2h_device_ns),
+                repeat=done.repeat,
             )
         )
 

@@ -1,12 +1,14 @@
 """The replay engine: inputs x backends -> run folder (detections.mcap, frames.csv,
 summary.csv, run.json), or a run held in memory.
 
-Backends run one after another over the same frames; each (backend, input) pass reads the bag
-again, so every backend is measured on the same path from container to detections. The stages,
+Backends run one after another over the same frames (``--repeat N``: N times each, interleaved
+across backends, A B A B ...); each (backend, input) pass reads the bag again, so every backend
+is measured on the same path from container to detections. The stages,
 in the order ``run_benchmark`` runs them:
 
 * ``replaybench.replay.config``: the ``RunConfig``, and the part of it each stage gets;
-* ``replaybench.replay.inputs``: the inputs opened and probed, their sha256 started;
+* ``replaybench.replay.inputs``: the inputs opened and probed, their sha256 taken while nothing
+  is timed (a small input's at once, a larger one's after the passes);
 * ``replaybench.replay.sessions``: the backends made and opened, then driven pass by pass;
 * ``replaybench.replay.passes``: the timed passes, which only read, decode, detect and log;
 * ``replaybench.replay.recording``: each pass's log turned into records, detections messages,
@@ -45,11 +47,11 @@ from replaybench.replay.config import (
     new_run_dir,
 )
 from replaybench.replay.inputs import (
+    deferred_hash,
     expected_frames,
     load_external,
     open_input,
     settle_hash,
-    start_hash,
 )
 from replaybench.replay.output import (
     Renderer,
@@ -66,7 +68,13 @@ from replaybench.replay.output import (
 from replaybench.replay.passes import Replay, Stopped, Warmups
 from replaybench.replay.record import input_info, run_result, summaries
 from replaybench.replay.recording import Recorder
-from replaybench.replay.sessions import make_backend, make_backends, open_backends, run_backend
+from replaybench.replay.sessions import (
+    make_backend,
+    make_backends,
+    open_backends,
+    run_backend,
+    run_repeated,
+)
 from replaybench.replay.threads import thread_limits
 from replaybench.results.agreement import AGREEMENT_IOU, agreement_table
 from replaybench.results.io import to_json
@@ -134,11 +142,12 @@ def run_benchmark(
 
     Order of work: the options and ``config.out_dir`` are checked (nothing read or created
     yet); the folder is locked (``RunFolder``); the inputs are opened and probed; every
-    backend is opened (models loaded); then the inputs are replayed. Each input's sha256 is
-    computed beside the rest from the moment it is opened (``replaybench.replay.hashing``;
-    ``hasher`` makes the ``InputHash``, ``config.hash_inputs`` False skips it) and recorded when
-    the passes have ended; ``notice`` gets the lines a person should see while it lasts (the
-    hashing of an input over 1 GB, a wait for it at the end). The run is
+    backend is opened (models loaded); then the inputs are replayed (``config.repeat`` times
+    per backend, interleaved). Each input's sha256 (``replaybench.replay.hashing``; ``hasher``
+    makes the ``InputHash``, ``config.hash_inputs`` False skips it) is computed when nothing is
+    timed: at once for an input of at most 64 MiB, after the passes for a larger one, whose
+    size and mtime must not have changed meanwhile; ``notice`` gets the lines a person should
+    see while it lasts (the hashing of an input over 1 GB). The run is
     written into a temporary folder beside ``out_dir`` and swapped in when it has ended, with
     run.json as its last file: whatever fails leaves ``out_dir`` as it was and nothing else.
 
@@ -175,8 +184,8 @@ def run_benchmark(
                 inp = open_input(
                     index, Path(path), input_options, external, recorded_detections=recorded
                 )
-                # hashed beside the model loading and the replay; settled when the passes end
-                inputs.append(inp._replace(sha256=start_hash(inp, input_options, hasher, notice)))
+                # small inputs hashed now, larger ones after the passes (deferred_hash)
+                inputs.append(deferred_hash(inp, input_options, hasher))
             opened = open_backends(made, inputs, notice)
             outcome = _execute(
                 config,
@@ -213,6 +222,9 @@ def _check_config(config: RunConfig, *, check_available: bool) -> None:
         raise UsageError(msg)
     if len(set(config.backends)) != len(config.backends):
         msg = 'each --backend may be given once'
+        raise UsageError(msg)
+    if config.repeat < 1:
+        msg = f'--repeat must be at least 1, not {config.repeat}'
         raise UsageError(msg)
     if config.detections_format not in {'mcap', 'rosbag2'}:
         msg = f'unknown --format {config.detections_format!r}: use mcap or rosbag2'
@@ -260,7 +272,7 @@ def _execute(
         warmups,
         progress=calls.progress,
         stop=calls.stop,
-        total=sum(topic_frames.values()) * len(config.backends),
+        total=sum(topic_frames.values()) * len(config.backends) * config.repeat,
     )
     # taken before the replay, so that load average and the like describe the machine, not us
     machine = describe_machine()
@@ -274,17 +286,28 @@ def _execute(
         copy_camera_infos(inputs, detections_out)
         passes_began = time.perf_counter()
         try:
-            for entry in opened:
-                run_backend(
+            if config.repeat > 1:  # the backends' passes interleaved
+                run_repeated(
                     replay,
                     recorder,
-                    entry,
-                    backend_label(entry.name),
+                    opened,
                     inputs,
-                    gpu_index=_gpu_index(entry.backend, config.options),
+                    gpu_index=lambda backend: _gpu_index(backend, config.options),
                     warnings=warnings,
                     runs=backend_runs,
                 )
+            else:  # one backend after the other
+                for entry in opened:
+                    run_backend(
+                        replay,
+                        recorder,
+                        entry,
+                        backend_label(entry.name),
+                        inputs,
+                        gpu_index=_gpu_index(entry.backend, config.options),
+                        warnings=warnings,
+                        runs=backend_runs,
+                    )
             if config.copy_images:
                 copy_problems = copy_images(inputs, detections_out)
         except (KeyboardInterrupt, Stopped):

@@ -3,7 +3,8 @@ while their resource use is sampled, and closed once.
 
 ``make_backends`` makes every backend (checking its declared traits), ``open_backends`` opens
 them (models loaded, recorded detections handed over) and ``run_backend`` runs one over every
-input, then closes it and says what it reported and cost (a ``BackendRun``).
+input, then closes it and says what it reported and cost (a ``BackendRun``); ``run_repeated``
+does the same for ``--repeat N``, the backends' passes interleaved.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 from replaybench.backends import get_backend
 from replaybench.backends.base import RecordedDetections, backend_traits
 from replaybench.errors import BackendError, ReplaybenchError, one_line
+from replaybench.replay.config import backend_label
 from replaybench.replay.passes import DetectFailed, Pass
 from replaybench.replay.resources import ResourceSampler
 from replaybench.results.io import to_json
@@ -41,6 +43,7 @@ __all__ = [
     'make_backends',
     'open_backends',
     'run_backend',
+    'run_repeated',
 ]
 
 #: A backend still opening after this many seconds is announced through ``notice``.
@@ -174,53 +177,125 @@ def run_backend(
     short. A ``detect`` that raises stops the backend: the frames before it are kept and the
     error recorded (``status`` 'failed', ``error``); what ``close()`` raised goes to
     ``warnings``."""
-    backend = entry.backend
-    passes: list[Pass] = []
-    error: BackendFailure | None = None
-    record_s = 0.0
+    done = _BackendPasses()
     with ResourceSampler(gpu_index=gpu_index) as sampler:
         try:
-            for inp in inputs:
-                p = Pass(replay, label, backend, inp)
-                passes.append(p)
-                try:
-                    p.run()
-                finally:
-                    record_s += recorder.take(p)
-        except DetectFailed as failure:
-            error = BackendFailure(
-                input=failure.input, topic=failure.topic, seq=failure.seq, message=failure.message
-            )
+            done.run(replay, recorder, entry.backend, label, inputs, repeat=0)
         finally:
             # after the passes: what the backend actually used and counted
             sampler.stop()
-            try:
-                info: Any = backend.info()
-            except Exception as err:  # noqa: BLE001  a plugin's info() must not lose the run
-                info = {'error': one_line(err)}
-            closing = entry.close()
-            if closing is not None:
-                warnings.append(f'backend {entry.name!r}: close() raised {closing}')
-            runs.append(
-                BackendRun(
-                    name=entry.name,
-                    label=label,
-                    status='ok' if error is None else 'failed',
-                    error=error,
-                    info=to_json(info),
-                    resources=Resources(
-                        summary=resource_summary(sampler.summary()),
-                        series=tuple(ResourcePoint(**_plain(p)) for p in sampler.series()),
-                    ),
-                    read_ahead=tuple(
-                        ReadAhead(input=p.inp.number, **_plain(p.read_ahead))
-                        for p in passes
-                        if p.read_ahead is not None
-                    ),
-                    # records, frames.csv rows, detections messages: made after each pass
-                    record_s=record_s,
-                )
+            done.resources = _resources(sampler)
+            runs.append(done.backend_run(entry, label, warnings))
+
+
+def run_repeated(
+    replay: Replay,
+    recorder: Recorder,
+    opened: Sequence[OpenBackend],
+    inputs: Sequence[OpenedInput],
+    *,
+    gpu_index: Callable[[Backend], int | None],
+    warnings: list[str],
+    runs: list[BackendRun],
+) -> None:
+    """``--repeat N``: every opened backend over every input, N times, interleaved across the
+    backends (A B A B ...: a phase of background load falls on both, not on one backend's
+    passes). Each pass has its own warm-up (``Recorder``) and its own resource sampler
+    (``gpu_index`` gives a backend's GPU); run.json keeps the first pass's resources. A backend
+    whose ``detect`` raises stops there, the others go on. Each backend that ran is closed and
+    its ``BackendRun`` appended to ``runs`` once every pass has ended (or the run was cut
+    short), as ``run_backend`` does for a single pass; one that never ran is left to the
+    caller to close."""
+    done = {entry.name: _BackendPasses() for entry in opened}
+    try:
+        for repeat in range(replay.options.repeat):
+            for entry in opened:
+                mine = done[entry.name]
+                if mine.error is not None:
+                    continue
+                label = backend_label(entry.name)
+                with ResourceSampler(gpu_index=gpu_index(entry.backend)) as sampler:
+                    try:
+                        mine.run(replay, recorder, entry.backend, label, inputs, repeat=repeat)
+                    finally:
+                        sampler.stop()
+                        if mine.resources is None:
+                            mine.resources = _resources(sampler)
+    finally:
+        for entry in opened:
+            mine = done[entry.name]
+            if mine.passes:  # one that never ran (the run was interrupted) stays open here
+                runs.append(mine.backend_run(entry, backend_label(entry.name), warnings))
+
+
+class _BackendPasses:
+    """What one backend's passes left: the passes, the error that stopped them, the seconds
+    spent making records after them and its resource use (of its first pass)."""
+
+    def __init__(self) -> None:
+        self.passes: list[Pass] = []
+        self.error: BackendFailure | None = None
+        self.record_s = 0.0
+        self.resources: Resources | None = None
+
+    def run(
+        self,
+        replay: Replay,
+        recorder: Recorder,
+        backend: Backend,
+        label: str,
+        inputs: Sequence[OpenedInput],
+        *,
+        repeat: int,
+    ) -> None:
+        """One pass of ``backend`` over every input; each pass's log is recorded after it. A
+        ``detect`` that raises is kept as ``error`` and ends the passes."""
+        try:
+            for inp in inputs:
+                p = Pass(replay, label, backend, inp, repeat)
+                self.passes.append(p)
+                try:
+                    p.run()
+                finally:
+                    self.record_s += recorder.take(p)
+        except DetectFailed as failure:
+            self.error = BackendFailure(
+                input=failure.input, topic=failure.topic, seq=failure.seq, message=failure.message
             )
+
+    def backend_run(self, entry: OpenBackend, label: str, warnings: list[str]) -> BackendRun:
+        """The backend's run.json entry, once its passes have ended; it is closed (what
+        ``close()`` raised goes to ``warnings``)."""
+        try:
+            info: Any = entry.backend.info()
+        except Exception as err:  # noqa: BLE001  a plugin's info() must not lose the run
+            info = {'error': one_line(err)}
+        closing = entry.close()
+        if closing is not None:
+            warnings.append(f'backend {entry.name!r}: close() raised {closing}')
+        return BackendRun(
+            name=entry.name,
+            label=label,
+            status='ok' if self.error is None else 'failed',
+            error=self.error,
+            info=to_json(info),
+            resources=self.resources,
+            read_ahead=tuple(
+                ReadAhead(input=p.inp.number, **_plain(p.read_ahead))
+                for p in self.passes
+                if p.read_ahead is not None and p.repeat == 0
+            ),
+            # records, frames.csv rows, detections messages: made after each pass
+            record_s=self.record_s,
+        )
+
+
+def _resources(sampler: ResourceSampler) -> Resources:
+    """What the sampler measured, stopped, as run.json holds it."""
+    return Resources(
+        summary=resource_summary(sampler.summary()),
+        series=tuple(ResourcePoint(**_plain(p)) for p in sampler.series()),
+    )
 
 
 def _plain(values: Mapping[str, Any]) -> dict[str, Any]:

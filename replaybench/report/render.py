@@ -31,6 +31,7 @@ from replaybench.results.folder import load_run
 from replaybench.results.intervals import with_intervals
 from replaybench.results.io import read_peak_result, to_json
 from replaybench.results.model import PEAK_SCHEMA_VERSION, ResourceSummary, SummaryRow
+from replaybench.results.repeats import one_timeline
 from replaybench.results.stats import summarize
 from replaybench.textsafe import visible, visible_lines
 
@@ -1001,7 +1002,8 @@ def _footer(run: RunResult) -> str:
 
 
 def _by_release(groups: Mapping[str, list[FrameRecord]]) -> dict[str, list[FrameRecord]]:
-    return {b: sorted(rs, key=lambda r: r.release_s) for b, rs in groups.items() if rs}
+    # the passes of --repeat one after the other (results.repeats.one_timeline)
+    return {b: one_timeline(rs) for b, rs in groups.items() if rs}
 
 
 def render_html(data: RunData) -> str:

@@ -47,6 +47,7 @@ from replaybench.results.bootstrap import (
     replicates,
 )
 from replaybench.results.records import written
+from replaybench.results.repeats import join_repeats
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -134,6 +135,8 @@ def measured_series(records: Sequence[FrameRecord]) -> Series:
     records of a run in memory and the same records read back from its frames.csv give the same
     series, and run.json the same intervals as ``replaybench compare`` of the run folder.
     """
+    if (passes := join_repeats(records, measured_series)) is not None:
+        return Series(*passes)  # --repeat: each pass's series, one after the other
     # stable, as stats.py; by the release time frames.csv holds (ties keep the record order)
     ordered = sorted(records, key=lambda r: written(r.release_s, 'release_s'))
     measured = [

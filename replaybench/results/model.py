@@ -59,6 +59,7 @@ __all__ = [
     'PeakTrial',
     'PythonInfo',
     'ReadAhead',
+    'RepeatStats',
     'ResourcePoint',
     'ResourceSummary',
     'Resources',
@@ -225,6 +226,8 @@ class RunSettings:
     #: IoU at which backends' detections are paired (``results.agreement.AGREEMENT_IOU``; every
     #: run used it before run.json recorded it)
     agreement_iou: float = 0.5
+    #: ``--repeat N``: passes of each backend over the inputs, interleaved (1 before it existed)
+    repeat: int = 1
 
 
 @dataclass(frozen=True, slots=True)
@@ -407,6 +410,23 @@ class SummaryRow:
 
 
 @dataclass(frozen=True, slots=True)
+class RepeatStats:
+    """One pass (``--repeat``) of one (backend, topic): the statistics ``compare`` judges
+    between repeats (``results.stats.repeat_statistics``)."""
+
+    backend: str = ''
+    topic: str = ''
+    repeat: int = 0
+    measured: int = 0
+    latency_ms_p50: float | None = None
+    latency_ms_p99: float | None = None
+    latency_ms_mean: float | None = None
+    throughput_fps: float | None = None
+    #: the measured frames' processing window (s): completion to completion
+    window_s: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class AgreementRow:
     """How two backends agree on one topic (``replaybench.results.agreement``)."""
 
@@ -471,6 +491,8 @@ class RunResult:
     outputs: RunOutputs | None = field(default=None, metadata=_OMIT_NONE)
     #: ``replaybench sweep`` adds the cell's section to the run.json of each of its cells
     sweep: Mapping[str, Any] | None = field(default=None, metadata=_OMIT_NONE)
+    #: per pass of ``--repeat N`` (N > 1) and (backend, topic); absent for a single pass
+    repeats: tuple[RepeatStats, ...] | None = field(default=None, metadata=_OMIT_NONE)
     #: frames.csv's rows as the file holds them (not in run.json): set by ``replaybench.run``
     #: and ``replaybench.load_run``, None on a RunResult read from run.json alone
     frame_records: tuple[FrameRecord, ...] | None = field(

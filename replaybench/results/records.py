@@ -71,11 +71,13 @@ class FrameRecord(NamedTuple):
     postprocess_device_ms: float | None = None
     h2d_device_ms: float | None = None
     d2h_device_ms: float | None = None
+    #: the pass of ``run --repeat N`` the frame belongs to (0 to N - 1; 0 without repeats)
+    repeat: int = 0
 
 
 FRAMES_CSV_COLUMNS: tuple[str, ...] = FrameRecord._fields
 
-_INT_FIELDS = frozenset({'input', 'seq', 'log_time_ns', 'stamp_ns', 'detections'})
+_INT_FIELDS = frozenset({'input', 'seq', 'log_time_ns', 'stamp_ns', 'detections', 'repeat'})
 _BOOL_FIELDS = frozenset({'warmup', 'dropped'})
 _STR_FIELDS = frozenset({'backend', 'topic', 'status', 'note'})
 _OPTIONAL_FIELDS = frozenset(
@@ -101,6 +103,8 @@ _OPTIONAL_FIELDS = frozenset(
 )
 #: The columns of frames.csv files written before the ``*_device_ms`` columns were added.
 _COLUMNS_BEFORE_DEVICE_TIMES = FRAMES_CSV_COLUMNS[:22]
+#: The columns of frames.csv files written before the ``repeat`` column was added.
+_COLUMNS_BEFORE_REPEAT = FRAMES_CSV_COLUMNS[:27]
 
 
 def _float_format(name: str) -> str:
@@ -211,6 +215,7 @@ def _line(record: FrameRecord) -> str:
         latency_ms,
         detections,
         *device,
+        repeat,
     ) = record
     stages = [preprocess_ms, infer_ms, postprocess_ms, h2d_ms, d2h_ms]
     if (
@@ -246,7 +251,7 @@ def _line(record: FrameRecord) -> str:
                     f'{quoted.get(topic) or _quote(topic)},{seq:d},{log_time_ns:d},{stamp_ns:d},'
                     f'{quoted.get(status) or _quote(status)},{quoted.get(note) or _quote(note)},'
                     f'{"1" if warmup else "0"},{"1" if dropped else "0"},{times},{staged},'
-                    f'{latency},{detections:d},{on_device}\r\n'
+                    f'{latency},{detections:d},{on_device},{repeat:d}\r\n'
                 )
             except ValueError:  # an int cell holding something else
                 pass
@@ -427,10 +432,15 @@ def read_frames_csv(path: str | Path) -> list[FrameRecord]:
             reader = csv.reader(file)
             header = next(reader, None)
             columns = tuple(header) if header is not None else ()
-            if columns not in (FRAMES_CSV_COLUMNS, _COLUMNS_BEFORE_DEVICE_TIMES):
+            if columns not in (
+                FRAMES_CSV_COLUMNS,
+                _COLUMNS_BEFORE_REPEAT,
+                _COLUMNS_BEFORE_DEVICE_TIMES,
+            ):
                 msg = f'{path}: not a frames.csv (header does not match the expected columns)'
                 raise SourceError(msg) from None
-            missing = [''] * (len(FRAMES_CSV_COLUMNS) - len(columns))
+            missing = [''] * (len(_COLUMNS_BEFORE_REPEAT) - len(columns))
+            missing += ['0'] * (len(FRAMES_CSV_COLUMNS) - len(columns) - len(missing))
             records = []
             for cells in reader:
                 if not cells:

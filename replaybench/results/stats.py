@@ -21,8 +21,9 @@ from replaybench.results.columns import (
     RESOURCE_COLUMNS,
     SUMMARY_CSV_COLUMNS,
 )
-from replaybench.results.model import SummaryRow
+from replaybench.results.model import RepeatStats, SummaryRow
 from replaybench.results.records import written
+from replaybench.results.repeats import by_repeat, pooled_throughput
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -36,6 +37,7 @@ __all__ = [
     'RESOURCE_COLUMNS',
     'SUMMARY_CSV_COLUMNS',
     'Summary',
+    'repeat_statistics',
     'summarize',
     'summary_json',
     'summary_row',
@@ -67,8 +69,9 @@ def _mean(values: Sequence[float | int | None]) -> float | None:
 
 
 def _replay_order(records: Sequence[FrameRecord]) -> list[FrameRecord]:
-    # Stable: frames released at the same instant keep their order in the records.
-    return sorted(records, key=lambda r: r.release_s)
+    # Stable: frames released at the same instant keep their order in the records; the passes
+    # of --repeat one after the other (their times count from their own start)
+    return sorted(records, key=lambda r: (r.repeat, r.release_s))
 
 
 def _throughput(ordered: Sequence[FrameRecord], measured: Sequence[FrameRecord]) -> float | None:
@@ -129,7 +132,7 @@ def _summary(backend: str, topic: str, records: Sequence[FrameRecord]) -> Summar
         warmup=sum(1 for r in records if r.warmup),
         dropped=sum(1 for r in records if r.status == 'dropped'),
         skipped=sum(1 for r in records if r.status == 'skipped'),
-        throughput_fps=_throughput(ordered, measured),
+        throughput_fps=pooled_throughput(ordered, measured, _throughput),
         latency_ms_mean=lat['mean'],
         latency_ms_std=lat['std'],
         latency_ms_min=lat['min'],
@@ -165,6 +168,34 @@ def summarize(records: Sequence[FrameRecord]) -> list[SummaryRow]:
         groups.setdefault((record.backend, record.topic), []).append(record)
     keys = sorted(groups, key=lambda k: (backend_order[k[0]], topic_order[k[1]]))
     return [_summary(backend, topic, groups[backend, topic]) for backend, topic in keys]
+
+
+def repeat_statistics(records: Sequence[FrameRecord]) -> tuple[RepeatStats, ...]:
+    """``run --repeat N``: the statistics of each pass (``RepeatStats``) per (backend, topic),
+    in record order of the (backend, topic) and then by repeat: the measured frames, median,
+    p99 and mean latency, throughput and its window."""
+    out: list[RepeatStats] = []
+    keys: dict[tuple[str, str], list[FrameRecord]] = {}
+    for record in records:
+        keys.setdefault((record.backend, record.topic), []).append(record)
+    for (backend, topic), group in keys.items():
+        for number, part in by_repeat(group).items():
+            (s,) = summarize(part)
+            fps = s.throughput_fps
+            out.append(
+                RepeatStats(
+                    backend=backend,
+                    topic=topic,
+                    repeat=number,
+                    measured=s.measured,
+                    latency_ms_p50=s.latency_ms_p50,
+                    latency_ms_p99=s.latency_ms_p99,
+                    latency_ms_mean=s.latency_ms_mean,
+                    throughput_fps=fps,
+                    window_s=s.measured / fps if fps else None,
+                )
+            )
+    return tuple(out)
 
 
 def summary_row(summary: SummaryRow) -> dict[str, Any]:

@@ -1,13 +1,16 @@
-"""Inputs are hashed beside the replay: the first frame does not wait for the sha256.
+"""Inputs are hashed when nothing is timed: a small one before the replay, a large one after
+the passes, so the first frame does not wait for the sha256 and no digest runs beside a
+measured frame.
 
-The hash objects here are injected (``run_benchmark(hasher=...)``) and wait for events that the
-replay sets, so the order of events is asserted, never a duration.
+The hash objects here are injected (``run_benchmark(hasher=...)``) and log what they do next to
+what the backend does, so the order of events is asserted, never a duration.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
 import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -80,21 +83,66 @@ def _run_json(out: Path) -> dict[str, Any]:
     return found
 
 
-def test_the_first_frame_is_processed_before_the_hashing_of_the_input_ends(tmp_path):
-    first_frame = threading.Event()
+class _LoggingDigest:
+    """sha256 that logs its updates into a shared log."""
+
+    def __init__(self, log: list[str]) -> None:
+        self.log = log
+        self.inner = hashlib.sha256()
+
+    def update(self, data: bytes, /) -> None:
+        self.log.append('digest')
+        self.inner.update(data)
+
+    def hexdigest(self) -> str:
+        return self.inner.hexdigest()
+
+
+class _LoggingNull(NullBackend):
+    def __init__(self, log: list[str]) -> None:
+        super().__init__()
+        self.log = log
+
+    def detect(self, frame: Frame) -> BackendResult:
+        self.log.append('frame')
+        return super().detect(frame)
+
+
+def test_a_large_input_is_hashed_after_the_passes_never_beside_a_measured_frame(tmp_path):
     log: list[str] = []
     out = tmp_path / 'run'
     run_benchmark(
-        RunConfig(inputs=[RAW], backends=['null'], out_dir=out, report=False),
-        backend_factory=_factory(_FirstFrame(first_frame)),
-        hasher=_background(lambda: _WaitingDigest(first_frame, log)),
+        RunConfig(inputs=[RAW], backends=['null'], out_dir=out, report=False, repeat=2),
+        backend_factory=_factory(_LoggingNull(log)),
+        hasher=_background(lambda: _LoggingDigest(log)),
     )
-    # the digest waited for the first frame, and only then finished
-    assert log == ['came', 'digested']
+    first_digest = log.index('digest')
+    assert log[:first_digest] == ['frame'] * first_digest  # every frame, then the hash
+    assert 'frame' not in log[first_digest:]
+    assert first_digest == 2 * 10  # both passes over the 10 frames came first
     (entry,) = _run_json(out)['inputs']
     assert entry['sha256'] == EXPECTED
-    # it ran while frames were measured, and run.json says so
-    assert any('sha256 was computed during the first' in w for w in entry['warnings'])
+    assert not any('sha256' in w for w in entry['warnings'])
+
+
+def test_an_input_that_changes_during_the_run_gets_no_sha256_and_a_warning(tmp_path):
+    bag = tmp_path / 'cam.mcap'
+    bag.write_bytes(RAW.read_bytes())
+
+    class Touching(NullBackend):
+        def detect(self, frame: Frame) -> BackendResult:
+            os.utime(bag, ns=(1, 1))  # as a copy still being written would
+            return super().detect(frame)
+
+    out = tmp_path / 'run'
+    run_benchmark(
+        RunConfig(inputs=[bag], backends=['null'], out_dir=out, report=False),
+        backend_factory=_factory(Touching()),
+        hasher=_background(hashlib.sha256),
+    )
+    (entry,) = _run_json(out)['inputs']
+    assert entry['sha256'] is None
+    assert any('changed during the run' in w for w in entry['warnings'])
 
 
 def test_a_small_input_is_hashed_at_once_and_its_run_has_no_hashing_warning(tmp_path):
@@ -140,6 +188,7 @@ def test_an_input_over_a_gigabyte_is_announced_naming_sha256(tmp_path):
         def __init__(self, files: Sequence[Path]) -> None:
             super().__init__(files)
             self.size_bytes = 12_000_000_000
+            self.background = True
 
     lines: list[str] = []
     run_benchmark(
@@ -147,7 +196,7 @@ def test_an_input_over_a_gigabyte_is_announced_naming_sha256(tmp_path):
         hasher=Large,
         notice=lines.append,
     )
-    assert lines == ['replaybench: hashing rgb8_raw.mcap (12.0 GB, sha256) in the background']
+    assert lines == ['replaybench: hashing rgb8_raw.mcap (12.0 GB, sha256) after the passes']
 
 
 def test_a_small_input_is_not_announced(tmp_path):
@@ -159,37 +208,15 @@ def test_a_small_input_is_not_announced(tmp_path):
     assert lines == []
 
 
-def test_a_model_that_cannot_load_stops_the_hashing_and_leaves_nothing(tmp_path):
-    started, released = threading.Event(), threading.Event()
+def test_a_model_that_cannot_load_leaves_nothing_and_a_large_input_unhashed(tmp_path):
     made: list[InputHash] = []
 
-    class Held(InputHash):
-        """Hashing that waits in its first chunk until it is asked to stop."""
-
-        def request_cancel(self) -> None:
-            super().request_cancel()
-            released.set()
-
-    class Digest:
-        def __init__(self) -> None:
-            self.inner = hashlib.sha256()
-
-        def update(self, data: bytes, /) -> None:
-            started.set()
-            released.wait(WAIT_S)
-            self.inner.update(data)
-
-        def hexdigest(self) -> str:
-            return self.inner.hexdigest()
-
     def hasher(files: Sequence[Path]) -> InputHash:
-        made.append(Held(files, digest=Digest, inline_max_bytes=0, chunk_bytes=1 << 16))
+        made.append(InputHash(files, inline_max_bytes=0))
         return made[-1]
 
     class Broken(NullBackend):
         def open(self) -> None:
-            # the input is being hashed while the model loads
-            assert started.wait(WAIT_S)
             msg = 'cannot load the model'
             raise RuntimeError(msg)
 
@@ -200,9 +227,7 @@ def test_a_model_that_cannot_load_stops_the_hashing_and_leaves_nothing(tmp_path)
             hasher=hasher,
         )
     (hashing,) = made
-    assert hashing.done
-    assert hashing.wait() is None
-    assert hashing.error == 'cancelled'
+    assert hashing.started_s is None  # left for after the passes, which never came
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 

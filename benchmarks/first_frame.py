@@ -1,0 +1,197 @@
+"""How long from process start to the first frame entering the ``null`` backend, by bag size?
+
+    python -m benchmarks.first_frame [--sizes-mb 200 4000] [--dir /tmp] [--repeats 3]
+
+Target: at most 0.5 s for a 200 MB and a 4 GB bag alike: nothing the run does before its first
+frame may grow with the bag (the sha256 of an input over 64 MiB is computed after the passes,
+and the reader opens an MCAP by its summary, not by scanning it).
+
+Each bag is a ROS 2 MCAP of 1920x1080 ``rgb8`` frames (6.2 MB each) in uncompressed chunks,
+written **sparse**: the frames are black, and the runs of zero bytes are left as holes in the
+file, so a 4 GB bag costs a few seconds and almost no disk. It is written to ``--dir`` (not the
+repository) and removed afterwards. Per bag, ``replaybench run BAG --backend null --max-frames
+20 --no-report`` is started ``--repeats`` times as a fresh process (``python -m replaybench``,
+with the null backend's ``detect`` wrapped to print the system-wide monotonic clock at its
+first frame); the parent reads the same clock just before starting the process. The same runs
+with ``--no-hash`` are the baseline of the same session: if hashing (or anything else) came
+before the first frame, the two would part as the bag grows. The figures printed are medians;
+they include the interpreter's start and replaybench's imports. Writes
+benchmarks/results/first_frame.json. Not part of ``python -m benchmarks``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import IO, Any, cast
+
+__all__ = ['TARGET_S', 'main', 'time_to_first_frame', 'write_sparse_bag']
+
+TARGET_S = 0.5
+WIDTH, HEIGHT = 1920, 1080
+_BLOCK = 1 << 20
+_RESULTS = Path(__file__).resolve().parent / 'results' / 'first_frame.json'
+
+_CHILD = """
+import sys, time
+from replaybench.backends.null import NullBackend
+_detect = NullBackend.detect
+_seen = []
+def detect(self, frame):
+    if not _seen:
+        _seen.append(1)
+        print(f'FIRST_FRAME {time.monotonic():.6f}', file=sys.stderr, flush=True)
+    return _detect(self, frame)
+NullBackend.detect = detect
+sys.argv = ['replaybench', *sys.argv[1:]]
+from replaybench.cli import main
+main()
+"""
+
+
+class _SparseStream:
+    """A binary file that leaves 1 MiB-aligned blocks of zeros as holes (seeks past them)."""
+
+    def __init__(self, file: IO[bytes]) -> None:
+        self.file = file
+        self.pos = 0
+        self.zeros = bytes(_BLOCK)
+
+    def write(self, data: bytes | bytearray | memoryview) -> int:
+        view = memoryview(data).cast('B')
+        done = 0
+        while done < len(view):
+            room = _BLOCK - self.pos % _BLOCK
+            part = view[done : done + room]
+            if len(part) == room and part == self.zeros[: len(part)]:
+                self.file.seek(len(part), os.SEEK_CUR)
+            else:
+                self.file.write(part)
+            done += len(part)
+            self.pos += len(part)
+        return len(view)
+
+    def tell(self) -> int:
+        return self.pos
+
+    def flush(self) -> None:
+        self.file.flush()
+
+    def close(self) -> None:
+        self.file.truncate(self.pos)  # a hole at the end still counts in the file's size
+        self.file.close()
+
+
+def write_sparse_bag(path: Path, size_bytes: int) -> int:
+    """A ROS 2 MCAP of black 1920x1080 rgb8 frames, about ``size_bytes`` long, written sparse;
+    returns the frames written."""
+    import numpy as np
+    from mcap.writer import CompressionType, Writer
+
+    from replaybench.fixtures.writer import stamp_ns
+    from replaybench.msgs import IMAGE, ros2msg_schema, serialize_image
+
+    frame = np.zeros((HEIGHT, WIDTH, 3), dtype=np.uint8)
+    frames = max(1, size_bytes // frame.nbytes)
+    stream = _SparseStream(path.open('wb'))
+    writer: Any = Writer(cast('Any', stream), chunk_size=8 << 20, compression=CompressionType.NONE)
+    writer.start(profile='ros2', library='replaybench benchmarks')
+    schema = writer.register_schema(
+        name=IMAGE, encoding='ros2msg', data=ros2msg_schema(IMAGE).encode()
+    )
+    channel = writer.register_channel(
+        topic='/camera/image_raw', message_encoding='cdr', schema_id=schema
+    )
+    for i in range(frames):
+        t = stamp_ns(i)
+        data = serialize_image(t, 'camera_optical_frame', frame, 'rgb8')
+        writer.add_message(channel_id=channel, log_time=t, data=data, publish_time=t, sequence=i)
+    writer.finish()
+    stream.close()
+    return frames
+
+
+def time_to_first_frame(bag: Path, out: Path, *, hash_inputs: bool) -> tuple[float, float]:
+    """(process start to first frame, process start to exit), seconds, for one fresh run."""
+    command = [
+        sys.executable, '-c', _CHILD, 'run', str(bag), '--backend', 'null',
+        '--max-frames', '20', '--no-report', '--force', '--out', str(out),
+    ]  # fmt: skip
+    if not hash_inputs:
+        command.append('--no-hash')
+    began = time.monotonic()
+    done = subprocess.run(command, capture_output=True, text=True, check=False)
+    ended = time.monotonic()
+    if done.returncode != 0:
+        msg = f'replaybench run failed ({done.returncode}): {done.stderr.strip()[-500:]}'
+        raise RuntimeError(msg)
+    for line in done.stderr.splitlines():
+        if line.startswith('FIRST_FRAME '):
+            return float(line.split()[1]) - began, ended - began
+    msg = 'the null backend saw no frame'
+    raise RuntimeError(msg)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog='python -m benchmarks.first_frame')
+    parser.add_argument('--sizes-mb', type=float, nargs='+', default=[200.0, 4000.0])
+    parser.add_argument('--dir', type=Path, default=Path(tempfile.gettempdir()))
+    parser.add_argument('--repeats', type=int, default=3)
+    parser.add_argument('--out', type=Path, default=_RESULTS)
+    args = parser.parse_args(argv)
+    rows = []
+    with tempfile.TemporaryDirectory(dir=args.dir, prefix='replaybench-first-frame-') as tmp:
+        work = Path(tmp)
+        for size_mb in args.sizes_mb:
+            bag = work / f'bag-{size_mb:g}mb.mcap'
+            frames = write_sparse_bag(bag, int(size_mb * 1e6))
+            hashed, plain, totals = [], [], []
+            for _ in range(args.repeats):
+                first, total = time_to_first_frame(bag, work / 'run', hash_inputs=True)
+                hashed.append(first)
+                totals.append(total)
+                plain.append(time_to_first_frame(bag, work / 'run', hash_inputs=False)[0])
+            row = {
+                'size_bytes': bag.stat().st_size,
+                'frames': frames,
+                'first_frame_s': statistics.median(hashed),
+                'first_frame_no_hash_s': statistics.median(plain),
+                'run_s': statistics.median(totals),
+                'target_s': TARGET_S,
+                'met': statistics.median(hashed) <= TARGET_S,
+            }
+            rows.append(row)
+            print(
+                f'{row["size_bytes"] / 1e6:8.0f} MB  first frame {row["first_frame_s"]:.3f} s '
+                f'(--no-hash {row["first_frame_no_hash_s"]:.3f} s), whole run with its sha256 '
+                f'{row["run_s"]:.2f} s; target <= {TARGET_S} s: '
+                f'{"met" if row["met"] else "MISSED"}'
+            )
+            bag.unlink()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(
+        json.dumps(
+            {
+                'date': dt.datetime.now(dt.UTC).isoformat(timespec='seconds'),
+                'load_average': list(os.getloadavg()),
+                'repeats': args.repeats,
+                'rows': rows,
+            },
+            indent=2,
+        )
+        + '\n',
+        encoding='utf-8',
+    )
+    return 0 if all(r['met'] for r in rows) else 1
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

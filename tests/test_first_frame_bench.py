@@ -1,0 +1,29 @@
+"""benchmarks/first_frame.py: its sparse bags are real MCAPs that replaybench replays, and its
+timing reads the first frame of a fresh process (the figures themselves are the benchmark's)."""
+
+from __future__ import annotations
+
+from benchmarks.first_frame import time_to_first_frame, write_sparse_bag
+from replaybench.sources import open_source
+
+
+def test_a_sparse_bag_is_a_readable_mcap_whose_zeros_take_no_disk(tmp_path):
+    bag = tmp_path / 'big.mcap'
+    frames = write_sparse_bag(bag, 40_000_000)
+    assert frames == 40_000_000 // (1920 * 1080 * 3)
+    size = bag.stat().st_size
+    assert size > frames * 1920 * 1080 * 3
+    assert bag.stat().st_blocks * 512 < size // 4  # holes, not written zeros
+    with open_source(bag) as source:
+        (topic,) = [t for t in source.topics() if t.count]
+        assert topic.count == frames
+        first = next(iter(source.messages(topics=[topic.name])))
+        assert first.topic == '/camera/image_raw'
+
+
+def test_the_first_frame_is_timed_from_a_fresh_process(tmp_path):
+    bag = tmp_path / 'bag.mcap'
+    write_sparse_bag(bag, 20_000_000)
+    first, total = time_to_first_frame(bag, tmp_path / 'run', hash_inputs=True)
+    assert 0 < first < total
+    assert (tmp_path / 'run' / 'run.json').is_file()

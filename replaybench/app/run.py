@@ -149,6 +149,7 @@ def run_config(
     report: bool = True,
     hash_inputs: bool = True,
     command: Sequence[str] = (),
+    ground_truth_masks: str | Path | None = None,
 ) -> RunConfig:
     """The ``RunConfig`` of ``replaybench run``'s options, checked: each keyword is the option
     of the same name in snake_case (``--max-frames`` is ``max_frames``, ``--topic`` is
@@ -211,6 +212,7 @@ def run_config(
         copy_images=copy_images,
         detections_format=detections_format,
         hash_inputs=hash_inputs,
+        ground_truth_masks=str(ground_truth_masks) if ground_truth_masks is not None else None,
     )
 
 

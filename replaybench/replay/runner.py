@@ -44,6 +44,9 @@ from replaybench.replay.prefetch import Prefetched, Prefetcher
 from replaybench.replay.rate import Rate
 from replaybench.replay.resources import ResourceSampler
 from replaybench.replay.scheduler import replay_timed
+from replaybench.replay.segmentation import NO_MASK as _NO_MASK
+from replaybench.replay.segmentation import Segmentation
+from replaybench.replay.segmentation import replayable as segmentation_replayable
 from replaybench.replay.threads import thread_limits
 from replaybench.results.agreement import AGREEMENT_IOU, Agreement, agreement_table
 from replaybench.results.intervals import with_intervals
@@ -152,6 +155,9 @@ class RunConfig:
     hash_inputs: bool = True
     #: the inputs' sha256 when already known (a peak search's later trials): not hashed again
     input_sha256: tuple[str | None, ...] | None = None
+    #: ground-truth label masks of segmentation backends: a topic, or a folder of
+    #: <stamp_ns>.png files; None: /ground_truth/labels when present (replay/segmentation.py)
+    ground_truth_masks: str | None = None
 
 
 class SampleImage(NamedTuple):
@@ -332,7 +338,7 @@ def _open_input(
             damaged = ' before the damage' if source.truncated else ' in this file'
             msg = f'{path}: no messages{damaged}'
             raise SourceError(msg)
-        found = probe_topics(source)
+        found = segmentation_replayable(probe_topics(source), config.ground_truth_masks, path)
         topics = _select_topics(path, found, config.topics, unreadable_image_topics(source))
         if external is not None:
             _check_external_topics(path, external, [t.name for t in topics])
@@ -831,11 +837,25 @@ class _Pass:
         number = self.inp.number
         label_key = (self.label, topic)
         detections = result.detections
+        seg = (
+            _NO_MASK
+            if result.mask is None
+            else run.segmentation.add(
+                run.detections_out,
+                self.label,
+                number,
+                self.inp.source,
+                (topic, seq, log_time_ns, stamp_ns, frame_id),
+                result.mask,
+            )
+        )
         run.detections.setdefault(label_key, {})[(number, seq)] = detections
         n_done = run.processed.get(label_key, 0)
         run.processed[label_key] = n_done + 1
         run.detections_out.add(self.label, topic, log_time_ns, stamp_ns, frame_id, detections)
-        if self.inp.external is not None:
+        if result.mask is not None:
+            pass  # a segmentation backend: scored against masks (replay/segmentation.py)
+        elif self.inp.external is not None:
             truth = self.inp.external.lookup(topic, seq, stamp_ns)
             if truth is not None:
                 frame_key = (number, topic, seq)
@@ -876,6 +896,8 @@ class _Pass:
                 _ms(stages.postprocess_device_ns),
                 _ms(stages.h2d_device_ns),
                 _ms(stages.d2h_device_ns),
+                seg.miou,
+                seg.pixel_accuracy,
             )
         )
 
@@ -933,6 +955,7 @@ class _Run:
         self.detections_out: Any
         self.warnings: list[str] = []
         self.warmups: dict[str, int] = {}
+        self.segmentation = Segmentation(config.ground_truth_masks, len(config.backends))
 
     def set_warmups(self) -> None:
         """Warm-up frames per topic, from ``topic_frames``: the default, or --warmup clamped
@@ -1315,6 +1338,7 @@ def _execute(
                     label = entry.name.replace('-', '_')
                     with ResourceSampler(gpu_index=_gpu_index(entry.backend, config)) as sampler:
                         _run_backend(run, entry, label, inputs, sampler, backend_meta)
+                run.segmentation.write_names(detections_out)
                 if config.copy_images:
                     copy_problems = _copy_images(inputs, config, detections_out)
             except (KeyboardInterrupt, _Stopped):
@@ -1574,6 +1598,7 @@ def _summaries(run: _Run) -> list[Summary]:
         }
         out.append(replace(s, accuracy=accuracy))
     out = [replace(s, resources=run.resources.get(s.backend)) for s in out]
+    out = [replace(s, segmentation=run.segmentation.summary(s.backend, s.topic)) for s in out]
     return with_intervals(out, run.records)
 
 

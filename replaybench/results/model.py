@@ -66,6 +66,7 @@ __all__ = [
     'RunOutputs',
     'RunResult',
     'RunSettings',
+    'SegmentationSummary',
     'SummaryRow',
     'Tool',
     'TopicMeta',
@@ -349,6 +350,19 @@ class Accuracy:
 
 
 @dataclass(frozen=True, slots=True)
+class SegmentationSummary:
+    """A segmentation backend's accuracy on one topic (``replaybench.results.segmentation``):
+    frames scored against a ground-truth mask, mIoU, pixel accuracy, IoU by class name (classes
+    in the truth or the prediction), and the backend's class names by id."""
+
+    frames: int = 0
+    miou: float | None = None
+    pixel_accuracy: float | None = None
+    iou: Mapping[str, float] = field(default_factory=_empty)
+    class_names: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
 class SummaryRow:
     """One (backend, topic): the summary.csv columns and the full ``accuracy``."""
 
@@ -399,6 +413,10 @@ class SummaryRow:
     #: stability warnings (too few frames, CV, drift, throttling)
     warnings: tuple[str, ...] = ()
     accuracy: Accuracy | None = None
+    #: segmentation backends: mIoU and pixel accuracy (summary.csv) and the full entry
+    miou: float | None = None
+    pixel_accuracy: float | None = None
+    segmentation: SegmentationSummary | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -71,6 +71,9 @@ class FrameRecord(NamedTuple):
     postprocess_device_ms: float | None = None
     h2d_device_ms: float | None = None
     d2h_device_ms: float | None = None
+    # segmentation backends: the frame's mIoU and pixel accuracy against its ground-truth mask
+    miou: float | None = None
+    pixel_accuracy: float | None = None
 
 
 FRAMES_CSV_COLUMNS: tuple[str, ...] = FrameRecord._fields
@@ -97,10 +100,14 @@ _OPTIONAL_FIELDS = frozenset(
         'postprocess_device_ms',
         'h2d_device_ms',
         'd2h_device_ms',
+        'miou',
+        'pixel_accuracy',
     },
 )
 #: The columns of frames.csv files written before the ``*_device_ms`` columns were added.
 _COLUMNS_BEFORE_DEVICE_TIMES = FRAMES_CSV_COLUMNS[:22]
+#: The columns of frames.csv files written before the segmentation columns were added.
+_COLUMNS_BEFORE_SEGMENTATION = FRAMES_CSV_COLUMNS[:27]
 
 
 def _float_format(name: str) -> str:
@@ -164,6 +171,7 @@ def _row(record: FrameRecord) -> list[str]:
 _TIMES = '%.6f,%.6f,%.6f,%.4f,%.4f'
 _STAGE_CELLS = _CELLS[15:20]
 _DEVICE_CELLS = _CELLS[22:27]
+_SCORE_CELLS = _CELLS[27:29]
 _QUOTED: dict[str, str] = {}
 _NO_STAGES = [None] * 5
 
@@ -179,6 +187,13 @@ def _quote(text: str) -> str:
         if len(_QUOTED) < 4096:
             _QUOTED[text] = cell
     return cell
+
+
+def _scores(values: list[float | None]) -> str:
+    """The segmentation cells (``miou``, ``pixel_accuracy``) of a frames.csv line."""
+    return ','.join(
+        '' if v is None else cell(v) for cell, v in zip(_SCORE_CELLS, values, strict=True)
+    )
 
 
 def _line(record: FrameRecord) -> str:
@@ -212,6 +227,7 @@ def _line(record: FrameRecord) -> str:
         detections,
         *device,
     ) = record
+    device, scores = device[:5], device[5:]
     stages = [preprocess_ms, infer_ms, postprocess_ms, h2d_ms, d2h_ms]
     if (
         latency_ms is not None
@@ -246,7 +262,7 @@ def _line(record: FrameRecord) -> str:
                     f'{quoted.get(topic) or _quote(topic)},{seq:d},{log_time_ns:d},{stamp_ns:d},'
                     f'{quoted.get(status) or _quote(status)},{quoted.get(note) or _quote(note)},'
                     f'{"1" if warmup else "0"},{"1" if dropped else "0"},{times},{staged},'
-                    f'{latency},{detections:d},{on_device}\r\n'
+                    f'{latency},{detections:d},{on_device},{_scores(scores)}\r\n'
                 )
             except ValueError:  # an int cell holding something else
                 pass
@@ -427,7 +443,11 @@ def read_frames_csv(path: str | Path) -> list[FrameRecord]:
             reader = csv.reader(file)
             header = next(reader, None)
             columns = tuple(header) if header is not None else ()
-            if columns not in (FRAMES_CSV_COLUMNS, _COLUMNS_BEFORE_DEVICE_TIMES):
+            if columns not in (
+                FRAMES_CSV_COLUMNS,
+                _COLUMNS_BEFORE_DEVICE_TIMES,
+                _COLUMNS_BEFORE_SEGMENTATION,
+            ):
                 msg = f'{path}: not a frames.csv (header does not match the expected columns)'
                 raise SourceError(msg) from None
             missing = [''] * (len(FRAMES_CSV_COLUMNS) - len(columns))

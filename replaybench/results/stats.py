@@ -91,6 +91,9 @@ class Summary:
     throughput_fps_ci_low: float | None = None
     throughput_fps_ci_high: float | None = None
     warnings: tuple[str, ...] = ()
+    # segmentation backends: frames scored, mIoU, pixel accuracy, IoU by class name, class
+    # names (replaybench.replay.segmentation); None for detectors
+    segmentation: dict[str, Any] | None = None
 
 
 #: Interval columns of summary.csv (after the resource columns, before ``warnings``).
@@ -106,7 +109,7 @@ INTERVAL_COLUMNS: tuple[str, ...] = (
 _FLAT_FIELDS: tuple[str, ...] = tuple(
     f.name
     for f in fields(Summary)
-    if f.name not in {'accuracy', 'resources', 'warnings', *INTERVAL_COLUMNS}
+    if f.name not in {'accuracy', 'resources', 'warnings', 'segmentation', *INTERVAL_COLUMNS}
 )
 
 #: Resource-use columns of summary.csv (from the backend's ResourceSampler summary).
@@ -120,9 +123,17 @@ RESOURCE_COLUMNS: tuple[str, ...] = (
     'gpu_power_w_mean',
 )
 
+#: Segmentation columns of summary.csv (after ``warnings``), from ``Summary.segmentation``.
+SEGMENTATION_SUMMARY_COLUMNS: tuple[str, ...] = ('miou', 'pixel_accuracy')
+
 #: Columns of summary.csv, in order (later additions at the end, so older readers keep working).
 SUMMARY_CSV_COLUMNS: tuple[str, ...] = (
-    _FLAT_FIELDS + ACCURACY_COLUMNS + RESOURCE_COLUMNS + INTERVAL_COLUMNS + ('warnings',)
+    _FLAT_FIELDS
+    + ACCURACY_COLUMNS
+    + RESOURCE_COLUMNS
+    + INTERVAL_COLUMNS
+    + ('warnings',)
+    + SEGMENTATION_SUMMARY_COLUMNS
 )
 
 
@@ -247,11 +258,17 @@ def _flat(summary: Summary) -> dict[str, Any]:
     return row
 
 
+def _segmentation_cells(summary: Summary) -> dict[str, Any]:
+    segmentation = summary.segmentation or {}
+    return {name: segmentation.get(name) for name in SEGMENTATION_SUMMARY_COLUMNS}
+
+
 def summary_row(summary: Summary) -> dict[str, Any]:
     """Flat dict of one summary.csv row; accuracy keys are None when there is no accuracy;
     ``warnings`` joined by ``'; '`` ('' when there is none)."""
     row = _flat(summary)
     row['warnings'] = '; '.join(summary.warnings)
+    row.update(_segmentation_cells(summary))
     return row
 
 
@@ -260,5 +277,7 @@ def summary_json(summary: Summary) -> dict[str, Any]:
     the full ``accuracy`` dict."""
     row = _flat(summary)
     row['warnings'] = list(summary.warnings)
+    row.update(_segmentation_cells(summary))
     row['accuracy'] = dict(summary.accuracy) if summary.accuracy is not None else None
+    row['segmentation'] = dict(summary.segmentation) if summary.segmentation is not None else None
     return row

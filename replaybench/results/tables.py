@@ -85,6 +85,8 @@ def _dtypes(cls: type[Any], columns: Sequence[str]) -> dict[str, str]:
 FRAMES_DTYPES: dict[str, str] = _dtypes(FrameRecord, FRAMES_CSV_COLUMNS)
 #: summary.csv column -> pandas dtype (``RunResult.summary``)
 SUMMARY_DTYPES: dict[str, str] = _dtypes(SummaryRow, SUMMARY_CSV_COLUMNS)
+#: summary.csv columns before the segmentation columns were added (still read)
+_BEFORE_SEGMENTATION = SUMMARY_CSV_COLUMNS[: SUMMARY_CSV_COLUMNS.index('warnings') + 1]
 #: ``PeakResult.trials`` columns, the fields of a peak.json trial
 TRIALS_COLUMNS: tuple[str, ...] = tuple(PeakTrial.__dataclass_fields__)
 #: ``PeakResult.trials`` column -> pandas dtype
@@ -139,7 +141,7 @@ def read_summary_csv(path: str | Path) -> pd.DataFrame:
         with path.open(newline='', encoding='utf-8') as file:
             reader = csv.reader(file)
             header = tuple(next(reader, ()))
-            if header != SUMMARY_CSV_COLUMNS:
+            if header != SUMMARY_CSV_COLUMNS and header != _BEFORE_SEGMENTATION:
                 msg = f'{path}: not a summary.csv (header does not match the expected columns)'
                 raise SourceError(msg)
             parsers = _parsers()

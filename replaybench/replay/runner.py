@@ -61,6 +61,7 @@ from replaybench.results.model import (
     RunOutputs,
     RunResult,
     RunSettings,
+    SegmentationAgreementRow,
     SummaryRow,
     Tool,
 )
@@ -1679,6 +1680,9 @@ def _run_record(
         backends=tuple(from_document(BackendRun, meta) for meta in backend_meta),
         summary_rows=tuple(rows),
         agreement=tuple(from_document(AgreementRow, a._asdict()) for a in run.agreements),
+        segmentation_agreement=tuple(
+            from_document(SegmentationAgreementRow, row) for row in run.segmentation.agreements()
+        ),
         counts=RunCounts(
             frames=len(run.records),
             processed=sum(1 for r in run.records if r.status == 'ok'),

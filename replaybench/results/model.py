@@ -66,6 +66,7 @@ __all__ = [
     'RunOutputs',
     'RunResult',
     'RunSettings',
+    'SegmentationAgreementRow',
     'SegmentationSummary',
     'SummaryRow',
     'Tool',
@@ -363,6 +364,19 @@ class SegmentationSummary:
 
 
 @dataclass(frozen=True, slots=True)
+class SegmentationAgreementRow:
+    """Two segmentation backends on one topic: over the frames both labelled, the mIoU and
+    pixel agreement of ``backend_b``'s masks taking ``backend_a``'s as ground truth."""
+
+    backend_a: str = ''
+    backend_b: str = ''
+    topic: str = ''
+    frames: int = 0
+    miou: float | None = None
+    pixel_agreement: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class SummaryRow:
     """One (backend, topic): the summary.csv columns and the full ``accuracy``."""
 
@@ -476,6 +490,8 @@ class RunResult:
     backends: tuple[BackendRun, ...] = ()
     summary_rows: tuple[SummaryRow, ...] = field(default=(), metadata={'json': 'summary'})
     agreement: tuple[AgreementRow, ...] = ()
+    #: with two or more segmentation backends: their masks compared
+    segmentation_agreement: tuple[SegmentationAgreementRow, ...] = ()
     counts: RunCounts | None = None
     skipped: Mapping[str, int] = field(default_factory=_empty)
     warnings: tuple[str, ...] = ()

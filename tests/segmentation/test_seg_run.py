@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import cv2
@@ -198,3 +199,36 @@ def test_two_segmentation_backends_are_compared_with_each_other(bag: Path) -> No
     assert row['frames'] == 1
     assert row['miou'] == pytest.approx((0.5 + 2 / 3) / 2)
     assert row['pixel_agreement'] == pytest.approx(0.75)
+
+
+def test_a_run_with_two_segmentation_backends_records_their_agreement(bag: Path) -> None:
+    from replaybench.backends.base import BackendOptions
+
+    def factory(name: str, options: BackendOptions) -> HsvSegBackend:
+        # the second cleans its masks with a larger kernel: close to the first, not equal
+        extra = {'kernel': '9'} if name == 'wide' else {}
+        return HsvSegBackend(replace(options, extra=extra))
+
+    outcome = run_benchmark(
+        _config(bag, None, backends=['hsv-seg', 'wide']), backend_factory=factory
+    )
+    (row,) = outcome.run.segmentation_agreement
+    assert (row.backend_a, row.backend_b, row.topic, row.frames) == (
+        'hsv_seg',
+        'wide',
+        '/camera/image_raw',
+        FRAMES,
+    )
+    total = np.zeros((256, 256), dtype=np.int64)
+    wide = HsvSegBackend(BackendOptions(extra={'kernel': '9'}))
+    for index in range(FRAMES):
+        first, _ = _expected(index)
+        image, _ = Scene(SIZE).render(index)
+        mask = wide.detect(Frame('/c', index, 0, 0, 'c', image, 'bgr8', 'bgr8')).mask
+        assert mask is not None
+        total += confusion(mask.labels, first, ignore=None)
+    expected = scores(total)
+    assert row.miou == pytest.approx(expected.miou)
+    assert row.pixel_agreement == pytest.approx(expected.pixel_accuracy)
+    assert row.miou is not None
+    assert 0.5 < row.miou < 1.0

@@ -105,6 +105,7 @@ BUILTINS = [
     'tensorrt',
     'hsv-cuda',
     'hsv-seg',
+    'onnx-seg',
 ]
 
 
@@ -121,7 +122,7 @@ def test_unknown_backend_is_a_usage_error_listing_the_names(
 ) -> None:
     entry_points(monkeypatch, toy=f'{plugin_module}:ToyBackend')
     with pytest.raises(
-        UsageError, match=r"unknown backend 'yolo'; known backends: null, hsv, .*hsv-seg, toy"
+        UsageError, match=r"unknown backend 'yolo'; known backends: null, hsv, .*onnx-seg, toy"
     ):
         get_backend('yolo')
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from replaybench.backends.base import BackendOptions
 from replaybench.backends.hsv_seg import HsvSegBackend
 from replaybench.errors import UsageError
 from replaybench.fixtures.masks import MASK_CLASS_NAMES, MASK_TOPIC, semantic_labels
@@ -202,8 +203,6 @@ def test_two_segmentation_backends_are_compared_with_each_other(bag: Path) -> No
 
 
 def test_a_run_with_two_segmentation_backends_records_their_agreement(bag: Path) -> None:
-    from replaybench.backends.base import BackendOptions
-
     def factory(name: str, options: BackendOptions) -> HsvSegBackend:
         # the second cleans its masks with a larger kernel: close to the first, not equal
         extra = {'kernel': '9'} if name == 'wide' else {}
@@ -232,3 +231,33 @@ def test_a_run_with_two_segmentation_backends_records_their_agreement(bag: Path)
     assert row.pixel_agreement == pytest.approx(expected.pixel_accuracy)
     assert row.miou is not None
     assert 0.5 < row.miou < 1.0
+
+
+def test_compare_gates_on_miou_with_the_cli(bag: Path, tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    from replaybench.backends.hsv import DetectorParams, HsvConfig, config_to_toml
+
+    # a candidate whose opening (kernel 15) erases the small objects: a clearly lower mIoU
+    worse = tmp_path / 'worse.toml'
+    worse.write_text(config_to_toml(HsvConfig(detector=DetectorParams(kernel=15))), 'utf-8')
+    base, cand = tmp_path / 'base', tmp_path / 'cand'
+    run_benchmark(_config(bag, base))
+    run_benchmark(_config(bag, cand, options=BackendOptions(config=worse)))
+
+    def compare(*extra: str) -> subprocess.CompletedProcess[str]:
+        command = [sys.executable, '-m', 'replaybench', 'compare', str(base), str(cand), *extra]
+        return subprocess.run(command, capture_output=True, text=True, timeout=120, check=False)
+
+    failed = compare('--fail-if', 'miou < -0.01', '--out', str(tmp_path / 'cmp'))
+    assert failed.returncode == 1, failed.stderr
+    assert 'miou' in failed.stdout + failed.stderr
+    passed = compare('--fail-if', 'miou < -0.9')
+    assert passed.returncode == 0, passed.stdout + passed.stderr
+    document = json.loads((tmp_path / 'cmp' / 'comparison.json').read_text(encoding='utf-8'))
+    (row,) = [r for r in document['rows'] if r['role'] == 'candidate']
+    base_miou = json.loads((base / 'run.json').read_text('utf-8'))['summary'][0]['miou']
+    cand_miou = json.loads((cand / 'run.json').read_text('utf-8'))['summary'][0]['miou']
+    assert row['metrics']['miou']['diff'] == pytest.approx(cand_miou - base_miou)
+    assert cand_miou < base_miou - 0.01

@@ -216,6 +216,21 @@ def run_config(
     )
 
 
+def _mask_samples(out: Path, sample: SampleImage) -> list[str]:
+    """The mask thumbnails of a sample frame, one per segmentation backend."""
+    from replaybench.report.masks import mask_relpath, write_mask_sample
+
+    paths = []
+    for backend, labels in (sample.masks or {}).items():
+        rel = mask_relpath(sample.input, sample.topic, backend)
+        try:
+            write_mask_sample(out / rel, labels, f'{sample.title} {backend} mask')
+        except OSError as err:
+            raise with_filename(err, out / rel) from None
+        paths.append(rel)
+    return paths
+
+
 class ReportRenderer:
     """Sample thumbnails (``samples/``) and report.html, drawn by ``replaybench.report``."""
 
@@ -232,6 +247,7 @@ class ReportRenderer:
             except OSError as err:
                 raise with_filename(err, out / rel) from None
             paths.append(rel)
+            paths += _mask_samples(out, sample)
         return paths
 
     def report(self, out: Path, run: RunResult) -> None:

@@ -73,7 +73,7 @@ from replaybench.results.runfile import (
 from replaybench.results.runfolder import RunFolder, check_out_dir, with_filename
 from replaybench.results.stats import Summary, summarize, summary_json
 from replaybench.sources import Source, open_source
-from replaybench.types import BackendResult, Detection, Frame, StageTimes, TopicInfo
+from replaybench.types import BackendResult, Detection, Frame, LabelMask, StageTimes, TopicInfo
 
 if TYPE_CHECKING:
     import threading
@@ -170,6 +170,8 @@ class SampleImage(NamedTuple):
     image: Any  # BGR8 ndarray
     detections: Mapping[str, tuple[Detection, ...]]
     title: str
+    #: segmentation backends' label masks of the frame, by backend label
+    masks: Mapping[str, Any] | None = None
 
 
 class Renderer(Protocol):
@@ -224,6 +226,7 @@ class _Sample:
         self.log_time_ns = log_time_ns
         self.title = title
         self.detections: dict[str, tuple[Detection, ...]] = {}
+        self.masks: dict[str, Any] = {}
 
 
 def _start_hash(
@@ -864,7 +867,7 @@ class _Pass:
                 run.scored.setdefault(label_key, {})[frame_key] = detections
         elif (frame_id, stamp_ns) in self.inp.ground_truth:
             run.scored.setdefault(label_key, {})[(number, frame_id, stamp_ns)] = detections
-        self.sample(topic, seq, log_time_ns, detections)
+        self.sample(topic, seq, log_time_ns, detections, result.mask)
         t0 = self.t0
         timed = self.measures_latency
         stages = result.stages if timed else _NOT_TIMED
@@ -903,7 +906,12 @@ class _Pass:
         )
 
     def sample(
-        self, topic: str, seq: int, log_time_ns: int, detections: tuple[Detection, ...]
+        self,
+        topic: str,
+        seq: int,
+        log_time_ns: int,
+        detections: tuple[Detection, ...],
+        mask: LabelMask | None = None,
     ) -> None:
         """Choose the sample frame of this topic (the first backend does) and keep its boxes."""
         key = (self.inp.number, topic)
@@ -914,6 +922,8 @@ class _Pass:
             sample = self.run.samples[key] = _Sample(seq, log_time_ns, f'{topic} #{seq}')
         if sample is not None and sample.seq == seq:
             sample.detections[self.label] = detections
+            if mask is not None:
+                sample.masks[self.label] = mask.labels
 
 
 _NOT_TIMED = StageTimes()
@@ -1608,7 +1618,9 @@ def _sample_images(run: _Run, inputs: Sequence[_Input]) -> Iterator[SampleImage]
     for (index, topic), sample in sorted(run.samples.items()):
         image = _sample_image(inputs[index].source, topic, sample)
         if image is not None:
-            yield SampleImage(index, topic, image, sample.detections, sample.title)
+            yield SampleImage(
+                index, topic, image, sample.detections, sample.title, sample.masks or None
+            )
 
 
 def _sample_image(source: Source, topic: str, sample: _Sample) -> Any:

@@ -204,7 +204,32 @@ def decode_labels(output: npt.NDArray[Any], layout: Layout) -> npt.NDArray[np.ui
     if classes > 256:
         msg = f'{layout} output has {classes} classes; a uint8 mask holds at most 256'
         raise BackendError(msg)
+    if layout == 'logits-nchw' and output.dtype == np.float32 and 1 < classes <= 32:
+        fast = _argmax_planes(output[0])
+        if fast is not None:
+            return fast
     return cast('npt.NDArray[np.uint8]', np.argmax(output[0], axis=axis).astype(np.uint8))
+
+
+def _argmax_planes(planes: npt.NDArray[np.float32]) -> npt.NDArray[np.uint8] | None:
+    """``argmax`` over axis 0 of ``[C, H, W]`` float32 scores, one class plane at a time with
+    OpenCV (a running maximum and the index where a plane beats it: the first class wins a
+    tie); None when a score is NaN or infinite (``numpy.argmax`` decides those)."""
+    import cv2
+
+    finite, _ = cv2.checkRange(planes.reshape(planes.shape[0], -1))
+    if not finite:  # a NaN or an infinity
+        return None
+    best = np.array(planes[0], dtype=np.float32, order='C')
+    labels = np.zeros(best.shape, dtype=np.uint8)
+    ids = np.zeros(best.shape, dtype=np.uint8)
+    beats = np.empty(best.shape, dtype=np.uint8)
+    for c in range(1, planes.shape[0]):
+        plane = np.ascontiguousarray(planes[c])
+        cv2.compare(plane, best, cv2.CMP_GT, dst=beats)
+        cv2.max(best, plane, dst=best)
+        cv2.add(ids, c, dst=labels, mask=beats)  # type: ignore[call-overload]
+    return labels
 
 
 def source_indices(
@@ -225,11 +250,33 @@ def source_indices(
     return cols, rows
 
 
+def _resize_matches(
+    cols: npt.NDArray[np.intp],
+    rows: npt.NDArray[np.intp],
+    out_size: tuple[int, int],
+    transform: Transform,
+) -> bool:
+    """Whether ``cv2.resize`` with ``INTER_NEAREST_EXACT`` picks exactly ``cols`` and ``rows``
+    (a stretched input usually: it samples pixel centres too), checked on index ramps."""
+    import cv2
+
+    out_w, out_h = out_size
+    if max(out_w, out_h) > 65535:
+        return False
+    ramp_x = np.arange(out_w, dtype=np.uint16).reshape(1, out_w)
+    ramp_y = np.arange(out_h, dtype=np.uint16).reshape(out_h, 1)
+    got_x = cv2.resize(ramp_x, (transform.src_w, 1), interpolation=cv2.INTER_NEAREST_EXACT)
+    got_y = cv2.resize(ramp_y, (1, transform.src_h), interpolation=cv2.INTER_NEAREST_EXACT)
+    return bool(np.array_equal(got_x.reshape(-1), cols) and np.array_equal(got_y.reshape(-1), rows))
+
+
 class SourceMapper:
     """Nearest-neighbour map of model-sized label maps onto the frame, reused across frames.
 
-    The remap tables are built once per (transform, output size); each call returns a fresh
-    frame-sized uint8 array (``cv2.remap`` with integer maps: an exact table lookup).
+    The source indices are worked out once per (transform, output size); each call returns a
+    fresh frame-sized uint8 array: ``cv2.resize`` (``INTER_NEAREST_EXACT``) where it was checked
+    to pick the same pixels (a stretched input), else ``cv2.remap`` with integer maps (an exact
+    table lookup).
     """
 
     def __init__(self, input_size: tuple[int, int]) -> None:
@@ -238,6 +285,7 @@ class SourceMapper:
         self._map: npt.NDArray[np.int16] | None = None
         self._cols: npt.NDArray[np.intp] | None = None
         self._rows: npt.NDArray[np.intp] | None = None
+        self._resize = False
 
     def __call__(
         self, labels: npt.NDArray[np.uint8], transform: Transform
@@ -249,6 +297,7 @@ class SourceMapper:
         if self._key != key:
             cols, rows = source_indices(transform, self.input_size, out_size)
             self._cols, self._rows = cols, rows
+            self._resize = _resize_matches(cols, rows, out_size, transform)
             if max(out_size) < 32768 and max(transform.src_w, transform.src_h) < 32768:
                 grid = np.empty((transform.src_h, transform.src_w, 2), dtype=np.int16)
                 grid[:, :, 0] = cols[None, :]
@@ -257,6 +306,10 @@ class SourceMapper:
             else:
                 self._map = None
             self._key = key
+        if self._resize:
+            size = (transform.src_w, transform.src_h)
+            resized = cv2.resize(labels, size, interpolation=cv2.INTER_NEAREST_EXACT)
+            return cast('npt.NDArray[np.uint8]', resized)
         if self._map is not None:
             mapped = cv2.remap(labels, self._map, None, cv2.INTER_NEAREST)  # type: ignore[call-overload]
             return cast('npt.NDArray[np.uint8]', mapped)

@@ -168,3 +168,17 @@ def test_each_call_returns_a_fresh_array() -> None:
     second = mapper(labels * 2, transform)
     assert first is not second
     assert int(first[0, 0]) == 1
+
+
+def test_the_plane_by_plane_argmax_equals_numpy_with_ties_and_nan() -> None:
+    rng = np.random.default_rng(5)
+    for classes in (2, 5, 19, 32):
+        scores = rng.integers(-3, 3, size=(1, classes, 17, 23)).astype(np.float32)  # many ties
+        expected = np.argmax(scores[0], axis=0).astype(np.uint8)
+        assert np.array_equal(decode_labels(scores, 'logits-nchw'), expected)
+    scores = rng.normal(size=(1, 4, 3, 3)).astype(np.float32)
+    scores[0, 2, 1, 1] = np.nan
+    assert decode_labels(scores, 'logits-nchw')[1, 1] == 2  # numpy: NaN is the largest
+    assert np.array_equal(
+        decode_labels(scores, 'logits-nchw'), np.argmax(scores[0], axis=0).astype(np.uint8)
+    )

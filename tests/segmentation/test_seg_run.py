@@ -261,3 +261,17 @@ def test_compare_gates_on_miou_with_the_cli(bag: Path, tmp_path: Path) -> None:
     cand_miou = json.loads((cand / 'run.json').read_text('utf-8'))['summary'][0]['miou']
     assert row['metrics']['miou']['diff'] == pytest.approx(cand_miou - base_miou)
     assert cand_miou < base_miou - 0.01
+
+
+def test_two_runs_write_the_same_masks_byte_for_byte(bag: Path, tmp_path: Path) -> None:
+    first, second = tmp_path / 'a', tmp_path / 'b'
+    for out in (first, second):
+        run_benchmark(_config(bag, out, backends=['hsv-seg', 'onnx-seg'], annotations=True))
+    assert (first / 'detections.mcap').read_bytes() == (second / 'detections.mcap').read_bytes()
+    columns = ('backend', 'seq', 'miou', 'pixel_accuracy')
+    rows = []
+    for out in (first, second):
+        with (out / 'frames.csv').open(newline='', encoding='utf-8') as file:
+            rows.append([tuple(r[c] for c in columns) for r in csv.DictReader(file)])
+    assert rows[0] == rows[1]
+    assert {r[0] for r in rows[0]} == {'hsv_seg', 'onnx_seg'}

@@ -1,7 +1,8 @@
 """What the engine does with label masks: write them, score them, compare backends.
 
 A backend that returns ``BackendResult.mask`` is a segmentation backend. When the engine
-records one of its frames (after the timed pass, ``_Pass.finalize``), ``Segmentation.add``
+records one of its frames (after the timed pass, ``Recorder.task_outputs`` in
+``replaybench.replay.recording``), ``Segmentation.add``
 
 * stages the mask in detections.mcap (``replaybench.sinks.masks``);
 * scores it against the frame's ground-truth mask, when there is one: the input's mask topic

@@ -174,7 +174,7 @@ def test_a_rosbag2_with_masks_is_scored_and_its_mask_topic_is_not_replayed(
     assert {r.topic for r in outcome.records} == {'/camera/image_raw'}
     segmentation = outcome.summaries[0].segmentation
     assert segmentation is not None
-    assert segmentation['frames'] == FRAMES
+    assert segmentation.frames == FRAMES
 
 
 def test_a_missing_mask_topic_or_an_empty_folder_is_one_clear_error(

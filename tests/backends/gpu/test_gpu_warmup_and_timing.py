@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import importlib
+import io
 from typing import Any
 
 import numpy as np
@@ -24,7 +25,7 @@ from backends.gpu.gpuhelpers import FIXTURE_BAGS
 
 from replaybench.backends.base import BackendOptions
 from replaybench.backends.gpu import _hsv_ops
-from replaybench.backends.gpu._cuda import EventTimer, StageClock
+from replaybench.backends.gpu._cuda import STAGE_EVENTS, EventTimer, StageClock
 from replaybench.backends.gpu.cuda import CudaBackend
 from replaybench.backends.gpu.hsv_cuda import (
     HsvCudaBackend,
@@ -148,7 +149,7 @@ def test_a_replay_writes_host_and_device_times_to_frames_csv(tmp_path):
         rows = list(csv.DictReader(file))
     ok = [r for r in rows if r['status'] == 'ok']
     assert ok
-    assert tuple(rows[0])[22:27] == DEVICE_COLUMNS
+    assert [c for c in rows[0] if c.endswith('_device_ms')] == list(DEVICE_COLUMNS)
     for row in ok:
         assert [row[c] for c in DEVICE_COLUMNS] == ['0.2500'] * 5
         assert row['h2d_ms'] != ''
@@ -172,29 +173,34 @@ def test_cuda_runs_one_inference_in_open_and_gives_cached_memory_back(
 
 
 class _Events:
-    """Timing events on a fake device clock: each one stamps the time its stage ended."""
+    """Timing events on a fake device clock: each one stamps the next of the given times."""
 
-    def __init__(self, ends_ms: list[float]) -> None:
-        self.ends = iter(ends_ms)
+    def __init__(self, stamps_ms: list[float]) -> None:
+        self.stamps = iter(stamps_ms)
         self.recorded: list[str] = []
 
     def make(self) -> EventTimer:
-        events = [{'t': None} for _ in range(6)]
+        events = [{'t': None} for _ in range(STAGE_EVENTS)]
 
         def record(event: dict[str, float | None]) -> None:
-            event['t'] = next(self.ends)
+            event['t'] = next(self.stamps)
             self.recorded.append('record')
 
         return EventTimer(events, record, lambda a, b: b['t'] - a['t'])
 
 
-def test_a_stage_clock_records_each_boundary_before_it_synchronises():
-    fake = _Events([10.0, 10.5, 12.0, 20.0, 20.25, 21.0])
+def test_a_stage_clock_records_a_start_and_an_end_event_per_stage_before_it_synchronises():
+    # start, end of each stage; the gaps between one stage's end and the next one's start
+    # (host work between them) are not in any device time
+    fake = _Events([10.0, 10.5, 11.0, 12.5, 13.0, 21.0, 25.0, 25.25, 26.0, 26.75])
     calls = fake.recorded
     clock = StageClock(lambda: calls.append('sync'), fake.make())
     clock.start()
-    host = [clock.lap() for _ in range(5)]
-    assert calls == ['record', 'sync'] * 6
+    host = []
+    for _ in range(5):
+        clock.begin()
+        host.append(clock.lap())
+    assert calls == ['sync'] + ['record', 'record', 'sync'] * 5
     assert clock.device_laps() == [500_000, 1_500_000, 8_000_000, 250_000, 750_000]
     assert all(h >= 0 for h in host)
     assert StageClock(lambda: None).device_laps() == []
@@ -211,16 +217,20 @@ def test_frames_csv_keeps_device_times_and_reads_files_written_before_them(tmp_p
         writer.write(record)
     assert read_frames_csv(path) == [record]
     text = path.read_text(encoding='utf-8')
-    assert text.splitlines()[1].endswith(',3.0000,2,0.5000,1.2500,0.1250,0.0625,0.0375,,')
+    row = next(csv.DictReader(io.StringIO(text)))
+    assert (row['latency_ms'], row['detections']) == ('3.0000', '2')
+    assert [row[c] for c in DEVICE_COLUMNS] == ['0.5000', '1.2500', '0.1250', '0.0625', '0.0375']
 
+    # a file written before the device columns: the columns up to ``detections`` only
     old = tmp_path / 'old.csv'
-    lines = text.splitlines()
-    header = ','.join(FRAMES_CSV_COLUMNS[:22])
-    old.write_text(f'{header}\r\n{lines[1].rsplit(",", 7)[0]}\r\n', encoding='utf-8')
+    before = FRAMES_CSV_COLUMNS[: FRAMES_CSV_COLUMNS.index(DEVICE_COLUMNS[0])]
+    cells = ','.join(row[c] for c in before)
+    old.write_text(f'{",".join(before)}\r\n{cells}\r\n', encoding='utf-8')
     no_device: dict[str, Any] = dict.fromkeys(DEVICE_COLUMNS)
     assert read_frames_csv(old) == [record._replace(**no_device)]
 
 
-def test_the_device_columns_are_the_last_five():
-    assert FRAMES_CSV_COLUMNS[22:27] == DEVICE_COLUMNS
-    assert FRAMES_CSV_COLUMNS[:22][-2:] == ('latency_ms', 'detections')
+def test_the_five_device_columns_follow_latency_and_detections():
+    start = FRAMES_CSV_COLUMNS.index(DEVICE_COLUMNS[0])
+    assert FRAMES_CSV_COLUMNS[start : start + 5] == DEVICE_COLUMNS
+    assert FRAMES_CSV_COLUMNS[start - 2 : start] == ('latency_ms', 'detections')

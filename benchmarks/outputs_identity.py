@@ -5,13 +5,11 @@ backends, rates and output options, through the command line and through ``rb.ru
 memory and into a folder) into ``DIR``; ``python -m benchmarks.outputs_identity check REF NEW``
 compares two such folders: detections.mcap and the sample pictures byte for byte, frames.csv,
 summary.csv and run.json cell by cell, timing values aside (a timing value is compared only
-for being present or empty). Exit status 0 when every case is identical, 1 otherwise, with
-one line per difference.
-
-Outputs written before ``run --repeat`` existed are read as a single pass: a frames.csv (or an
-API document's frame records) without the ``repeat`` column as holding ``repeat`` 0 in every
-row, and run.json's ``settings`` without ``repeat`` as ``repeat`` 1, both in the place the
-current outputs hold them; any other difference still counts.
+for being present or empty). Columns and keys that a newer engine adds (``ADDED_COLUMNS``,
+``ADDED_KEYS``) may be missing from the reference: the new outputs must then hold them empty,
+or at the value an older output stands for (``repeat`` 0: a single pass; none of the cases uses
+what they report). run.json's ``settings`` without ``repeat`` reads as ``repeat`` 1. Exit
+status 0 when every case is identical, 1 otherwise, with one line per difference.
 """
 
 from __future__ import annotations
@@ -92,6 +90,19 @@ _TIMING = re.compile(
 _SHAPE_ONLY = {'resources', 'environment'}
 #: keys whose value is a detection count or accuracy, never timing, though the pattern matches
 _NOT_TIMING = {'detections_per_frame'}
+
+
+#: frames.csv and summary.csv columns added since a reference may have been made: the pass of
+#: ``--repeat`` (0: the single pass) and the segmentation scores (empty for these detectors)
+ADDED_COLUMNS: tuple[str, ...] = ('repeat', 'miou', 'pixel_accuracy')
+#: what an added column holds in outputs that stand for an older one's absence
+_OLDER_VALUES: dict[str, tuple[Any, ...]] = {'repeat': (0, '0')}
+#: run.json / result keys added likewise (null or empty in these cases)
+ADDED_KEYS: tuple[str, ...] = (*ADDED_COLUMNS, 'segmentation', 'segmentation_agreement')
+
+
+def _empty(value: Any, key: str = '') -> bool:
+    return value is None or value in ('', [], {}) or value in _OLDER_VALUES.get(key, ())
 
 
 #: warnings that report a measured time (the latency's spread, its drift, a hash overlapping
@@ -182,8 +193,10 @@ def _shape(value: Any) -> Any:
 
 def _diff(a: Any, b: Any, where: str, out: list[str]) -> None:
     if isinstance(a, dict) and isinstance(b, dict):
-        if list(a) != list(b):
-            out.append(f'{where}: keys {list(a)} != {list(b)}')
+        # an added key missing from the reference: allowed when empty in the new outputs
+        keys_b = [k for k in b if k in a or k not in ADDED_KEYS or not _empty(b[k], k)]
+        if list(a) != keys_b:
+            out.append(f'{where}: keys {list(a)} != {keys_b}')
         for k in a:
             if k in b:
                 _diff(a[k], b[k], f'{where}.{k}', out)
@@ -198,29 +211,14 @@ def _diff(a: Any, b: Any, where: str, out: list[str]) -> None:
         out.append(f'{where}: {a!r} != {b!r}')
 
 
-#: a column added since outputs were kept, and the value an older file stands for
-_ADDED_FRAMES_COLUMN = ('repeat', '0')
 #: a run.json setting added since, and the value an older run.json stands for
 _ADDED_SETTING = ('repeat', 1)
-
-
-def _with_added_column(header: list[str], body: list[list[str]]) -> None:
-    """A frames.csv written before the ``repeat`` column, as a single pass (in place)."""
-    from replaybench.results.records import FRAMES_CSV_COLUMNS
-
-    name, value = _ADDED_FRAMES_COLUMN
-    if tuple(header) == FRAMES_CSV_COLUMNS[:-1] and FRAMES_CSV_COLUMNS[-1] == name:
-        header.append(name)
-        for row in body:
-            row.append(value)
 
 
 def _csv(path: Path) -> list[dict[str, str]]:
     with path.open(encoding='utf-8', newline='') as file:
         rows = list(csv.reader(file))
     header, body = rows[0], rows[1:]
-    if path.name == 'frames.csv':
-        _with_added_column(header, body)
     return [
         {
             k: ('<number>' if v else '')
@@ -238,12 +236,15 @@ def _frames_records(document: dict[str, Any]) -> list[Any]:
     from replaybench.results.records import FRAMES_CSV_COLUMNS
 
     rows = document.pop('frame_records')
-    if rows and len(rows[0]) == len(FRAMES_CSV_COLUMNS) - 1:  # before the repeat column
-        rows = [[*row, int(_ADDED_FRAMES_COLUMN[1])] for row in rows]
+    before = tuple(c for c in FRAMES_CSV_COLUMNS if c not in ADDED_COLUMNS)
     return [
         {
             k: ('<number>' if v is not None else None) if _timing(k) else v
-            for k, v in zip(FRAMES_CSV_COLUMNS, row, strict=True)
+            for k, v in zip(
+                FRAMES_CSV_COLUMNS if len(row) == len(FRAMES_CSV_COLUMNS) else before,
+                row,
+                strict=True,
+            )
         }
         for row in rows
     ]
@@ -271,7 +272,13 @@ def _compare_folder(ref: Path, new: Path, where: str, out: list[str]) -> None:
             if a.read_bytes() != b.read_bytes():
                 out.append(f'{where}/{name}: bytes differ')
         elif name.endswith('.csv'):
-            _diff(_csv(a), _csv(b), f'{where}/{name}', out)
+            rows_a, rows_b = _csv(a), _csv(b)
+            header_a = rows_a[-1]['<header>'].split(',')
+            header_b = rows_b[-1]['<header>'].split(',')
+            rows_b[-1]['<header>'] = ','.join(
+                c for c in header_b if c in header_a or c not in ADDED_COLUMNS
+            )
+            _diff(rows_a, rows_b, f'{where}/{name}', out)
         elif Path(name).name == 'run.json':
             _diff(
                 _masked(_with_added_setting(json.loads(a.read_text(encoding='utf-8')))),

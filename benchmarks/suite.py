@@ -45,6 +45,7 @@ ITEMS = (
     'benchmarks.bench_reading',
     'benchmarks.bench_harness',
     'benchmarks.bench_hsv',
+    'benchmarks.bench_segmentation',
     'benchmarks.bench_pipeline',
     'benchmarks.bench_memory',
 )

@@ -18,6 +18,7 @@ __all__ = [
     'CameraInfo',
     'Detection',
     'Frame',
+    'LabelMask',
     'RawMessage',
     'Serialization',
     'SkippedTopic',
@@ -163,9 +164,25 @@ class StageTimes(NamedTuple):
     d2h_device_ns: int | None = None
 
 
+class LabelMask(NamedTuple):
+    """A segmentation backend's answer for one frame: one class id per source pixel.
+
+    ``labels`` is HxW uint8, the frame's size, C-contiguous and owned by the result (never a
+    buffer the backend reuses); ``labels[y, x]`` indexes ``class_names``.
+    """
+
+    labels: npt.NDArray[np.uint8]
+    class_names: tuple[str, ...]
+
+
 @dataclass(frozen=True, slots=True)
 class BackendResult:
-    """What ``Backend.detect`` returns for one frame."""
+    """What ``Backend.detect`` returns for one frame.
+
+    ``mask``: the label mask of a segmentation backend (its ``detections`` are then empty);
+    None for detectors.
+    """
 
     detections: tuple[Detection, ...]
     stages: StageTimes = field(default_factory=StageTimes)
+    mask: LabelMask | None = None

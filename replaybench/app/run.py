@@ -150,6 +150,7 @@ def run_config(
     hash_inputs: bool = True,
     command: Sequence[str] = (),
     repeat: int = 1,
+    ground_truth_masks: str | Path | None = None,
 ) -> RunConfig:
     """The ``RunConfig`` of ``replaybench run``'s options, checked: each keyword is the option
     of the same name in snake_case (``--max-frames`` is ``max_frames``, ``--topic`` is
@@ -214,7 +215,23 @@ def run_config(
         detections_format=detections_format,
         hash_inputs=hash_inputs,
         repeat=repeat,
+        ground_truth_masks=str(ground_truth_masks) if ground_truth_masks is not None else None,
     )
+
+
+def _mask_samples(out: Path, sample: SampleImage) -> list[str]:
+    """The mask thumbnails of a sample frame, one per segmentation backend."""
+    from replaybench.report.masks import mask_relpath, write_mask_sample
+
+    paths = []
+    for backend, labels in (sample.masks or {}).items():
+        rel = mask_relpath(sample.input, sample.topic, backend)
+        try:
+            write_mask_sample(out / rel, labels, f'{sample.title} {backend} mask')
+        except OSError as err:
+            raise with_filename(err, out / rel) from None
+        paths.append(rel)
+    return paths
 
 
 class ReportRenderer:
@@ -233,6 +250,7 @@ class ReportRenderer:
             except OSError as err:
                 raise with_filename(err, out / rel) from None
             paths.append(rel)
+            paths += _mask_samples(out, sample)
         return paths
 
     def report(self, out: Path, run: RunResult) -> None:

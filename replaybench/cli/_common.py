@@ -43,6 +43,7 @@ _METAVARS = {
     'ground_truth': 'TOPIC',
     'recorded_topic': 'TOPIC',
     'ground_truth_image_topic': 'TOPIC',
+    'ground_truth_masks': 'TOPIC|DIR',
     'ground_truth_match': 'stamp|seq',
     'model_family': 'FAMILY',
     'labels': 'coco|PATH',

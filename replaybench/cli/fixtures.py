@@ -28,6 +28,13 @@ def fixtures(
             "README's CI example gates on (--frames and --size do not apply).",
         ),
     ] = False,
+    masks: Annotated[
+        bool,
+        typer.Option(
+            '--masks',
+            help='Also write ground-truth label masks (mono8 class ids) on /ground_truth/labels.',
+        ),
+    ] = False,
 ) -> None:
     """Generate the synthetic fixture bags (MCAP raw/jpeg, rosbag2 .db3, ROS 1 .bag, two cameras).
 
@@ -47,7 +54,11 @@ def fixtures(
             msg = f'invalid --size {size!r}: use WxH with both at least 32, e.g. 640x480'
             raise UsageError(msg)
         paths = generate_fixtures(
-            out, frames=frames, size=(int(w), int(h)), progress=FixtureProgress(sys.stderr)
+            out,
+            frames=frames,
+            size=(int(w), int(h)),
+            progress=FixtureProgress(sys.stderr),
+            masks=masks,
         )
     except ReplaybenchError as err:
         raise fail(err) from None

@@ -22,7 +22,7 @@ __all__: list[str] = []
 
 
 def _print_summary(summaries: list[Summary]) -> None:
-    header = (
+    header: tuple[str, ...] = (
         'backend',
         'topic',
         'frames',
@@ -37,6 +37,9 @@ def _print_summary(summaries: list[Summary]) -> None:
         'mAP@.5',
         'private MiB',
     )
+    # segmentation backends: their mIoU against the ground-truth masks
+    segmented = any(s.segmentation is not None for s in summaries)
+    header += ('mIoU',) if segmented else ()
     rows = []
     for s in summaries:
         # private (anonymous) memory, not the RSS that counts the memory-mapped input
@@ -56,6 +59,7 @@ def _print_summary(summaries: list[Summary]) -> None:
                 fmt(s.recall50, 3),
                 fmt(s.map50, 3),
                 fmt(private, 0),
+                *((fmt(s.miou, 3),) if segmented else ()),
             )
         )
     widths = [max([len(h), *(len(r[i]) for r in rows)]) for i, h in enumerate(header)]
@@ -155,7 +159,11 @@ def run(
     ] = None,
     model_family: Annotated[
         str | None,
-        typer.Option('--model-family', help='Output layout: yolox, yolov5, yolov8 or nms.'),
+        typer.Option(
+            '--model-family',
+            help='Output layout: yolox, yolov5, yolov8 or nms; segmentation: logits-nchw, '
+            'logits-nhwc or labels.',
+        ),
     ] = None,
     labels: Annotated[
         str | None,
@@ -221,6 +229,14 @@ def run(
             help='Also write Foxglove ImageAnnotations (boxes and labels) into detections.mcap.',
         ),
     ] = False,
+    ground_truth_masks: Annotated[
+        str | None,
+        typer.Option(
+            '--ground-truth-masks',
+            help='Ground-truth label masks for segmentation backends: a mono8 Image topic or a '
+            'folder of <stamp_ns>.png (default: /ground_truth/labels when present).',
+        ),
+    ] = None,
     copy_images: Annotated[
         bool,
         typer.Option(
@@ -299,6 +315,7 @@ def run(
             hash_inputs=not no_hash,
             repeat=repeat,
             command=['replaybench', *sys.argv[1:]],
+            ground_truth_masks=ground_truth_masks,
         )
         outcome = _run_until_stopped(settings, progress)
     except ReplaybenchError as err:

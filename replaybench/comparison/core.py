@@ -56,7 +56,7 @@ __all__ = [
 TIMING_METRICS: tuple[str, ...] = ('median_ms', 'p99_ms', 'mean_ms', 'fps')
 
 #: Accuracy metrics: compared as candidate - baseline differences of the run.json numbers.
-ACCURACY_METRICS: tuple[str, ...] = ('map50', 'recall50', 'precision50')
+ACCURACY_METRICS: tuple[str, ...] = ('map50', 'recall50', 'precision50', 'miou', 'pixel_accuracy')
 
 #: Every metric, in table order.
 METRICS: tuple[str, ...] = TIMING_METRICS + ACCURACY_METRICS
@@ -203,7 +203,10 @@ def _accuracy(run: RunResult) -> dict[tuple[str, str], dict[str, float]]:
         source: Any = row.accuracy if row.accuracy is not None else row
         values: dict[str, float] = {}
         for name in ACCURACY_METRICS:
-            number = getattr(source, name)
+            # detection accuracy from ``accuracy``, segmentation's from the row itself
+            number = getattr(source, name, None)
+            if number is None:
+                number = getattr(row, name, None)
             if number is not None and np.isfinite(number):
                 values[name] = float(number)
         table[(row.backend, row.topic)] = values

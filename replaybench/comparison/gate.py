@@ -41,7 +41,7 @@ CONDITION_GRAMMAR = (
     + ', '.join(METRICS)
     + ' (p50_ms = median_ms), OP one of > >= < <=, and a trailing % for a change relative to the '
     "baseline (else an absolute difference in the metric's unit), "
-    "e.g. 'p99_ms > +10%', 'fps < -10%', 'map50 < -0.02'"
+    "e.g. 'p99_ms > +10%', 'fps < -10%', 'map50 < -0.02', 'miou < -0.01'"
 )
 
 _PATTERN = re.compile(
@@ -58,6 +58,8 @@ _NAMES: dict[str, str] = {
     'map50': 'mAP@0.5',
     'recall50': 'recall@0.5',
     'precision50': 'precision@0.5',
+    'miou': 'mIoU',
+    'pixel_accuracy': 'pixel accuracy',
 }
 
 

@@ -70,6 +70,8 @@ _NAMES: dict[str, str] = {
     'map50': 'mAP@0.5',
     'recall50': 'R@0.5',
     'precision50': 'P@0.5',
+    'miou': 'mIoU',
+    'pixel_accuracy': 'pixel acc.',
 }
 
 _FONT = 'system-ui, -apple-system, Segoe UI, Roboto, sans-serif'

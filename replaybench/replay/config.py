@@ -86,6 +86,9 @@ class RunConfig:
     input_sha256: tuple[str | None, ...] | None = None
     #: --repeat N: every backend replays the inputs N times, interleaved across backends
     repeat: int = 1
+    #: ground-truth label masks of segmentation backends: a topic, or a folder of
+    #: <stamp_ns>.png files; None: /ground_truth/labels when present (replay/segmentation.py)
+    ground_truth_masks: str | None = None
 
     def input_options(self) -> InputOptions:
         """The part of the config that opens and reads the inputs."""
@@ -99,6 +102,7 @@ class RunConfig:
             recorded_topic=self.recorded_topic,
             hash_inputs=self.hash_inputs,
             input_sha256=self.input_sha256,
+            ground_truth_masks=self.ground_truth_masks,
         )
 
     def pass_options(self) -> PassOptions:
@@ -131,8 +135,8 @@ def backend_label(name: str) -> str:
 
 @dataclass(frozen=True, slots=True)
 class InputOptions:
-    """Which topics, which window and which recorded detections an input is read for, and
-    whether its sha256 is computed."""
+    """Which topics, which window, which recorded detections and ground-truth masks an input
+    is read for, and whether its sha256 is computed."""
 
     topics: tuple[str, ...] | None = None
     start_s: float | None = None
@@ -143,6 +147,8 @@ class InputOptions:
     recorded_topic: str | None = None
     hash_inputs: bool = True
     input_sha256: tuple[str | None, ...] | None = None
+    #: the ground-truth mask topic (not replayed) or folder (``RunConfig.ground_truth_masks``)
+    ground_truth_masks: str | None = None
 
     @property
     def windowed(self) -> bool:

@@ -17,6 +17,7 @@ from replaybench.decode.camera_info import CameraInfoIndex
 from replaybench.decode.probe import CameraTopic, probe_topics, unreadable_image_topics
 from replaybench.errors import DecodeError, SourceError, UsageError
 from replaybench.replay.hashing import ANNOUNCE_MIN_BYTES, InputHash, describe_size
+from replaybench.replay.segmentation import replayable
 from replaybench.sources import Source, open_source
 
 if TYPE_CHECKING:
@@ -141,7 +142,7 @@ def open_input(
             damaged = ' before the damage' if source.truncated else ' in this file'
             msg = f'{path}: no messages{damaged}'
             raise SourceError(msg)
-        found = probe_topics(source)
+        found = replayable(probe_topics(source), options.ground_truth_masks, path)
         topics = _select_topics(path, found, options.topics, unreadable_image_topics(source))
         if external is not None:
             _check_external_topics(path, external, [t.name for t in topics])

@@ -49,6 +49,8 @@ class SampleImage(NamedTuple):
     image: Any  # BGR8 ndarray
     detections: Mapping[str, tuple[Detection, ...]]
     title: str
+    #: segmentation backends' label masks of the frame, by backend label
+    masks: Mapping[str, Any] | None = None
 
 
 class Renderer(Protocol):
@@ -150,7 +152,9 @@ def sample_images(
     for (index, topic), sample in sorted(samples.items()):
         image = _sample_image(inputs[index].source, topic, sample)
         if image is not None:
-            yield SampleImage(index, topic, image, sample.detections, sample.title)
+            yield SampleImage(
+                index, topic, image, sample.detections, sample.title, sample.masks or None
+            )
 
 
 def _sample_image(source: Source, topic: str, sample: Sample) -> Any:

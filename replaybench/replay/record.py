@@ -2,7 +2,7 @@
 ``RunResult``, built typed from what the passes recorded.
 
 ``summaries`` is where a task type's metrics join the statistics of each (backend, topic)
-(``accuracy`` scores the detections);
+(``accuracy`` scores the detections, ``segmentation`` the label masks);
 ``input_info`` and ``run_result`` construct the model classes of ``replaybench.results.model``
 directly, with values as run.json holds them (NaN and infinities None, tuples for arrays), so
 that the result kept in memory equals the one read back from the folder.
@@ -28,6 +28,8 @@ from replaybench.results.model import (
     RunOutputs,
     RunResult,
     RunSettings,
+    SegmentationAgreementRow,
+    SegmentationSummary,
     Tool,
     TopicMeta,
 )
@@ -43,7 +45,7 @@ if TYPE_CHECKING:
     from replaybench.results.model import BackendRun, Environment
     from replaybench.types import Detection
 
-__all__ = ['accuracy', 'input_info', 'run_result', 'summaries']
+__all__ = ['accuracy', 'input_info', 'run_result', 'segmentation', 'summaries']
 
 
 def summaries(recorder: Recorder, resources: Mapping[str, Mapping[str, Any]]) -> list[Summary]:
@@ -75,6 +77,11 @@ def summaries(recorder: Recorder, resources: Mapping[str, Mapping[str, Any]]) ->
                 gpu_mem_mb_peak=_number(used.get('gpu_mem_mb_peak')),
                 gpu_power_w_mean=_number(used.get('gpu_power_w_mean')),
             )
+        masks = segmentation(recorder, s.backend, s.topic)
+        if masks is not None:
+            s = dataclasses.replace(
+                s, segmentation=masks, miou=masks.miou, pixel_accuracy=masks.pixel_accuracy
+            )
         out.append(s)
     return with_intervals(out, recorder.records, resources=resources)
 
@@ -95,6 +102,37 @@ def accuracy(recorder: Recorder, scored: Mapping[TruthKey, tuple[Detection, ...]
         ap50_95={str(k): float(v) for k, v in result.ap50_95.items()},
         n_gt=int(result.n_gt),
         n_det=int(result.n_det),
+    )
+
+
+def segmentation(recorder: Recorder, backend: str, topic: str) -> SegmentationSummary | None:
+    """A segmentation backend's accuracy on ``topic`` against the ground-truth masks; None
+    for a detector."""
+    found = recorder.segmentation.summary(backend, topic)
+    if found is None:
+        return None
+    return SegmentationSummary(
+        frames=found['frames'],
+        miou=_number(found['miou']),
+        pixel_accuracy=_number(found['pixel_accuracy']),
+        iou={name: float(value) for name, value in found['iou'].items()},
+        class_names=tuple(found['class_names']),
+    )
+
+
+def _segmentation_agreement(recorder: Recorder) -> tuple[SegmentationAgreementRow, ...]:
+    """Each pair of segmentation backends on a topic: the later one's masks against the
+    earlier one's."""
+    return tuple(
+        SegmentationAgreementRow(
+            backend_a=row['backend_a'],
+            backend_b=row['backend_b'],
+            topic=row['topic'],
+            frames=row['frames'],
+            miou=_number(row['miou']),
+            pixel_agreement=_number(row['pixel_agreement']),
+        )
+        for row in recorder.segmentation.agreements()
     )
 
 
@@ -219,6 +257,7 @@ def run_result(
         backends=tuple(backends),
         summary_rows=tuple(summary),
         agreement=tuple(_agreement_row(a) for a in agreements),
+        segmentation_agreement=_segmentation_agreement(recorder),
         counts=RunCounts(
             frames=len(records),
             processed=sum(1 for r in records if r.status == 'ok'),

@@ -19,6 +19,7 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING, Any, Protocol
 
+from replaybench.replay.segmentation import NO_MASK, FrameScore, Segmentation
 from replaybench.results.records import FrameRecord
 from replaybench.types import BackendResult, StageTimes
 
@@ -27,7 +28,7 @@ if TYPE_CHECKING:
 
     from replaybench.replay.inputs import OpenedInput
     from replaybench.replay.passes import LogEntry, Pass, Warmups
-    from replaybench.types import CameraInfo, Detection, RawMessage
+    from replaybench.types import CameraInfo, Detection, LabelMask, RawMessage
 
 __all__ = ['DetectionsSink', 'FrameSink', 'Recorder', 'Sample']
 
@@ -77,6 +78,8 @@ class Sample:
         self.log_time_ns = log_time_ns
         self.title = title
         self.detections: dict[str, tuple[Detection, ...]] = {}
+        #: segmentation backends' label masks of the frame, by backend label
+        self.masks: dict[str, Any] = {}
 
 
 def _ms(ns: int | None) -> float | None:
@@ -92,6 +95,7 @@ class Recorder:
         warmups: Warmups,
         frames_csv: FrameSink,
         detections_out: DetectionsSink,
+        segmentation: Segmentation | None = None,
     ) -> None:
         self.warmups = warmups
         self.frames_csv = frames_csv
@@ -111,6 +115,8 @@ class Recorder:
         #: every backend's detections per frame, for the agreement between backends
         self.detections: dict[tuple[str, str], FrameDetections] = {}
         self.samples: dict[tuple[int, str], Sample] = {}
+        #: segmentation backends' masks: written, scored against ground-truth masks, compared
+        self.segmentation = segmentation if segmentation is not None else Segmentation(None, 1)
         self._taken: dict[tuple[str, int, str], int] = {}
 
     def take(self, done: Pass) -> float:
@@ -170,8 +176,9 @@ class Recorder:
         counted = (done.label, topic, done.repeat)
         n_done = self.processed.get(counted, 0)
         self.processed[counted] = n_done + 1
-        if done.repeat == 0:  # later passes of --repeat detect the same frames again
-            self.task_outputs(done, entry, result)
+        # later passes of --repeat detect the same frames again: outputs and scores come from
+        # the first pass only
+        score = self.task_outputs(done, entry, result) if done.repeat == 0 else NO_MASK
         t0 = done.t0
         timed = done.measures_latency
         stages = result.stages if timed else _NOT_TIMED
@@ -207,15 +214,20 @@ class Recorder:
                 h2d_device_ms=_ms(stages.h2d_device_ns),
                 d2h_device_ms=_ms(stages.d2h_device_ns),
                 repeat=done.repeat,
+                miou=score.miou,
+                pixel_accuracy=score.pixel_accuracy,
             )
         )
 
-    def task_outputs(self, done: Pass, entry: LogEntry, result: BackendResult) -> None:
+    def task_outputs(self, done: Pass, entry: LogEntry, result: BackendResult) -> FrameScore:
         """What a processed frame's result leads to besides its record: the task-type seam.
 
         Detections: their message in detections.mcap (the sink), the detections kept for the
         agreement between backends and, where the frame has ground truth, for scoring (the
         metrics, ``replaybench.replay.record.summaries``), and the sample's boxes.
+        A label mask (a segmentation backend): written, scored against its ground-truth mask
+        and kept for the agreement (``replaybench.replay.segmentation``), its detections not
+        scored; the frame's mIoU and pixel accuracy are returned for its record.
         """
         topic, seq, log_time_ns, stamp_ns, frame_id = entry.key
         assert stamp_ns is not None  # a processed frame decoded
@@ -223,9 +235,24 @@ class Recorder:
         number = inp.number
         label_key = (done.label, topic)
         detections = result.detections
+        mask = result.mask
+        score = (
+            NO_MASK
+            if mask is None
+            else self.segmentation.add(
+                self.detections_out,
+                done.label,
+                number,
+                inp.source,
+                (topic, seq, log_time_ns, stamp_ns, frame_id),
+                mask,
+            )
+        )
         self.detections.setdefault(label_key, {})[(number, seq)] = detections
         self.detections_out.add(done.label, topic, log_time_ns, stamp_ns, frame_id, detections)
-        if inp.external is not None:
+        if mask is not None:
+            pass  # a segmentation backend: scored against masks above
+        elif inp.external is not None:
             truth = inp.external.lookup(topic, seq, stamp_ns)
             if truth is not None:
                 frame_key = (number, topic, seq)
@@ -233,7 +260,8 @@ class Recorder:
                 self.scored.setdefault(label_key, {})[frame_key] = detections
         elif (frame_id, stamp_ns) in inp.ground_truth:
             self.scored.setdefault(label_key, {})[(number, frame_id, stamp_ns)] = detections
-        self._sample(done, topic, seq, log_time_ns, detections)
+        self._sample(done, topic, seq, log_time_ns, detections, mask)
+        return score
 
     def _sample(
         self,
@@ -242,8 +270,10 @@ class Recorder:
         seq: int,
         log_time_ns: int,
         detections: tuple[Detection, ...],
+        mask: LabelMask | None = None,
     ) -> None:
-        """Choose the sample frame of this topic (the first backend does) and keep its boxes."""
+        """Choose the sample frame of this topic (the first backend does) and keep its boxes
+        (and its mask, from a segmentation backend)."""
         inp = done.inp
         key = (inp.number, topic)
         counter = (done.label, inp.number, topic)
@@ -254,6 +284,8 @@ class Recorder:
             sample = self.samples[key] = Sample(seq, log_time_ns, f'{topic} #{seq}')
         if sample is not None and sample.seq == seq:
             sample.detections[done.label] = detections
+            if mask is not None:
+                sample.masks[done.label] = mask.labels
 
     def ground_truth_frames(self, number: int) -> int:
         """Frames of input ``number`` matched to a ground-truth file."""

@@ -68,6 +68,7 @@ from replaybench.replay.output import (
 from replaybench.replay.passes import Replay, Stopped, Warmups
 from replaybench.replay.record import input_info, run_result, summaries
 from replaybench.replay.recording import Recorder
+from replaybench.replay.segmentation import Segmentation
 from replaybench.replay.sessions import (
     make_backend,
     make_backends,
@@ -282,7 +283,8 @@ def _execute(
     copy_problems: dict[int, str] = {}
     status = 'complete'
     with writers(output) as (frames_csv, detections_out):
-        recorder = Recorder(inputs, warmups, frames_csv, detections_out)
+        segmentation = Segmentation(config.ground_truth_masks, len(config.backends))
+        recorder = Recorder(inputs, warmups, frames_csv, detections_out, segmentation)
         copy_camera_infos(inputs, detections_out)
         passes_began = time.perf_counter()
         try:
@@ -308,6 +310,7 @@ def _execute(
                         warnings=warnings,
                         runs=backend_runs,
                     )
+            segmentation.write_names(detections_out)
             if config.copy_images:
                 copy_problems = copy_images(inputs, detections_out)
         except (KeyboardInterrupt, Stopped):

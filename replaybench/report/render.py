@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import SourceError
 from replaybench.report.headline import headline_html
+from replaybench.report.masks import mask_of
 from replaybench.report.samples import sample_relpath
 from replaybench.report.svg import (
     Marks,
@@ -907,7 +908,10 @@ def _sample_entries(run: RunResult) -> list[tuple[str, str, str]]:
     result = []
     for rel in run.outputs.samples if run.outputs is not None else ():
         topic = known.get(rel, '')
-        result.append((rel, topic, topic or PurePosixPath(rel).name))
+        caption = topic or PurePosixPath(rel).name
+        if not topic and (mask := mask_of(rel)) is not None:  # beside its frame
+            topic, caption = known.get(mask[0], ''), f'{mask[1]} mask'
+        result.append((rel, topic, caption))
     return result
 
 

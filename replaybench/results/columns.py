@@ -16,6 +16,7 @@ __all__ = [
     'COUNT_COLUMNS',
     'INTERVAL_COLUMNS',
     'RESOURCE_COLUMNS',
+    'SEGMENTATION_SUMMARY_COLUMNS',
     'STATISTICS_COLUMNS',
     'SUMMARY_CSV_COLUMNS',
     'TEXT_COLUMNS',
@@ -78,6 +79,10 @@ INTERVAL_COLUMNS: tuple[str, ...] = (
     'throughput_fps_ci_high',
 )
 
+#: Segmentation columns of summary.csv (after ``warnings``): a segmentation backend's mIoU and
+#: pixel accuracy against the ground-truth masks (``SummaryRow.segmentation`` has the rest).
+SEGMENTATION_SUMMARY_COLUMNS: tuple[str, ...] = ('miou', 'pixel_accuracy')
+
 #: Columns of summary.csv, in order (later additions at the end, so older readers keep working).
 SUMMARY_CSV_COLUMNS: tuple[str, ...] = (
     'backend',
@@ -88,6 +93,7 @@ SUMMARY_CSV_COLUMNS: tuple[str, ...] = (
     *RESOURCE_COLUMNS,
     *INTERVAL_COLUMNS,
     'warnings',
+    *SEGMENTATION_SUMMARY_COLUMNS,
 )
 
 #: The columns holding text; ``COUNT_COLUMNS`` hold integers, the others numbers.

@@ -67,6 +67,8 @@ __all__ = [
     'RunOutputs',
     'RunResult',
     'RunSettings',
+    'SegmentationAgreementRow',
+    'SegmentationSummary',
     'SummaryRow',
     'Tool',
     'TopicMeta',
@@ -357,6 +359,32 @@ class Accuracy:
 
 
 @dataclass(frozen=True, slots=True)
+class SegmentationSummary:
+    """A segmentation backend's accuracy on one topic (``replaybench.results.segmentation``):
+    frames scored against a ground-truth mask, mIoU, pixel accuracy, IoU by class name (classes
+    in the truth or the prediction), and the backend's class names by id."""
+
+    frames: int = 0
+    miou: float | None = None
+    pixel_accuracy: float | None = None
+    iou: Mapping[str, float] = field(default_factory=_empty)
+    class_names: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class SegmentationAgreementRow:
+    """Two segmentation backends on one topic: over the frames both labelled, the mIoU and
+    pixel agreement of ``backend_b``'s masks taking ``backend_a``'s as ground truth."""
+
+    backend_a: str = ''
+    backend_b: str = ''
+    topic: str = ''
+    frames: int = 0
+    miou: float | None = None
+    pixel_agreement: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class SummaryRow:
     """One (backend, topic): the summary.csv columns and the full ``accuracy``."""
 
@@ -407,6 +435,10 @@ class SummaryRow:
     #: stability warnings (too few frames, CV, drift, throttling)
     warnings: tuple[str, ...] = ()
     accuracy: Accuracy | None = None
+    #: segmentation backends: mIoU and pixel accuracy (summary.csv) and the full entry
+    miou: float | None = None
+    pixel_accuracy: float | None = None
+    segmentation: SegmentationSummary | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -483,6 +515,8 @@ class RunResult:
     backends: tuple[BackendRun, ...] = ()
     summary_rows: tuple[SummaryRow, ...] = field(default=(), metadata={'json': 'summary'})
     agreement: tuple[AgreementRow, ...] = ()
+    #: with two or more segmentation backends: their masks compared
+    segmentation_agreement: tuple[SegmentationAgreementRow, ...] = ()
     counts: RunCounts | None = None
     skipped: Mapping[str, int] = field(default_factory=_empty)
     warnings: tuple[str, ...] = ()

@@ -73,6 +73,9 @@ class FrameRecord(NamedTuple):
     d2h_device_ms: float | None = None
     #: the pass of ``run --repeat N`` the frame belongs to (0 to N - 1; 0 without repeats)
     repeat: int = 0
+    # segmentation backends: the frame's mIoU and pixel accuracy against its ground-truth mask
+    miou: float | None = None
+    pixel_accuracy: float | None = None
 
 
 FRAMES_CSV_COLUMNS: tuple[str, ...] = FrameRecord._fields
@@ -99,11 +102,13 @@ _OPTIONAL_FIELDS = frozenset(
         'postprocess_device_ms',
         'h2d_device_ms',
         'd2h_device_ms',
+        'miou',
+        'pixel_accuracy',
     },
 )
 #: The columns of frames.csv files written before the ``*_device_ms`` columns were added.
 _COLUMNS_BEFORE_DEVICE_TIMES = FRAMES_CSV_COLUMNS[:22]
-#: The columns of frames.csv files written before the ``repeat`` column was added.
+#: The columns of frames.csv files written before the ``repeat`` and segmentation columns.
 _COLUMNS_BEFORE_REPEAT = FRAMES_CSV_COLUMNS[:27]
 
 
@@ -168,6 +173,7 @@ def _row(record: FrameRecord) -> list[str]:
 _TIMES = '%.6f,%.6f,%.6f,%.4f,%.4f'
 _STAGE_CELLS = _CELLS[15:20]
 _DEVICE_CELLS = _CELLS[22:27]
+_SCORE_CELLS = _CELLS[28:30]
 _QUOTED: dict[str, str] = {}
 _NO_STAGES = [None] * 5
 
@@ -183,6 +189,13 @@ def _quote(text: str) -> str:
         if len(_QUOTED) < 4096:
             _QUOTED[text] = cell
     return cell
+
+
+def _scores(values: list[float | None]) -> str:
+    """The segmentation cells (``miou``, ``pixel_accuracy``) of a frames.csv line."""
+    return ','.join(
+        '' if v is None else cell(v) for cell, v in zip(_SCORE_CELLS, values, strict=True)
+    )
 
 
 def _line(record: FrameRecord) -> str:
@@ -214,9 +227,9 @@ def _line(record: FrameRecord) -> str:
         d2h_ms,
         latency_ms,
         detections,
-        *device,
-        repeat,
+        *rest,
     ) = record
+    device, repeat, scores = rest[:5], rest[5], rest[6:8]
     stages = [preprocess_ms, infer_ms, postprocess_ms, h2d_ms, d2h_ms]
     if (
         latency_ms is not None
@@ -251,7 +264,7 @@ def _line(record: FrameRecord) -> str:
                     f'{quoted.get(topic) or _quote(topic)},{seq:d},{log_time_ns:d},{stamp_ns:d},'
                     f'{quoted.get(status) or _quote(status)},{quoted.get(note) or _quote(note)},'
                     f'{"1" if warmup else "0"},{"1" if dropped else "0"},{times},{staged},'
-                    f'{latency},{detections:d},{on_device},{repeat:d}\r\n'
+                    f'{latency},{detections:d},{on_device},{repeat:d},{_scores(scores)}\r\n'
                 )
             except ValueError:  # an int cell holding something else
                 pass
@@ -439,8 +452,10 @@ def read_frames_csv(path: str | Path) -> list[FrameRecord]:
             ):
                 msg = f'{path}: not a frames.csv (header does not match the expected columns)'
                 raise SourceError(msg) from None
-            missing = [''] * (len(_COLUMNS_BEFORE_REPEAT) - len(columns))
-            missing += ['0'] * (len(FRAMES_CSV_COLUMNS) - len(columns) - len(missing))
+            # an older file's absent columns: pass 0 of one, the rest empty
+            missing = [
+                '0' if name == 'repeat' else '' for name in FRAMES_CSV_COLUMNS[len(columns) :]
+            ]
             records = []
             for cells in reader:
                 if not cells:

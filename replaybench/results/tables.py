@@ -90,6 +90,8 @@ SUMMARY_DTYPES: dict[str, str] = {
     name: 'Int64' if name in COUNT_COLUMNS else 'str' if name in TEXT_COLUMNS else 'float64'
     for name in SUMMARY_CSV_COLUMNS
 }
+#: summary.csv columns before the segmentation columns were added (still read)
+_BEFORE_SEGMENTATION = SUMMARY_CSV_COLUMNS[: SUMMARY_CSV_COLUMNS.index('warnings') + 1]
 
 
 def _frame(columns: Mapping[str, list[Any]], dtypes: Mapping[str, str]) -> pd.DataFrame:
@@ -140,7 +142,7 @@ def read_summary_csv(path: str | Path) -> pd.DataFrame:
         with path.open(newline='', encoding='utf-8') as file:
             reader = csv.reader(file)
             header = tuple(next(reader, ()))
-            if header != SUMMARY_CSV_COLUMNS:
+            if header not in (SUMMARY_CSV_COLUMNS, _BEFORE_SEGMENTATION):
                 msg = f'{path}: not a summary.csv (header does not match the expected columns)'
                 raise SourceError(msg)
             parsers = _parsers()

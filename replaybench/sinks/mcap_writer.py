@@ -234,6 +234,8 @@ class DetectionsWriter:
         self._staged_bytes = 0
         for backend in backends:
             self._colour(backend)
+        # MCAP metadata records written after the rosbag2 one, by name
+        self._metadata: dict[str, dict[str, str]] = {}
         self._finished = False
         self._stage: BinaryIO = self.stage_path.open('w+b')
 
@@ -286,6 +288,25 @@ class DetectionsWriter:
         self._offsets.append(offset)
         self._sizes.append(size)
         self.message_count += 1
+
+    def add_message(
+        self,
+        topic: str,
+        msgtype: str,
+        log_time_ns: int,
+        data: bytes | memoryview,
+        *,
+        annotation: bool = False,
+    ) -> None:
+        """Stage one ROS 2 CDR message of a result channel (``msgtype`` in the ROS 2 typestore);
+        ``annotation``: it sorts after the results of the same log time, as ImageAnnotations."""
+        self._write(
+            topic, msgtype, log_time_ns, data, rank=_ANNOTATIONS if annotation else _DETECTIONS
+        )
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """An MCAP metadata record ``name`` (string keys and values), written by ``finish``."""
+        self._metadata[name] = dict(data)
 
     def add_camera_info(self, topic: str, log_time_ns: int, ci: CameraInfo) -> None:
         """Copy a CameraInfo message through on its original topic."""
@@ -411,6 +432,8 @@ class DetectionsWriter:
         writer = Writer(stream, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
         writer.start(profile='ros2', library=f'replaybench {__version__}')
         writer.add_metadata('rosbag2', {'serialized_metadata': serialized_metadata(info)})
+        for name, data in sorted(self._metadata.items()):
+            writer.add_metadata(name, data)
         schemas: dict[tuple[str, bytes], int] = {}
         for spec in self._specs:
             key = (spec.msgtype, spec.schema)

@@ -127,7 +127,7 @@ def test_repeated_passes_interleave_the_backends_and_each_pass_has_its_own_warmu
     with (run_dir / 'frames.csv').open(newline='') as f:
         header = next(csv.reader(f))
     assert tuple(header) == FRAMES_CSV_COLUMNS
-    assert header[-1] == 'repeat'
+    assert 'repeat' in header
     records = read_frames_csv(run_dir / 'frames.csv')
     assert [(r.backend, r.repeat) for r in records[::FRAMES]] == [
         ('a', 0), ('b', 0), ('a', 1), ('b', 1), ('a', 2), ('b', 2)
@@ -186,7 +186,9 @@ def test_an_old_frames_csv_without_the_repeat_column_reads_as_one_pass(tmp_path)
     path = run_dir / 'frames.csv'
     rows = list(csv.reader(path.open(newline='')))
     with path.open('w', newline='') as f:
-        csv.writer(f, lineterminator='\r\n').writerows([row[:-1] for row in rows])
+        csv.writer(f, lineterminator='\r\n').writerows(
+            [row[: FRAMES_CSV_COLUMNS.index('repeat')] for row in rows]
+        )
     assert {r.repeat for r in read_frames_csv(path)} == {0}
 
 

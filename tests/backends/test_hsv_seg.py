@@ -1,0 +1,168 @@
+"""hsv-seg: per-pixel colour classes, equal pixel for pixel to the naive per-class port."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+import pytest
+
+from replaybench.backends import BackendOptions, get_backend
+from replaybench.backends.hsv import HsvConfig, parse_config
+from replaybench.backends.hsv_seg import HsvSegBackend
+from replaybench.errors import BackendError
+from replaybench.fixtures.scene import Scene
+from replaybench.types import Frame
+
+if TYPE_CHECKING:
+    from types import ModuleType
+
+NAIVE = Path(__file__).resolve().parents[2] / 'benchmarks' / 'naive_hsv_seg.py'
+
+
+@pytest.fixture(scope='module')
+def naive() -> ModuleType:
+    spec = importlib.util.spec_from_file_location('naive_hsv_seg', NAIVE)
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules['naive_hsv_seg'] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _frame(image: np.ndarray, encoding: str = 'bgr8') -> Frame:
+    return Frame('/camera/image_raw', 0, 0, 0, 'cam', image, encoding, encoding)
+
+
+def _labels(backend: HsvSegBackend, image: np.ndarray, encoding: str = 'bgr8') -> np.ndarray:
+    result = backend.detect(_frame(image, encoding))
+    assert result.detections == ()
+    assert result.mask is not None
+    return result.mask.labels
+
+
+def test_the_backend_is_registered_and_names_background_first() -> None:
+    assert get_backend('hsv-seg') is HsvSegBackend
+    backend = HsvSegBackend(BackendOptions())
+    assert backend.class_names == ('background', 'red', 'green', 'blue', 'yellow')
+
+
+def test_a_hand_drawn_frame_gets_exact_class_ids() -> None:
+    image = np.full((40, 60, 3), 128, np.uint8)
+    image[5:15, 5:25] = (0, 0, 230)  # red
+    image[20:35, 30:55] = (230, 40, 0)  # blue
+    backend = HsvSegBackend(BackendOptions(extra={'kernel': '1'}))
+    labels = _labels(backend, image)
+    expected = np.zeros((40, 60), np.uint8)
+    expected[5:15, 5:25] = 1
+    expected[20:35, 30:55] = 3
+    assert labels.dtype == np.uint8
+    assert labels.flags.c_contiguous
+    assert np.array_equal(labels, expected)
+    # the same picture as rgb8 gives the same mask
+    assert np.array_equal(_labels(backend, image[:, :, ::-1].copy(), 'rgb8'), expected)
+
+
+@pytest.mark.parametrize(('size', 'index'), [((320, 240), 3), ((640, 480), 11), ((97, 61), 5)])
+def test_scene_frames_match_the_naive_port_pixel_for_pixel(
+    naive: ModuleType, size: tuple[int, int], index: int
+) -> None:
+    scene = Scene(size, seed=7)
+    backend = HsvSegBackend()
+    for i in range(index, index + 4):
+        image, _ = scene.render(i)
+        assert np.array_equal(_labels(backend, image), naive.naive_segment(image))
+
+
+def test_specks_noise_and_borders_match_the_naive_port(naive: ModuleType) -> None:
+    rng = np.random.default_rng(11)
+    for seed in range(3):
+        hsv = rng.integers(0, 256, size=(130, 170, 3), dtype=np.uint8)
+        hsv[:, :, 0] %= 180
+        # big saturated patches of each hue, some on the border, over random speckle
+        for _ in range(8):
+            x, y = (int(v) for v in rng.integers(-10, 160, size=2))
+            w, h = (int(v) for v in rng.integers(3, 60, size=2))
+            hue = int(rng.choice([0, 5, 60, 115, 28, 175]))
+            cv2.rectangle(hsv, (x, y), (x + w, y + h), (hue, 220, 200), -1)
+        image = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)
+        for extra in ({}, {'kernel': '7', 'open_iterations': '2'}, {'close_iterations': '0'}):
+            backend = HsvSegBackend(BackendOptions(extra=extra))
+            labels = _labels(backend, image)
+            assert np.array_equal(labels, naive.naive_segment(image, backend.config)), (
+                seed,
+                extra,
+            )
+
+
+def test_overlapping_classes_go_to_the_first_in_the_configuration(
+    naive: ModuleType, tmp_path: Path
+) -> None:
+    config = parse_config(
+        {
+            'detector': {'kernel': 1},
+            'classes': [
+                {'name': 'warm', 'ranges': [[[0, 100, 70], [40, 255, 255]]]},
+                {'name': 'orange', 'ranges': [[[5, 100, 70], [25, 255, 255]]]},
+            ],
+        }
+    )
+    hsv = np.zeros((4, 3, 3), np.uint8)
+    hsv[:, :] = (15, 200, 200)  # inside both classes
+    hsv[0, 0] = (30, 200, 200)  # warm only
+    hsv[3, 2] = (90, 200, 200)  # neither
+    image = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)
+    backend = _with_config(config, tmp_path)
+    labels = _labels(backend, image)
+    assert labels[1, 1] == 1
+    assert labels[0, 0] == 1
+    assert labels[3, 2] == 0
+    assert np.array_equal(labels, naive.naive_segment(image, config))
+
+
+def _with_config(config: HsvConfig, folder: Path) -> HsvSegBackend:
+    from replaybench.backends.hsv import config_to_toml
+
+    path = folder / 'seg.toml'
+    path.write_text(config_to_toml(config), encoding='utf-8')
+    return HsvSegBackend(BackendOptions(config=path))
+
+
+def test_more_than_eight_ranges_use_several_bit_groups(naive: ModuleType, tmp_path: Path) -> None:
+    classes = [
+        {'name': f'hue{h}', 'ranges': [[[h, 60, 60], [h + 9, 255, 255]]]} for h in range(0, 180, 10)
+    ]
+    config = parse_config({'detector': {'kernel': 3}, 'classes': classes})
+    backend = _with_config(config, tmp_path)
+    hsv = np.zeros((60, 180, 3), np.uint8)
+    hsv[:, :, 0] = np.arange(180, dtype=np.uint8)[None, :]
+    hsv[:, :, 1:] = 220
+    hsv[20:40, :, 1] = 20  # an unsaturated band: background
+    image = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)
+    labels = _labels(backend, image)
+    assert set(np.unique(labels).tolist()) == set(range(19))
+    assert np.array_equal(labels, naive.naive_segment(image, config))
+
+
+def test_each_frame_gets_its_own_mask_array() -> None:
+    backend = HsvSegBackend()
+    image = np.full((20, 20, 3), 128, np.uint8)
+    first = _labels(backend, image)
+    image[:, :] = (0, 0, 230)
+    second = _labels(backend, image)
+    assert first is not second
+    assert int(first.max()) == 0
+    assert int(second.min()) == 1
+
+
+def test_bad_options_and_images_are_one_clear_error() -> None:
+    with pytest.raises(BackendError, match='hsv-seg: unknown option'):
+        HsvSegBackend(BackendOptions(extra={'colour': 'red'}))
+    backend = HsvSegBackend()
+    with pytest.raises(BackendError, match='hsv-seg: frame'):
+        backend.detect(_frame(np.zeros((4, 4, 2), np.uint8), 'bgr8'))

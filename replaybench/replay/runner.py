@@ -42,6 +42,12 @@ from replaybench.replay.clock import Clock, MonotonicClock
 from replaybench.replay.hashing import ANNOUNCE_MIN_BYTES, InputHash, describe_size
 from replaybench.replay.prefetch import Prefetched, Prefetcher
 from replaybench.replay.rate import Rate
+from replaybench.replay.recorded import (
+    NOT_RECORDED,
+    frame_recorded_times,
+    read_recorded,
+    recorded_note,
+)
 from replaybench.replay.resources import ResourceSampler
 from replaybench.replay.scheduler import replay_timed
 from replaybench.replay.threads import thread_limits
@@ -61,6 +67,7 @@ from replaybench.results.model import (
     SummaryRow,
     Tool,
 )
+from replaybench.results.recorded_latency import with_recorded_latency
 from replaybench.results.records import FrameRecord, FramesCsvWriter
 from replaybench.results.runfile import (
     environment,
@@ -69,13 +76,14 @@ from replaybench.results.runfile import (
 from replaybench.results.runfolder import RunFolder, check_out_dir, with_filename
 from replaybench.results.stats import Summary, summarize, summary_json
 from replaybench.sources import Source, open_source
-from replaybench.types import BackendResult, Detection, Frame, StageTimes, TopicInfo
+from replaybench.types import BackendResult, Detection, Frame, StageTimes
 
 if TYPE_CHECKING:
     import threading
     from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 
     from replaybench.backends.base import Backend
+    from replaybench.decode.recorded import RecordedOutput
     from replaybench.results.groundtruth import ExternalGroundTruth, MatchMode
     from replaybench.types import RawMessage, SkippedTopic
 
@@ -199,7 +207,7 @@ class _Input(NamedTuple):
     start_ns: int | None
     end_ns: int | None
     sample_index: dict[str, int]  # per topic: index among the replayed frames of the sample frame
-    recorded: dict[tuple[str, int], tuple[Detection, ...]]  # for the `recorded` backend
+    recorded: dict[tuple[str, int], RecordedOutput]  # for the `recorded` backend
     recorded_topic: str | None
     external: ExternalGroundTruth | None = None  # --ground-truth-file; replaces ground_truth
     notes: tuple[str, ...] = ()  # warnings found while opening (detections left out)
@@ -353,11 +361,12 @@ def _open_input(
             raise UsageError(msg)
         if gt_topic and gt_present and external is None:
             ground_truth = _read_detections(source, gt_topic, notes)
-        recorded: dict[tuple[str, int], tuple[Detection, ...]] = {}
+        recorded: dict[tuple[str, int], RecordedOutput] = {}
         recorded_topic = None
         if recorded_detections:
-            recorded_topic = _recorded_topic(path, all_topics, config)
-            recorded = _read_detections(source, recorded_topic, notes)
+            recorded_topic, recorded = read_recorded(
+                path, source, all_topics, config.recorded_topic, config.ground_truth_topic, notes
+            )
         # the frame drawn in samples/: the middle one of the replayed frames (the first one when
         # --start/--duration cut a window whose size is unknown before reading)
         windowed = config.start_s is not None or config.duration_s is not None
@@ -428,28 +437,6 @@ def _read_detections(
             f'in {messages} message(s)'
         )
     return table
-
-
-def _recorded_topic(path: Path, topics: Sequence[TopicInfo], config: RunConfig) -> str:
-    """The Detection2DArray topic the `recorded` backend replays: given, or the only candidate."""
-    candidates = [
-        t.name
-        for t in topics
-        if message_kind(t.msgtype) == 'detections' and t.name != config.ground_truth_topic
-    ]
-    if config.recorded_topic is not None:
-        if config.recorded_topic not in {t.name for t in topics}:
-            msg = f'{path}: --recorded-topic {config.recorded_topic} is not in this file'
-            raise UsageError(msg)
-        return config.recorded_topic
-    if len(candidates) == 1:
-        return candidates[0]
-    found = ', '.join(candidates) if candidates else 'none'
-    msg = (
-        f'{path}: the recorded backend needs --recorded-topic TOPIC '
-        f'(Detection2DArray topics besides the ground truth: {found})'
-    )
-    raise UsageError(msg)
 
 
 #: A frame's log entry (``_Pass.log``), made in the replay loop and turned into everything else
@@ -847,6 +834,11 @@ class _Pass:
         t0 = self.t0
         timed = self.measures_latency
         stages = result.stages if timed else _NOT_TIMED
+        recorded = (
+            NOT_RECORDED
+            if timed
+            else frame_recorded_times(self.inp.recorded, frame_id, stamp_ns, log_time_ns)
+        )
         self.record(
             FrameRecord(
                 number,
@@ -856,7 +848,7 @@ class _Pass:
                 log_time_ns,
                 stamp_ns,
                 'ok',
-                '' if timed else 'recorded detections: latency not measured',
+                '' if timed else recorded_note(recorded),
                 timed and n_done < run.warmup_for(topic),
                 False,
                 release - t0,
@@ -876,6 +868,7 @@ class _Pass:
                 _ms(stages.postprocess_device_ns),
                 _ms(stages.h2d_device_ns),
                 _ms(stages.d2h_device_ns),
+                *recorded[:3],
             )
         )
 
@@ -1574,7 +1567,7 @@ def _summaries(run: _Run) -> list[Summary]:
         }
         out.append(replace(s, accuracy=accuracy))
     out = [replace(s, resources=run.resources.get(s.backend)) for s in out]
-    return with_intervals(out, run.records)
+    return with_recorded_latency(with_intervals(out, run.records), run.records)
 
 
 def _sample_images(run: _Run, inputs: Sequence[_Input]) -> Iterator[SampleImage]:

@@ -29,6 +29,7 @@ from replaybench.report.svg import (
 from replaybench.results.intervals import with_intervals
 from replaybench.results.io import from_document, read_peak_result, to_json
 from replaybench.results.model import PEAK_SCHEMA_VERSION, ResourceSummary, SummaryRow
+from replaybench.results.recorded_latency import with_recorded_latency
 from replaybench.results.runfile import load_run, write_text_atomic
 from replaybench.results.stats import summarize, summary_json
 from replaybench.textsafe import visible, visible_lines
@@ -228,7 +229,7 @@ def _summary_rows(run: RunResult, frames: Sequence[FrameRecord]) -> list[Summary
         return list(run.summary_rows)
     return [
         from_document(SummaryRow, summary_json(s))
-        for s in with_intervals(summarize(frames), frames)
+        for s in with_recorded_latency(with_intervals(summarize(frames), frames), frames)
     ]
 
 

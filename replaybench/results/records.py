@@ -71,11 +71,17 @@ class FrameRecord(NamedTuple):
     postprocess_device_ms: float | None = None
     h2d_device_ms: float | None = None
     d2h_device_ms: float | None = None
+    # a recorded output's times (``replaybench.results.recorded_latency``); empty elsewhere
+    output_log_time_ns: int | None = None
+    capture_to_output_ms: float | None = None
+    pipeline_ms: float | None = None
 
 
 FRAMES_CSV_COLUMNS: tuple[str, ...] = FrameRecord._fields
 
-_INT_FIELDS = frozenset({'input', 'seq', 'log_time_ns', 'stamp_ns', 'detections'})
+_INT_FIELDS = frozenset(
+    {'input', 'seq', 'log_time_ns', 'stamp_ns', 'detections', 'output_log_time_ns'}
+)
 _BOOL_FIELDS = frozenset({'warmup', 'dropped'})
 _STR_FIELDS = frozenset({'backend', 'topic', 'status', 'note'})
 _OPTIONAL_FIELDS = frozenset(
@@ -97,10 +103,15 @@ _OPTIONAL_FIELDS = frozenset(
         'postprocess_device_ms',
         'h2d_device_ms',
         'd2h_device_ms',
+        'output_log_time_ns',
+        'capture_to_output_ms',
+        'pipeline_ms',
     },
 )
 #: The columns of frames.csv files written before the ``*_device_ms`` columns were added.
 _COLUMNS_BEFORE_DEVICE_TIMES = FRAMES_CSV_COLUMNS[:22]
+#: The columns of frames.csv files written before the recorded-output columns were added.
+_COLUMNS_BEFORE_RECORDED_TIMES = FRAMES_CSV_COLUMNS[:27]
 
 
 def _float_format(name: str) -> str:
@@ -166,6 +177,7 @@ _STAGE_CELLS = _CELLS[15:20]
 _DEVICE_CELLS = _CELLS[22:27]
 _QUOTED: dict[str, str] = {}
 _NO_STAGES = [None] * 5
+_NO_RECORDED = [None] * 3
 
 
 def _quote(text: str) -> str:
@@ -212,10 +224,12 @@ def _line(record: FrameRecord) -> str:
         detections,
         *device,
     ) = record
+    device, recorded = device[:5], device[5:]
     stages = [preprocess_ms, infer_ms, postprocess_ms, h2d_ms, d2h_ms]
     if (
         latency_ms is not None
         and detections is not None
+        and recorded == _NO_RECORDED
         and None not in (stamp_ns, start_s, done_s, queue_wait_ms, read_decode_ms)
     ):
         times = _TIMES % (release_s, start_s, done_s, queue_wait_ms, read_decode_ms)
@@ -246,7 +260,7 @@ def _line(record: FrameRecord) -> str:
                     f'{quoted.get(topic) or _quote(topic)},{seq:d},{log_time_ns:d},{stamp_ns:d},'
                     f'{quoted.get(status) or _quote(status)},{quoted.get(note) or _quote(note)},'
                     f'{"1" if warmup else "0"},{"1" if dropped else "0"},{times},{staged},'
-                    f'{latency},{detections:d},{on_device}\r\n'
+                    f'{latency},{detections:d},{on_device},,,\r\n'
                 )
             except ValueError:  # an int cell holding something else
                 pass
@@ -419,7 +433,9 @@ class FramesCsvWriter:
 def read_frames_csv(path: str | Path) -> list[FrameRecord]:
     """Read a frames.csv written by ``FramesCsvWriter``; SourceError when it is not one.
 
-    A frames.csv from before the ``*_device_ms`` columns reads with them empty (None).
+    A frames.csv from before the ``*_device_ms`` columns, or before the recorded-output ones
+    (``output_log_time_ns``, ``capture_to_output_ms``, ``pipeline_ms``), reads with them empty
+    (None).
     """
     path = Path(path)
     try:
@@ -427,7 +443,11 @@ def read_frames_csv(path: str | Path) -> list[FrameRecord]:
             reader = csv.reader(file)
             header = next(reader, None)
             columns = tuple(header) if header is not None else ()
-            if columns not in (FRAMES_CSV_COLUMNS, _COLUMNS_BEFORE_DEVICE_TIMES):
+            if columns not in (
+                FRAMES_CSV_COLUMNS,
+                _COLUMNS_BEFORE_DEVICE_TIMES,
+                _COLUMNS_BEFORE_RECORDED_TIMES,
+            ):
                 msg = f'{path}: not a frames.csv (header does not match the expected columns)'
                 raise SourceError(msg) from None
             missing = [''] * (len(FRAMES_CSV_COLUMNS) - len(columns))

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from replaybench.results.recorded_latency import RECORDED_COLUMNS
 from replaybench.results.records import written
 
 if TYPE_CHECKING:
@@ -91,6 +92,9 @@ class Summary:
     throughput_fps_ci_low: float | None = None
     throughput_fps_ci_high: float | None = None
     warnings: tuple[str, ...] = ()
+    # recorded outputs' latency (``RECORDED_COLUMNS``), filled in by
+    # replaybench.results.recorded_latency.with_recorded_latency; None for replayed backends
+    recorded: dict[str, Any] | None = None
 
 
 #: Interval columns of summary.csv (after the resource columns, before ``warnings``).
@@ -106,7 +110,7 @@ INTERVAL_COLUMNS: tuple[str, ...] = (
 _FLAT_FIELDS: tuple[str, ...] = tuple(
     f.name
     for f in fields(Summary)
-    if f.name not in {'accuracy', 'resources', 'warnings', *INTERVAL_COLUMNS}
+    if f.name not in {'accuracy', 'resources', 'warnings', 'recorded', *INTERVAL_COLUMNS}
 )
 
 #: Resource-use columns of summary.csv (from the backend's ResourceSampler summary).
@@ -122,7 +126,12 @@ RESOURCE_COLUMNS: tuple[str, ...] = (
 
 #: Columns of summary.csv, in order (later additions at the end, so older readers keep working).
 SUMMARY_CSV_COLUMNS: tuple[str, ...] = (
-    _FLAT_FIELDS + ACCURACY_COLUMNS + RESOURCE_COLUMNS + INTERVAL_COLUMNS + ('warnings',)
+    _FLAT_FIELDS
+    + ACCURACY_COLUMNS
+    + RESOURCE_COLUMNS
+    + INTERVAL_COLUMNS
+    + ('warnings',)
+    + RECORDED_COLUMNS
 )
 
 
@@ -244,6 +253,10 @@ def _flat(summary: Summary) -> dict[str, Any]:
         row[name] = resources.get(name)
     for name in INTERVAL_COLUMNS:
         row[name] = getattr(summary, name)
+    row['warnings'] = None  # its place; filled in by summary_row / summary_json
+    recorded = summary.recorded or {}
+    for name in RECORDED_COLUMNS:
+        row[name] = recorded.get(name)
     return row
 
 

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import MissingDependencyError, SourceError
 from replaybench.results.model import PeakTrial, SummaryRow
+from replaybench.results.recorded_latency import RECORDED_COLUMNS
 from replaybench.results.records import FRAMES_CSV_COLUMNS, FrameRecord, as_written
 from replaybench.results.runfile import summary_cell
 from replaybench.results.stats import SUMMARY_CSV_COLUMNS
@@ -139,16 +140,18 @@ def read_summary_csv(path: str | Path) -> pd.DataFrame:
         with path.open(newline='', encoding='utf-8') as file:
             reader = csv.reader(file)
             header = tuple(next(reader, ()))
-            if header != SUMMARY_CSV_COLUMNS:
+            if header not in (SUMMARY_CSV_COLUMNS, SUMMARY_CSV_COLUMNS[: -len(RECORDED_COLUMNS)]):
                 msg = f'{path}: not a summary.csv (header does not match the expected columns)'
                 raise SourceError(msg)
             parsers = _parsers()
-            columns: dict[str, list[Any]] = {name: [] for name in header}
+            columns: dict[str, list[Any]] = {name: [] for name in SUMMARY_CSV_COLUMNS}
+            # a summary.csv from before the recorded-latency columns: those read empty
+            missing = [''] * (len(SUMMARY_CSV_COLUMNS) - len(header))
             for cells in reader:
                 if len(cells) != len(header):
                     msg = f'{path}:{reader.line_num}: {len(cells)} cells, not {len(header)}'
                     raise SourceError(msg)
-                for name, text in zip(header, cells, strict=True):
+                for name, text in zip(SUMMARY_CSV_COLUMNS, cells + missing, strict=True):
                     columns[name].append(parsers[name](text))
     except (OSError, ValueError, csv.Error) as err:
         msg = f'{path}: cannot read summary.csv: {err}'

@@ -21,7 +21,8 @@ def fixtures(
     frames: Annotated[int, typer.Option('--frames', min=1, help='Frames per camera.')] = 30,
     size: Annotated[str, typer.Option('--size', help='Image size WxH.')] = '320x240',
 ) -> None:
-    """Generate the synthetic fixture bags (MCAP raw/jpeg, rosbag2 .db3, ROS 1 .bag, two cameras).
+    """Generate the synthetic fixture bags (MCAP raw/jpeg, rosbag2 .db3, ROS 1 .bag, two cameras,
+    and live_detections.mcap: a detector's outputs recorded live, logged after their images).
 
     Example: replaybench fixtures --out /tmp/bags --frames 300 --size 1920x1080
     """

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import SourceError
 from replaybench.report.headline import headline_html
+from replaybench.report.recorded import recorded_latency_html
 from replaybench.report.samples import sample_relpath
 from replaybench.report.svg import (
     Marks,
@@ -1031,6 +1032,7 @@ def render_html(data: RunData) -> str:
         '<h2 id="summary">Summary</h2>',
         _summary_table(rows, colours),
         _accuracy_details(rows),
+        recorded_latency_html(rows, frames, colours),
         _plots(frames, rows, backends, topics, colours),
         _agreement(run, colours),
         _resources(run, colours),

@@ -59,9 +59,10 @@ def read_recorded(
         candidates = recorded_candidates(types, ground_truth_topic)
         if len(candidates) != 1:
             found = ', '.join(candidates) if candidates else 'none'
+            types_read = ', '.join(sorted(RECORDED_READERS))
             msg = (
-                f'{path}: the recorded backend needs --recorded-topic TOPIC '
-                f'(Detection2DArray topics besides the ground truth: {found})'
+                f'{path}: the recorded backend needs --recorded-topic TOPIC (topics it can pick '
+                f'alone besides the ground truth: {found}; it reads {types_read})'
             )
             raise UsageError(msg)
         topic = candidates[0]

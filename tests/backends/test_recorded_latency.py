@@ -302,3 +302,56 @@ def test_frames_and_summary_csv_written_before_the_recorded_columns_still_read(t
     table = read_summary_csv(old / 'summary.csv')
     assert tuple(table.columns) == SUMMARY_CSV_COLUMNS
     assert table['pipeline_ms_p50'].isna().all()
+
+
+def test_one_reader_entry_is_all_another_recorded_output_type_needs(tmp_path, monkeypatch):
+    """A task type's recorded output is one ``RECORDED_READERS`` entry: here CameraInfo read as
+    an "output" (one box the size of the image), matched, scored and timed like detections."""
+    from replaybench.decode import decode_camera_info
+    from replaybench.decode import recorded as recorded_outputs
+    from replaybench.fixtures.writer import camera_info
+    from replaybench.msgs import CAMERA_INFO, serialize_camera_info
+    from replaybench.types import BackendResult, Detection
+
+    def read_camera_info(raw):
+        info = decode_camera_info(raw)
+        box = Detection(0, 'frame', 1.0, 0.0, 0.0, float(info.width), float(info.height))
+        return recorded_outputs.RecordedMessage(info.frame_id, info.stamp_ns, BackendResult((box,)))
+
+    entry = recorded_outputs.OutputReader('frames', read_camera_info, candidate=False)
+    monkeypatch.setitem(recorded_outputs.RECORDED_READERS, CAMERA_INFO, entry)
+    messages = [m for m in _messages() if m[0] == IMAGE_TOPIC]
+    for _, _, image_log, _ in list(messages):
+        stamp = T0 + (image_log - T0) // PERIOD * PERIOD
+        data = serialize_camera_info(camera_info((96, 72), stamp, 'cam'))
+        messages.append(('/camera/camera_info', CAMERA_INFO, image_log + 7 * MS, data))
+    bag = _write_mcap(tmp_path / 'info.mcap', sorted(messages, key=lambda m: m[2]))
+    outcome = run_benchmark(
+        RunConfig(
+            inputs=[bag],
+            backends=['recorded'],
+            out_dir=None,
+            recorded_topic='/camera/camera_info',
+            report=False,
+        )
+    )
+    rows = [r for r in outcome.records if r.backend == 'recorded']
+    assert len(rows) == FRAMES
+    assert all(r.detections == 1 for r in rows)
+    assert all(r.pipeline_ms == 7 for r in rows)
+    [row] = outcome.run.summary_rows
+    assert row.recorded_outputs == FRAMES
+    assert row.pipeline_ms_p50 == 7
+    assert row.recorded_outputs_dropped == 0
+
+
+def test_without_a_recorded_topic_to_pick_alone_the_error_names_what_it_reads(tmp_path):
+    from replaybench.errors import UsageError
+
+    bag = _write_mcap(tmp_path / 'none.mcap', [m for m in _messages() if m[0] == IMAGE_TOPIC])
+    with pytest.raises(
+        UsageError,
+        match=r'needs --recorded-topic TOPIC \(topics it can pick alone '
+        r'besides the ground truth: none; it reads vision_msgs/msg/Detection2DArray',
+    ):
+        run_benchmark(RunConfig(inputs=[bag], backends=['recorded'], out_dir=None, report=False))

@@ -36,6 +36,11 @@ FIGURES: tuple[tuple[str, str, str], ...] = (
 )
 
 
+def _e(value: object) -> str:
+    """HTML-escaped text, control characters shown as escapes (as the rest of the report)."""
+    return escape(visible(str(value)), quote=True)
+
+
 def _num(value: Any) -> float | None:
     if isinstance(value, bool) or not isinstance(value, int | float):
         return None
@@ -93,14 +98,14 @@ def _cell(value: str, numeric: bool = True) -> str:
 
 def _with_ci(value: Any, low: Any, high: Any) -> str:
     ci = _ci(low, high)
-    text = escape(_ms(value))
+    text = _e(_ms(value))
     if ci:
-        text += f'<br><span class="muted ci">{escape(ci)}</span>'
+        text += f'<br><span class="muted ci">{_e(ci)}</span>'
     return _cell(text)
 
 
 def _swatch(colours: Mapping[str, str], backend: str) -> str:
-    fill = escape(colours.get(backend, '#777'))
+    fill = _e(colours.get(backend, '#777'))
     return f'<span class="swatch" style="background:{fill}"></span>'
 
 
@@ -112,14 +117,14 @@ def _recorded_rows(row: SummaryRow, colours: Mapping[str, str]) -> list[str]:
         if n == 0:
             hz = _num(row.recorded_output_hz)
             counts = [
-                escape(str(row.recorded_outputs)),
-                escape(str(row.recorded_outputs_dropped)),
+                _e(str(row.recorded_outputs)),
+                _e(str(row.recorded_outputs_dropped)),
                 '–' if hz is None else f'{hz:.2f}',
             ]
         cells = [
-            _cell(_swatch(colours, backend) + escape(backend), numeric=False),
-            _cell(f'<code>{escape(row.topic or "?")}</code>', numeric=False),
-            _cell(f'recorded {escape(name)}<br><span class="muted">{escape(spans)}</span>', False),
+            _cell(_swatch(colours, backend) + _e(backend), numeric=False),
+            _cell(f'<code>{_e(row.topic or "?")}</code>', numeric=False),
+            _cell(f'recorded {_e(name)}<br><span class="muted">{_e(spans)}</span>', False),
             _with_ci(
                 getattr(row, f'{figure}_p50'),
                 getattr(row, f'{figure}_p50_ci_low'),
@@ -130,7 +135,7 @@ def _recorded_rows(row: SummaryRow, colours: Mapping[str, str]) -> list[str]:
                 getattr(row, f'{figure}_p99_ci_low'),
                 getattr(row, f'{figure}_p99_ci_high'),
             ),
-            _cell(escape(_ms(getattr(row, f'{figure}_max')))),
+            _cell(_e(_ms(getattr(row, f'{figure}_max')))),
             *(_cell(c) for c in counts),
         ]
         out.append(f'<tr class="recorded">{"".join(cells)}</tr>')
@@ -140,8 +145,8 @@ def _recorded_rows(row: SummaryRow, colours: Mapping[str, str]) -> list[str]:
 def _replayed_row(row: SummaryRow, colours: Mapping[str, str]) -> str:
     backend = row.backend or '?'
     cells = [
-        _cell(_swatch(colours, backend) + escape(backend), numeric=False),
-        _cell(f'<code>{escape(row.topic or "?")}</code>', numeric=False),
+        _cell(_swatch(colours, backend) + _e(backend), numeric=False),
+        _cell(f'<code>{_e(row.topic or "?")}</code>', numeric=False),
         _cell(
             'replayed latency<br><span class="muted">frame released → detections (this '
             'machine)</span>',
@@ -149,7 +154,7 @@ def _replayed_row(row: SummaryRow, colours: Mapping[str, str]) -> str:
         ),
         _with_ci(row.latency_ms_p50, row.latency_ms_p50_ci_low, row.latency_ms_p50_ci_high),
         _with_ci(row.latency_ms_p99, row.latency_ms_p99_ci_low, row.latency_ms_p99_ci_high),
-        _cell(escape(_ms(row.latency_ms_max))),
+        _cell(_e(_ms(row.latency_ms_max))),
         _cell(''),
         _cell(''),
         _cell(''),
@@ -213,8 +218,8 @@ def recorded_latency_html(
                 body += _recorded_rows(row, colours)
                 if row.recorded_latency_note:
                     notes.append(
-                        f'<li><b>{escape(row.backend)}</b> <code>{escape(topic)}</code>: '
-                        f'{escape(row.recorded_latency_note)}</li>'
+                        f'<li><b>{_e(row.backend)}</b> <code>{_e(topic)}</code>: '
+                        f'{_e(row.recorded_latency_note)}</li>'
                     )
         body += [_replayed_row(r, colours) for r in on_topic if r.recorded_outputs is None]
         chart = _cdf(topic, on_topic, frames, colours)
@@ -234,7 +239,7 @@ def recorded_latency_html(
     notes_html = f'<ul class="recorded-notes">{"".join(notes)}</ul>' if notes else ''
     return (
         '<h2 id="recorded-latency">Recorded latency</h2>'
-        f'<p class="muted">{escape(intro)}</p>'
+        f'<p class="muted">{_e(intro)}</p>'
         f'<div class="table-wrap"><table id="recorded-latency-table"><thead>{head}</thead>'
         f'<tbody>{"".join(body)}</tbody></table></div>{notes_html}{"".join(charts)}'
     )

@@ -52,6 +52,8 @@ Messages = list[tuple[str, str, int, bytes]]  # (topic, msgtype, log time, data)
 def _messages(
     stamp_of: Callable[[int], int] = lambda i: T0 + i * PERIOD,
     output_after_ms: Callable[[int], int | None] = lambda i: PIPELINE_MS[i],
+    *,
+    ros1: bool = False,
 ) -> Messages:
     """Images and the node's outputs (the truth with one box left out), by log time."""
     scene = Scene((96, 72), 0, 3)
@@ -60,11 +62,12 @@ def _messages(
         stamp = stamp_of(i)
         image_log = T0 + i * PERIOD + TRANSPORT_MS[i] * MS
         bgr, boxes = scene.render(i)
-        out.append((IMAGE_TOPIC, IMAGE, image_log, serialize_image(stamp, 'cam', bgr, 'bgr8')))
+        image = serialize_image(stamp, 'cam', bgr, 'bgr8', ros1=ros1)
+        out.append((IMAGE_TOPIC, IMAGE, image_log, image))
         after = output_after_ms(i)
         if after is not None:
             robot = [b._replace(score=0.9) for b in boxes[1:]]
-            data = serialize_detections(stamp, 'cam', robot)
+            data = serialize_detections(stamp, 'cam', robot, ros1=ros1)
             out.append((ROBOT_TOPIC, DETECTION2DARRAY, image_log + after * MS, data))
     return sorted(out, key=lambda m: m[2])
 
@@ -99,6 +102,19 @@ def _write_rosbag2(path: Path, messages: Messages) -> Path:
     return path
 
 
+def _write_rosbag1(path: Path, messages: Messages) -> Path:
+    from rosbags.rosbag1 import Writer as Rosbag1Writer
+
+    store = typestore(ros1=True)
+    with Rosbag1Writer(path) as writer:
+        connections = {}
+        for topic, msgtype, log_time, data in messages:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, msgtype, typestore=store)
+            writer.write(connections[topic], log_time, data)
+    return path
+
+
 def _run(bag: Path, out: Path, backends: tuple[str, ...] = ('recorded', 'null')):
     outcome = run_benchmark(
         RunConfig(inputs=[bag], backends=list(backends), out_dir=out, report=False)
@@ -109,9 +125,12 @@ def _run(bag: Path, out: Path, backends: tuple[str, ...] = ('recorded', 'null'))
     return rows, summary, outcome
 
 
-@pytest.mark.parametrize('writer', [_write_mcap, _write_rosbag2], ids=['mcap', 'rosbag2'])
+@pytest.mark.parametrize(
+    'writer', [_write_mcap, _write_rosbag2, _write_rosbag1], ids=['mcap', 'rosbag2', 'ros1']
+)
 def test_known_log_times_give_exact_recorded_latencies(tmp_path, writer):
-    bag = writer(tmp_path / 'robot', _messages())
+    ros1 = writer is _write_rosbag1
+    bag = writer(tmp_path / ('robot.bag' if ros1 else 'robot'), _messages(ros1=ros1))
     rows, summary, _ = _run(bag, tmp_path / 'run')
 
     assert len(rows) == FRAMES

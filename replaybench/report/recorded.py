@@ -21,7 +21,6 @@ if TYPE_CHECKING:
 
     from replaybench.results.model import SummaryRow
     from replaybench.results.records import FrameRecord
-    from replaybench.results.stats import Summary
 
 __all__ = ['recorded_latency_html', 'recorded_latency_lines']
 
@@ -62,33 +61,31 @@ def _ci(low: Any, high: Any) -> str:
     return '' if lo is None or hi is None else f'{_ms(lo)}–{_ms(hi)}'
 
 
-def recorded_latency_lines(summaries: Sequence[Summary]) -> list[tuple[str, bool]]:
+def recorded_latency_lines(summaries: Sequence[SummaryRow]) -> list[tuple[str, bool]]:
     """For the terminal: a line per (backend, topic) replaying recorded outputs, and its note
     (a figure refused, no interval) as a warning; (text, is_warning) each."""
     out: list[tuple[str, bool]] = []
     for s in summaries:
-        rec = s.recorded
-        if rec is None:
+        if s.recorded_outputs is None:
             continue
-        outputs, dropped = rec.get('recorded_outputs'), rec.get('recorded_outputs_dropped')
-        hz = _num(rec.get('recorded_output_hz'))
-        parts = [f'{outputs} outputs, {dropped} frame(s) without one']
+        hz = _num(s.recorded_output_hz)
+        parts = [f'{s.recorded_outputs} outputs, {s.recorded_outputs_dropped} frame(s) without one']
         if hz is not None:
             parts[0] += f', {hz:.1f} Hz'
         for figure, name, _ in FIGURES:
-            p50 = rec.get(f'{figure}_p50')
+            p50 = getattr(s, f'{figure}_p50')
             if p50 is None:
                 continue
-            ci = _ci(rec.get(f'{figure}_p50_ci_low'), rec.get(f'{figure}_p50_ci_high'))
+            ci = _ci(getattr(s, f'{figure}_p50_ci_low'), getattr(s, f'{figure}_p50_ci_high'))
             parts.append(
                 f'{name} p50 {_ms(p50)} ms'
                 + (f' [{ci}]' if ci else '')
-                + f', p99 {_ms(rec.get(f"{figure}_p99"))} ms'
+                + f', p99 {_ms(getattr(s, f"{figure}_p99"))} ms'
             )
         where = f'{visible(s.backend)} {visible(s.topic)}'
         out.append((f'recorded latency of {where}: ' + '; '.join(parts), False))
-        if rec.get('recorded_latency_note'):
-            out.append((f'{where}: recorded latency: {rec["recorded_latency_note"]}', True))
+        if s.recorded_latency_note:
+            out.append((f'{where}: recorded latency: {s.recorded_latency_note}', True))
     return out
 
 

@@ -11,7 +11,10 @@ One computation serves run.json, summary.csv, the report and ``replaybench compa
   ``MIN_FRAMES`` (20) measured frames.
 * **Warnings**, in compare's wording where compare has the flag:
 
-  - too few frames: fewer than ``MIN_FRAMES`` measured frames, so no interval;
+  - too few frames: fewer than ``MIN_FRAMES`` measured frames, so no interval; not said of a
+    row whose measured frames carry no latency at all (a backend that is not timed, such as
+    ``recorded``: its outputs' latency from the recording has its own note,
+    ``replaybench.results.recorded_latency``);
   - unstable latency: coefficient of variation (population standard deviation / mean) above
     ``CV_LIMIT`` (0.1);
   - drift: the median latency of the second half of the measured frames differs from that of the
@@ -245,11 +248,18 @@ def throttle_warnings(resources: Mapping[str, Any] | None) -> list[str]:
     return out
 
 
-def stability_warnings(summary: Summary, series: Series, drifted: Drift | None = None) -> list[str]:
-    """The warnings of one (backend, topic), in a fixed order (frames, CV, drift, throttling)."""
+def stability_warnings(
+    summary: Summary,
+    series: Series,
+    drifted: Drift | None = None,
+    resources: Mapping[str, Any] | None = None,
+) -> list[str]:
+    """The warnings of one (backend, topic), in a fixed order (frames, CV, drift, throttling
+    seen in its backend's ``resources``)."""
     out = []
     n = int(series.latency_ms.size)
-    if n < MIN_FRAMES:
+    not_timed = n == 0 and summary.measured > 0  # frames measured, none with a latency
+    if n < MIN_FRAMES and not not_timed:
         out.append(f'{n} measured frames: fewer than {MIN_FRAMES}, no 95 % interval')
     mean, std = summary.latency_ms_mean, summary.latency_ms_std
     cv = std / mean if mean and std is not None and mean > 0 else None
@@ -262,15 +272,20 @@ def stability_warnings(summary: Summary, series: Series, drifted: Drift | None =
             f'{drifted.first_ms:.3g} ms, {100 * (drifted.ratio - 1):+.0f} % (more than '
             f'{100 * DRIFT_LIMIT:g} %; 95 % interval of the ratio {lo:.3f} to {hi:.3f})'
         )
-    out += throttle_warnings(summary.resources)
+    out += throttle_warnings(resources)
     return out
 
 
 def with_intervals(
-    summaries: Sequence[Summary], records: Sequence[FrameRecord], *, seed: int = 0
+    summaries: Sequence[Summary],
+    records: Sequence[FrameRecord],
+    *,
+    seed: int = 0,
+    resources: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> list[Summary]:
     """``summaries`` with their intervals and warnings filled in from ``records`` (the frame
-    records they were computed from; resources, when wanted, already attached)."""
+    records they were computed from) and, for throttling, each backend's resource summary
+    (``resources``, by backend label)."""
     groups: dict[tuple[str, str], list[FrameRecord]] = {}
     for record in records:
         groups.setdefault((record.backend, record.topic), []).append(record)
@@ -294,7 +309,14 @@ def with_intervals(
                 latency_ms_p99_ci_high=p99[1] if p99 else None,
                 throughput_fps_ci_low=fps[0] if fps else None,
                 throughput_fps_ci_high=fps[1] if fps else None,
-                warnings=tuple(stability_warnings(s, series, drift(series.latency_ms))),
+                warnings=tuple(
+                    stability_warnings(
+                        s,
+                        series,
+                        drift(series.latency_ms),
+                        (resources or {}).get(s.backend),
+                    )
+                ),
             )
         )
     return out

@@ -600,7 +600,7 @@ class PeakResult:
         """The trials as a pandas DataFrame (``rate_hz``, ``ok``, ...; run order)."""
         from replaybench.results.tables import trials_table
 
-        return trials_table(self.trial_rows)
+        return trials_table(self.trial_rows, PeakTrial)
 
 
 # --------------------------------------------------------------------------- comparison.json

@@ -48,13 +48,14 @@ from replaybench.results.bootstrap import (
     percentile_interval,
     replicates,
 )
+from replaybench.results.columns import RECORDED_COLUMNS
 from replaybench.results.records import written
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
+    from replaybench.results.model import SummaryRow
     from replaybench.results.records import FrameRecord
-    from replaybench.results.stats import Summary
 
 __all__ = [
     'MAX_STAMP_AGE_S',
@@ -83,14 +84,9 @@ _STATS: tuple[str, ...] = (
     'max',
 )
 
-#: summary.csv / run.json columns of the recorded latency (empty for replayed backends).
-RECORDED_COLUMNS: tuple[str, ...] = (
-    'recorded_outputs',
-    'recorded_outputs_dropped',
-    'recorded_output_hz',
-    *(f'{figure}_{stat}' for figure in RECORDED_FIGURES for stat in _STATS),
-    'recorded_latency_note',
-)
+# The summary.csv / run.json columns of the recorded latency, ``RECORDED_COLUMNS``, live in
+# replaybench.results.columns with the other summary columns (and SummaryRow's fields): the
+# counts, the rate, each figure's ``_STATS`` (``{figure}_{stat}``) and the note.
 
 # why a value is refused: code -> what the note says of the outputs concerned
 _REASONS: dict[str, str] = {
@@ -259,19 +255,17 @@ def _capture_refused(t: RecordedTimes) -> str | None:
 
 
 def with_recorded_latency(
-    summaries: Sequence[Summary], records: Sequence[FrameRecord], *, seed: int = 0
-) -> list[Summary]:
-    """``summaries`` with ``recorded`` set for each (backend, topic) that replays recorded
-    outputs, from the frame ``records`` they were computed from."""
+    summaries: Sequence[SummaryRow], records: Sequence[FrameRecord], *, seed: int = 0
+) -> list[SummaryRow]:
+    """``summaries`` with the recorded-latency fields (``RECORDED_COLUMNS``) set for each
+    (backend, topic) that replays recorded outputs, from the frame ``records`` they were
+    computed from; the other rows as they are."""
     groups: dict[tuple[str, str], list[FrameRecord]] = {}
     for record in records:
         groups.setdefault((record.backend, record.topic), []).append(record)
-    return [
-        replace(
-            s,
-            recorded=recorded_summary(
-                s.backend, s.topic, groups.get((s.backend, s.topic), []), seed=seed
-            ),
-        )
-        for s in summaries
-    ]
+    out: list[SummaryRow] = []
+    for s in summaries:
+        rows = groups.get((s.backend, s.topic), [])
+        found = recorded_summary(s.backend, s.topic, rows, seed=seed)
+        out.append(s if found is None else replace(s, **found))
+    return out

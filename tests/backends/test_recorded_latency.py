@@ -277,6 +277,17 @@ def test_few_outputs_are_summarised_without_an_interval(tmp_path):
     assert 'fewer than 20, no 95 % interval' in (rec.recorded_latency_note or '')
 
 
+def test_a_row_without_replay_latency_has_no_too_few_measured_frames_warning(tmp_path):
+    # 8 frames: the replayed `null` row is warned of its few measured frames; the `recorded`
+    # row has no replay latency to measure, and its outputs' few frames are in its note
+    messages = [m for m in _messages() if m[2] < T0 + 8 * PERIOD]
+    bag = _write_mcap(tmp_path / 'short.mcap', messages)
+    _, summary, _ = _run(bag, tmp_path / 'run')
+    assert not any('measured frames' in w for w in summary['recorded'].warnings)
+    assert any('measured frames: fewer than 20' in w for w in summary['null'].warnings)
+    assert 'fewer than 20, no 95 % interval' in (summary['recorded'].recorded_latency_note or '')
+
+
 def test_a_recorded_topic_of_a_type_without_a_reader_is_refused(tmp_path):
     from replaybench.errors import UsageError
 

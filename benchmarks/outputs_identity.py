@@ -10,6 +10,10 @@ for being present or empty). Columns and keys that a newer engine adds (``ADDED_
 or at the value an older output stands for (``repeat`` 0: a single pass; none of the cases uses
 what they report). run.json's ``settings`` without ``repeat`` reads as ``repeat`` 1. Exit
 status 0 when every case is identical, 1 otherwise, with one line per difference.
+
+A reference made before the recorded-latency columns (``RECORDED_ADDED``) is compared without
+them: the new outputs may hold those columns beside the reference's (the ``recorded`` case
+fills them), and every other cell must still match.
 """
 
 from __future__ import annotations
@@ -105,6 +109,38 @@ def _empty(value: Any, key: str = '') -> bool:
     return value is None or value in ('', [], {}) or value in _OLDER_VALUES.get(key, ())
 
 
+#: columns added to frames.csv, summary.csv and run.json's summary rows since outputs were
+#: first kept (recorded outputs' latency, replaybench.results.recorded_latency), and the
+#: ``recorded`` backend's ``recorded_latency`` line in its run.json info: left out of the new
+#: side where the reference has none of them
+RECORDED_ADDED: frozenset[str] = frozenset(
+    {
+        'recorded_latency',
+        'output_log_time_ns',
+        'capture_to_output_ms',
+        'pipeline_ms',
+        'recorded_outputs',
+        'recorded_outputs_dropped',
+        'recorded_output_hz',
+        *(
+            f'{figure}_{stat}'
+            for figure in ('capture_to_output_ms', 'pipeline_ms')
+            for stat in (
+                'mean',
+                'p50',
+                'p50_ci_low',
+                'p50_ci_high',
+                'p99',
+                'p99_ci_low',
+                'p99_ci_high',
+                'max',
+            )
+        ),
+        'recorded_latency_note',
+    }
+)
+
+
 #: warnings that report a measured time (the latency's spread, its drift, a hash overlapping
 #: the passes): left out of the comparison
 _TIMED_WARNINGS = re.compile(
@@ -178,7 +214,7 @@ def _masked(value: Any, key: str = '') -> Any:
         return None if value is None else '<number>'
     if key in {'started_at', 'finished_at'}:
         return '<time>'
-    if key in {'path', 'executable'} and isinstance(value, str):
+    if key in {'path', 'executable', 'model'} and isinstance(value, str):
         return Path(value).name
     return value
 
@@ -191,8 +227,19 @@ def _shape(value: Any) -> Any:
     return '<value>'  # what the machine measured meanwhile, present or not
 
 
+def _without_added(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    """``b`` without the ``RECORDED_ADDED`` columns that ``a`` (the reference) lacks; a CSV
+    header (``<header>``) likewise."""
+    if '<header>' in a and '<header>' in b:
+        ref = set(a['<header>'].split(','))
+        names = [n for n in b['<header>'].split(',') if n in ref or n not in RECORDED_ADDED]
+        return {**b, '<header>': ','.join(names)}
+    return {k: v for k, v in b.items() if k in a or k not in RECORDED_ADDED}
+
+
 def _diff(a: Any, b: Any, where: str, out: list[str]) -> None:
     if isinstance(a, dict) and isinstance(b, dict):
+        b = _without_added(a, b)
         # an added key missing from the reference: allowed when empty in the new outputs
         keys_b = [k for k in b if k in a or k not in ADDED_KEYS or not _empty(b[k], k)]
         if list(a) != keys_b:
@@ -236,7 +283,9 @@ def _frames_records(document: dict[str, Any]) -> list[Any]:
     from replaybench.results.records import FRAMES_CSV_COLUMNS
 
     rows = document.pop('frame_records')
-    before = tuple(c for c in FRAMES_CSV_COLUMNS if c not in ADDED_COLUMNS)
+    before = tuple(
+        c for c in FRAMES_CSV_COLUMNS if c not in ADDED_COLUMNS and c not in RECORDED_ADDED
+    )
     return [
         {
             k: ('<number>' if v is not None else None) if _timing(k) else v

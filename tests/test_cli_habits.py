@@ -301,7 +301,14 @@ def test_the_fixtures_command_reports_progress_per_bag_and_frame(tmp_path, monke
     result = runner.invoke(app, ['fixtures', '--out', str(tmp_path / 'bags'), '--frames', '2'])
     assert result.exit_code == 0, result.output
     assert result.stderr == ''  # quick, and not a terminal: no progress line
-    names = ['rgb8_raw.mcap', 'jpeg.mcap', 'bgr8_rosbag2', 'rgb8.bag', 'two_camera.mcap']
+    names = [
+        'rgb8_raw.mcap',
+        'jpeg.mcap',
+        'bgr8_rosbag2',
+        'rgb8.bag',
+        'two_camera.mcap',
+        'live_detections.mcap',
+    ]
     assert calls == [(name, done, 2) for name in names for done in (1, 2)]
 
 

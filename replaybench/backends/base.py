@@ -11,7 +11,8 @@ if TYPE_CHECKING:
     from collections.abc import Mapping
     from pathlib import Path
 
-    from replaybench.types import BackendResult, Detection, Frame
+    from replaybench.decode.recorded import RecordedOutput
+    from replaybench.types import BackendResult, Frame
 
 __all__ = [
     'DEVICES',
@@ -58,12 +59,14 @@ class BackendOptions:
 class RecordedDetections(NamedTuple):
     """What a backend with ``uses_recorded_detections`` is given before ``open()``.
 
-    ``topic``: the Detection2DArray topic(s) read (``--recorded-topic``, or the only candidate
-    of each input); ``table``: their detections keyed by (input index, frame_id, stamp_ns).
+    ``topic``: the recorded output topic(s) read (``--recorded-topic``, or the only candidate
+    of each input); ``table``: their outputs keyed by (input index, frame_id, stamp_ns), each
+    the ``BackendResult`` to return for the frame and the output's log time
+    (``replaybench.decode.recorded``, which reads each message type).
     """
 
     topic: str
-    table: Mapping[tuple[int, str, int], tuple[Detection, ...]]
+    table: Mapping[tuple[int, str, int], RecordedOutput]
 
 
 @runtime_checkable

@@ -1,9 +1,12 @@
-"""The ``recorded`` backend: detections a robot already recorded in the bag, scored like a backend.
+"""The ``recorded`` backend: outputs a robot already recorded in the bag, scored like a backend.
 
-It runs nothing: for each replayed image it returns the Detection2DArray recorded on the chosen
-topic with the same frame_id and header stamp (none when there is no such message). Its rows carry
-no latency or stage times, since the detector ran on the robot, not here; its accuracy and its
-agreement with the other backends are what it is for.
+It runs nothing: for each replayed image it returns the output recorded on the chosen topic with
+the same frame_id and header stamp (none when there is no such message), read by the topic's type
+(``replaybench.decode.recorded.RECORDED_READERS``; Detection2DArray today). Its rows carry no
+replay latency or stage times, since the detector ran on the robot, not here; the runner gives
+them the recorded latency instead, from the output's log time against its image's header stamp
+and log time (``replaybench.results.recorded_latency``). Its accuracy, its agreement with the
+other backends and its recorded latency are what it is for.
 """
 
 from __future__ import annotations
@@ -11,12 +14,13 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from replaybench.backends.base import Availability, BackendOptions
-from replaybench.types import BackendResult, Detection, StageTimes
+from replaybench.types import BackendResult, StageTimes
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
     from replaybench.backends.base import RecordedDetections
+    from replaybench.decode.recorded import RecordedOutput
     from replaybench.types import Frame
 
 __all__ = ['RecordedBackend']
@@ -29,8 +33,8 @@ class RecordedBackend:
 
     name: ClassVar[str] = 'recorded'
     description: ClassVar[str] = (
-        'detections recorded in the bag (a Detection2DArray topic, --recorded-topic), '
-        'scored as a backend'
+        'outputs recorded in the bag (a Detection2DArray topic, --recorded-topic), '
+        'scored as a backend, with their recorded latency'
     )
     #: The runner leaves latency and stage columns empty for this backend.
     measures_latency: ClassVar[bool] = False
@@ -40,7 +44,7 @@ class RecordedBackend:
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()
         self.topic = ''
-        self._table: Mapping[tuple[int, str, int], tuple[Detection, ...]] = {}
+        self._table: Mapping[tuple[int, str, int], RecordedOutput] = {}
         self._matched = 0
         self._missing = 0
 
@@ -49,7 +53,7 @@ class RecordedBackend:
         return Availability(ok=True)
 
     def prepare(self, recorded: RecordedDetections) -> None:
-        """Take the recorded detections, keyed by (input index, frame_id, stamp_ns)."""
+        """Take the recorded outputs, keyed by (input index, frame_id, stamp_ns)."""
         self.topic = recorded.topic
         self._table = recorded.table
 
@@ -62,7 +66,7 @@ class RecordedBackend:
             self._missing += 1
             return BackendResult((), _NO_STAGES)
         self._matched += 1
-        return BackendResult(found, _NO_STAGES)
+        return found.result
 
     def info(self) -> dict[str, Any]:
         return {
@@ -71,6 +75,10 @@ class RecordedBackend:
             'frames_matched': self._matched,
             'frames_without_recorded_detections': self._missing,
             'latency': 'not measured: the detector ran when the bag was recorded',
+            'recorded_latency': (
+                'from the recording: capture_to_output_ms (output log time - image header '
+                'stamp) and pipeline_ms (output log time - image log time)'
+            ),
         }
 
     def close(self) -> None:

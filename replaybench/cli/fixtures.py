@@ -36,7 +36,8 @@ def fixtures(
         ),
     ] = False,
 ) -> None:
-    """Generate the synthetic fixture bags (MCAP raw/jpeg, rosbag2 .db3, ROS 1 .bag, two cameras).
+    """Generate the synthetic fixture bags (MCAP raw/jpeg, rosbag2 .db3, ROS 1 .bag, two cameras,
+    and live_detections.mcap: a detector's outputs recorded live, logged after their images).
 
     Example: replaybench fixtures --out /tmp/bags --frames 300 --size 1920x1080
     """

@@ -339,8 +339,11 @@ def _run_until_stopped(config: RunConfig, progress: RunProgress) -> RunOutcome:
 def _show_run(outcome: RunOutcome) -> int:
     """Print a finished run (the table, its warnings, the folder); its exit status."""
     from replaybench.backends.gpu import engine_lines
+    from replaybench.report.recorded import recorded_latency_lines
 
     _print_summary(outcome.summaries)
+    for line, is_warning in recorded_latency_lines(outcome.summaries):
+        echo(f'replaybench: warning: {line}' if is_warning else line, err=is_warning)
     for s in outcome.summaries:  # stability of each (backend, topic): intervals need not hold
         where = f'{s.backend} {s.topic}'
         for warning in s.warnings:

@@ -1,5 +1,5 @@
 """The inputs of a run, opened: their topics, time window, camera infos, ground truth, the
-recorded detections a backend replays, the sample frame of each topic and their sha256.
+recorded outputs a backend replays, the sample frame of each topic and their sha256.
 
 ``open_input`` opens and probes one BAG argument into an ``OpenedInput``; ``replayed`` is the
 stream of image messages each pass reads from it; ``decoder`` turns one into the ``Frame`` a
@@ -17,6 +17,7 @@ from replaybench.decode.camera_info import CameraInfoIndex
 from replaybench.decode.probe import CameraTopic, probe_topics, unreadable_image_topics
 from replaybench.errors import DecodeError, SourceError, UsageError
 from replaybench.replay.hashing import ANNOUNCE_MIN_BYTES, InputHash, describe_size
+from replaybench.replay.recorded import read_recorded
 from replaybench.replay.segmentation import replayable
 from replaybench.sources import Source, open_source
 
@@ -24,9 +25,10 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Sequence
     from pathlib import Path
 
+    from replaybench.decode.recorded import RecordedOutput
     from replaybench.replay.config import InputOptions, RunConfig
     from replaybench.results.groundtruth import ExternalGroundTruth, MatchMode
-    from replaybench.types import Detection, Frame, RawMessage, SkippedTopic, TopicInfo
+    from replaybench.types import Detection, Frame, RawMessage, SkippedTopic
 
 __all__ = [
     'DetectionTable',
@@ -59,7 +61,7 @@ class OpenedInput(NamedTuple):
     start_ns: int | None
     end_ns: int | None
     sample_index: dict[str, int]  # per topic: index among the replayed frames of the sample frame
-    recorded: DetectionTable  # for the `recorded` backend
+    recorded: dict[tuple[str, int], RecordedOutput]  # for the `recorded` backend
     recorded_topic: str | None
     external: ExternalGroundTruth | None = None  # --ground-truth-file; replaces ground_truth
     notes: tuple[str, ...] = ()  # warnings found while opening (detections left out)
@@ -133,8 +135,9 @@ def open_input(
     *,
     recorded_detections: bool = False,
 ) -> OpenedInput:
-    """Open and probe one input; ``recorded_detections``: a backend replays the recorded
-    Detection2DArray topic (``Backend.uses_recorded_detections``), which is read here."""
+    """Open and probe one input; ``recorded_detections``: a backend replays a recorded output
+    topic (``Backend.uses_recorded_detections``), which is read here by its message type
+    (``replaybench.replay.recorded.read_recorded``)."""
     source = open_source(path)
     try:
         skipped = source.skipped_topics()
@@ -163,11 +166,12 @@ def open_input(
             raise UsageError(msg)
         if gt_topic and gt_present and external is None:
             ground_truth = _read_detections(source, gt_topic, notes)
-        recorded: DetectionTable = {}
+        recorded: dict[tuple[str, int], RecordedOutput] = {}
         recorded_topic = None
         if recorded_detections:
-            recorded_topic = _recorded_topic(path, all_topics, options)
-            recorded = _read_detections(source, recorded_topic, notes)
+            recorded_topic, recorded = read_recorded(
+                path, source, all_topics, options.recorded_topic, options.ground_truth_topic, notes
+            )
         # the frame drawn in samples/: the middle one of the replayed frames (the first one when
         # --start/--duration cut a window whose size is unknown before reading)
         sample_index = {
@@ -237,28 +241,6 @@ def _read_detections(source: Source, topic: str, notes: list[str] | None = None)
             f'in {messages} message(s)'
         )
     return table
-
-
-def _recorded_topic(path: Path, topics: Sequence[TopicInfo], options: InputOptions) -> str:
-    """The Detection2DArray topic the `recorded` backend replays: given, or the only candidate."""
-    candidates = [
-        t.name
-        for t in topics
-        if message_kind(t.msgtype) == 'detections' and t.name != options.ground_truth_topic
-    ]
-    if options.recorded_topic is not None:
-        if options.recorded_topic not in {t.name for t in topics}:
-            msg = f'{path}: --recorded-topic {options.recorded_topic} is not in this file'
-            raise UsageError(msg)
-        return options.recorded_topic
-    if len(candidates) == 1:
-        return candidates[0]
-    found = ', '.join(candidates) if candidates else 'none'
-    msg = (
-        f'{path}: the recorded backend needs --recorded-topic TOPIC '
-        f'(Detection2DArray topics besides the ground truth: {found})'
-    )
-    raise UsageError(msg)
 
 
 def expected_frames(topic: CameraTopic, max_frames: int | None) -> int:

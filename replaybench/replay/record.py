@@ -33,6 +33,7 @@ from replaybench.results.model import (
     Tool,
     TopicMeta,
 )
+from replaybench.results.recorded_latency import with_recorded_latency
 from replaybench.results.stats import Summary, repeat_statistics, summarize
 
 if TYPE_CHECKING:
@@ -51,7 +52,8 @@ __all__ = ['accuracy', 'input_info', 'run_result', 'segmentation', 'summaries']
 def summaries(recorder: Recorder, resources: Mapping[str, Mapping[str, Any]]) -> list[Summary]:
     """The statistics of each (backend, topic) with its metrics: its accuracy against ground
     truth (``accuracy``), its backend's resource use (``resources``, by label, as
-    ``ResourceSampler.summary()`` gives it) and its intervals and warnings."""
+    ``ResourceSampler.summary()`` gives it), its intervals and warnings, and, for a backend
+    replaying recorded outputs, their latency from the recording (``with_recorded_latency``)."""
     out: list[Summary] = []
     for s in summarize(recorder.records):
         scored = recorder.scored.get((s.backend, s.topic))
@@ -83,7 +85,8 @@ def summaries(recorder: Recorder, resources: Mapping[str, Mapping[str, Any]]) ->
                 s, segmentation=masks, miou=masks.miou, pixel_accuracy=masks.pixel_accuracy
             )
         out.append(s)
-    return with_intervals(out, recorder.records, resources=resources)
+    rows = with_intervals(out, recorder.records, resources=resources)
+    return with_recorded_latency(rows, recorder.records)
 
 
 def accuracy(recorder: Recorder, scored: Mapping[TruthKey, tuple[Detection, ...]]) -> Accuracy:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING, Any, Protocol
 
+from replaybench.replay.recorded import NOT_RECORDED, frame_recorded_times, recorded_note
 from replaybench.replay.segmentation import NO_MASK, FrameScore, Segmentation
 from replaybench.results.records import FrameRecord
 from replaybench.types import BackendResult, StageTimes
@@ -171,8 +172,11 @@ class Recorder:
 
     def _processed(self, done: Pass, entry: LogEntry, result: BackendResult) -> None:
         """``latency = queue wait + read/decode + backend``: the backend part runs from the
-        detector's call to its detections; read/decode was measured where it ran."""
-        topic, seq, log_time_ns, stamp_ns, _ = entry.key
+        detector's call to its detections; read/decode was measured where it ran. A backend
+        that is not timed (``recorded``) gets its recorded output's times from the recording
+        instead (``replaybench.replay.recorded``)."""
+        topic, seq, log_time_ns, stamp_ns, frame_id = entry.key
+        assert stamp_ns is not None  # a processed frame decoded
         counted = (done.label, topic, done.repeat)
         n_done = self.processed.get(counted, 0)
         self.processed[counted] = n_done + 1
@@ -184,6 +188,11 @@ class Recorder:
         stages = result.stages if timed else _NOT_TIMED
         queue_wait_s, read_decode_s = entry.queue_wait_s, entry.read_decode_s
         latency_s = queue_wait_s + read_decode_s + entry.done - entry.t_detect
+        recorded = (
+            NOT_RECORDED
+            if timed
+            else frame_recorded_times(done.inp.recorded, frame_id, stamp_ns, log_time_ns)
+        )
         self._record(
             FrameRecord(
                 input=done.inp.number,
@@ -193,7 +202,7 @@ class Recorder:
                 log_time_ns=log_time_ns,
                 stamp_ns=stamp_ns,
                 status='ok',
-                note='' if timed else 'recorded detections: latency not measured',
+                note='' if timed else recorded_note(recorded),
                 warmup=timed and n_done < self.warmups(topic),
                 dropped=False,
                 release_s=entry.release - t0,
@@ -216,6 +225,9 @@ class Recorder:
                 repeat=done.repeat,
                 miou=score.miou,
                 pixel_accuracy=score.pixel_accuracy,
+                output_log_time_ns=recorded.output_log_time_ns,
+                capture_to_output_ms=recorded.capture_to_output_ms,
+                pipeline_ms=recorded.pipeline_ms,
             )
         )
 

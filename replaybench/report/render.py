@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 from replaybench.errors import SourceError
 from replaybench.report.headline import headline_html
 from replaybench.report.masks import mask_of
+from replaybench.report.recorded import recorded_latency_html
 from replaybench.report.samples import sample_relpath
 from replaybench.report.svg import (
     Marks,
@@ -32,6 +33,7 @@ from replaybench.results.folder import load_run
 from replaybench.results.intervals import with_intervals
 from replaybench.results.io import read_peak_result, to_json
 from replaybench.results.model import PEAK_SCHEMA_VERSION, ResourceSummary, SummaryRow
+from replaybench.results.recorded_latency import with_recorded_latency
 from replaybench.results.repeats import one_timeline
 from replaybench.results.stats import summarize
 from replaybench.textsafe import visible, visible_lines
@@ -229,7 +231,7 @@ def _summary_rows(run: RunResult, frames: Sequence[FrameRecord]) -> list[Summary
     resource samples)."""
     if run.summary_rows:
         return list(run.summary_rows)
-    return with_intervals(summarize(frames), frames)
+    return with_recorded_latency(with_intervals(summarize(frames), frames), frames)
 
 
 # --------------------------------------------------------------------------- header
@@ -1034,6 +1036,7 @@ def render_html(data: RunData) -> str:
         '<h2 id="summary">Summary</h2>',
         _summary_table(rows, colours),
         _accuracy_details(rows),
+        recorded_latency_html(rows, frames, colours),
         _plots(frames, rows, backends, topics, colours),
         _agreement(run, colours),
         _resources(run, colours),

@@ -14,7 +14,9 @@ from replaybench.textsafe import csv_text
 __all__ = [
     'ACCURACY_COLUMNS',
     'COUNT_COLUMNS',
+    'INTEGER_COLUMNS',
     'INTERVAL_COLUMNS',
+    'RECORDED_COLUMNS',
     'RESOURCE_COLUMNS',
     'SEGMENTATION_SUMMARY_COLUMNS',
     'STATISTICS_COLUMNS',
@@ -82,6 +84,31 @@ INTERVAL_COLUMNS: tuple[str, ...] = (
 #: Segmentation columns of summary.csv (after ``warnings``): a segmentation backend's mIoU and
 #: pixel accuracy against the ground-truth masks (``SummaryRow.segmentation`` has the rest).
 SEGMENTATION_SUMMARY_COLUMNS: tuple[str, ...] = ('miou', 'pixel_accuracy')
+#: Recorded outputs' latency (``recorded`` backend; replaybench.results.recorded_latency): the
+#: outputs matched and dropped, their rate, capture-to-output and pipeline latency, and why any
+#: is not reported. Empty for replayed backends.
+RECORDED_COLUMNS: tuple[str, ...] = (
+    'recorded_outputs',
+    'recorded_outputs_dropped',
+    'recorded_output_hz',
+    'capture_to_output_ms_mean',
+    'capture_to_output_ms_p50',
+    'capture_to_output_ms_p50_ci_low',
+    'capture_to_output_ms_p50_ci_high',
+    'capture_to_output_ms_p99',
+    'capture_to_output_ms_p99_ci_low',
+    'capture_to_output_ms_p99_ci_high',
+    'capture_to_output_ms_max',
+    'pipeline_ms_mean',
+    'pipeline_ms_p50',
+    'pipeline_ms_p50_ci_low',
+    'pipeline_ms_p50_ci_high',
+    'pipeline_ms_p99',
+    'pipeline_ms_p99_ci_low',
+    'pipeline_ms_p99_ci_high',
+    'pipeline_ms_max',
+    'recorded_latency_note',
+)
 
 #: Columns of summary.csv, in order (later additions at the end, so older readers keep working).
 SUMMARY_CSV_COLUMNS: tuple[str, ...] = (
@@ -94,10 +121,13 @@ SUMMARY_CSV_COLUMNS: tuple[str, ...] = (
     *INTERVAL_COLUMNS,
     'warnings',
     *SEGMENTATION_SUMMARY_COLUMNS,
+    *RECORDED_COLUMNS,
 )
 
-#: The columns holding text; ``COUNT_COLUMNS`` hold integers, the others numbers.
-TEXT_COLUMNS: tuple[str, ...] = ('backend', 'topic', 'warnings')
+#: The columns holding text; ``INTEGER_COLUMNS`` hold integers, the others numbers.
+TEXT_COLUMNS: tuple[str, ...] = ('backend', 'topic', 'warnings', 'recorded_latency_note')
+#: The columns holding integers: the frame counts and the recorded outputs' counts.
+INTEGER_COLUMNS: tuple[str, ...] = (*COUNT_COLUMNS, 'recorded_outputs', 'recorded_outputs_dropped')
 
 
 def summary_cell(value: Any) -> str:

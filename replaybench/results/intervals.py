@@ -11,7 +11,10 @@ One computation serves run.json, summary.csv, the report and ``replaybench compa
   ``MIN_FRAMES`` (20) measured frames.
 * **Warnings**, in compare's wording where compare has the flag:
 
-  - too few frames: fewer than ``MIN_FRAMES`` measured frames, so no interval;
+  - too few frames: fewer than ``MIN_FRAMES`` measured frames, so no interval; not said of a
+    row whose measured frames carry no latency at all (a backend that is not timed, such as
+    ``recorded``: its outputs' latency from the recording has its own note,
+    ``replaybench.results.recorded_latency``);
   - unstable latency: coefficient of variation (population standard deviation / mean) above
     ``CV_LIMIT`` (0.1);
   - drift: the median latency of the second half of the measured frames differs from that of the
@@ -258,7 +261,8 @@ def stability_warnings(
     seen in its backend's ``resources``)."""
     out = []
     n = int(series.latency_ms.size)
-    if n < MIN_FRAMES:
+    not_timed = n == 0 and summary.measured > 0  # frames measured, none with a latency
+    if n < MIN_FRAMES and not not_timed:
         out.append(f'{n} measured frames: fewer than {MIN_FRAMES}, no 95 % interval')
     mean, std = summary.latency_ms_mean, summary.latency_ms_std
     cv = std / mean if mean and std is not None and mean > 0 else None

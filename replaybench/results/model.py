@@ -440,6 +440,29 @@ class SummaryRow:
     pixel_accuracy: float | None = None
     segmentation: SegmentationSummary | None = None
 
+    #: recorded outputs (``recorded`` backend): their latency from the recording
+    #: (replaybench.results.recorded_latency); None for replayed backends
+    recorded_outputs: int | None = None
+    recorded_outputs_dropped: int | None = None
+    recorded_output_hz: float | None = None
+    capture_to_output_ms_mean: float | None = None
+    capture_to_output_ms_p50: float | None = None
+    capture_to_output_ms_p50_ci_low: float | None = None
+    capture_to_output_ms_p50_ci_high: float | None = None
+    capture_to_output_ms_p99: float | None = None
+    capture_to_output_ms_p99_ci_low: float | None = None
+    capture_to_output_ms_p99_ci_high: float | None = None
+    capture_to_output_ms_max: float | None = None
+    pipeline_ms_mean: float | None = None
+    pipeline_ms_p50: float | None = None
+    pipeline_ms_p50_ci_low: float | None = None
+    pipeline_ms_p50_ci_high: float | None = None
+    pipeline_ms_p99: float | None = None
+    pipeline_ms_p99_ci_low: float | None = None
+    pipeline_ms_p99_ci_high: float | None = None
+    pipeline_ms_max: float | None = None
+    recorded_latency_note: str | None = None
+
 
 @dataclass(frozen=True, slots=True)
 class RepeatStats:

@@ -76,11 +76,17 @@ class FrameRecord(NamedTuple):
     # segmentation backends: the frame's mIoU and pixel accuracy against its ground-truth mask
     miou: float | None = None
     pixel_accuracy: float | None = None
+    # a recorded output's times (``replaybench.results.recorded_latency``); empty elsewhere
+    output_log_time_ns: int | None = None
+    capture_to_output_ms: float | None = None
+    pipeline_ms: float | None = None
 
 
 FRAMES_CSV_COLUMNS: tuple[str, ...] = FrameRecord._fields
 
-_INT_FIELDS = frozenset({'input', 'seq', 'log_time_ns', 'stamp_ns', 'detections', 'repeat'})
+_INT_FIELDS = frozenset(
+    {'input', 'seq', 'log_time_ns', 'stamp_ns', 'detections', 'repeat', 'output_log_time_ns'}
+)
 _BOOL_FIELDS = frozenset({'warmup', 'dropped'})
 _STR_FIELDS = frozenset({'backend', 'topic', 'status', 'note'})
 _OPTIONAL_FIELDS = frozenset(
@@ -104,11 +110,15 @@ _OPTIONAL_FIELDS = frozenset(
         'd2h_device_ms',
         'miou',
         'pixel_accuracy',
+        'output_log_time_ns',
+        'capture_to_output_ms',
+        'pipeline_ms',
     },
 )
 #: The columns of frames.csv files written before the ``*_device_ms`` columns were added.
 _COLUMNS_BEFORE_DEVICE_TIMES = FRAMES_CSV_COLUMNS[:22]
-#: The columns of frames.csv files written before the ``repeat`` and segmentation columns.
+#: The columns of frames.csv files written before the ``repeat``, segmentation and
+#: recorded-output columns.
 _COLUMNS_BEFORE_REPEAT = FRAMES_CSV_COLUMNS[:27]
 
 
@@ -176,6 +186,7 @@ _DEVICE_CELLS = _CELLS[22:27]
 _SCORE_CELLS = _CELLS[28:30]
 _QUOTED: dict[str, str] = {}
 _NO_STAGES = [None] * 5
+_NO_RECORDED = [None] * 3
 
 
 def _quote(text: str) -> str:
@@ -229,11 +240,12 @@ def _line(record: FrameRecord) -> str:
         detections,
         *rest,
     ) = record
-    device, repeat, scores = rest[:5], rest[5], rest[6:8]
+    device, repeat, scores, recorded = rest[:5], rest[5], rest[6:8], rest[8:]
     stages = [preprocess_ms, infer_ms, postprocess_ms, h2d_ms, d2h_ms]
     if (
         latency_ms is not None
         and detections is not None
+        and recorded == _NO_RECORDED
         and None not in (stamp_ns, start_s, done_s, queue_wait_ms, read_decode_ms)
     ):
         times = _TIMES % (release_s, start_s, done_s, queue_wait_ms, read_decode_ms)
@@ -264,7 +276,7 @@ def _line(record: FrameRecord) -> str:
                     f'{quoted.get(topic) or _quote(topic)},{seq:d},{log_time_ns:d},{stamp_ns:d},'
                     f'{quoted.get(status) or _quote(status)},{quoted.get(note) or _quote(note)},'
                     f'{"1" if warmup else "0"},{"1" if dropped else "0"},{times},{staged},'
-                    f'{latency},{detections:d},{on_device},{repeat:d},{_scores(scores)}\r\n'
+                    f'{latency},{detections:d},{on_device},{repeat:d},{_scores(scores)},,,\r\n'
                 )
             except ValueError:  # an int cell holding something else
                 pass
@@ -437,7 +449,9 @@ class FramesCsvWriter:
 def read_frames_csv(path: str | Path) -> list[FrameRecord]:
     """Read a frames.csv written by ``FramesCsvWriter``; SourceError when it is not one.
 
-    A frames.csv from before the ``*_device_ms`` columns reads with them empty (None).
+    A frames.csv from before the ``*_device_ms`` columns, or before the recorded-output ones
+    (``output_log_time_ns``, ``capture_to_output_ms``, ``pipeline_ms``), reads with them empty
+    (None).
     """
     path = Path(path)
     try:

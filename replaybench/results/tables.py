@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import MissingDependencyError, SourceError
 from replaybench.results.columns import (
-    COUNT_COLUMNS,
+    INTEGER_COLUMNS,
     SUMMARY_CSV_COLUMNS,
     TEXT_COLUMNS,
     summary_cell,
@@ -87,7 +87,7 @@ def _dtypes(cls: type[Any], columns: Sequence[str]) -> dict[str, str]:
 FRAMES_DTYPES: dict[str, str] = _dtypes(FrameRecord, FRAMES_CSV_COLUMNS)
 #: summary.csv column -> pandas dtype (``RunResult.summary``): integer counts, text, numbers
 SUMMARY_DTYPES: dict[str, str] = {
-    name: 'Int64' if name in COUNT_COLUMNS else 'str' if name in TEXT_COLUMNS else 'float64'
+    name: 'Int64' if name in INTEGER_COLUMNS else 'str' if name in TEXT_COLUMNS else 'float64'
     for name in SUMMARY_CSV_COLUMNS
 }
 #: summary.csv columns before the segmentation columns were added (still read)
@@ -146,12 +146,14 @@ def read_summary_csv(path: str | Path) -> pd.DataFrame:
                 msg = f'{path}: not a summary.csv (header does not match the expected columns)'
                 raise SourceError(msg)
             parsers = _parsers()
-            columns: dict[str, list[Any]] = {name: [] for name in header}
+            columns: dict[str, list[Any]] = {name: [] for name in SUMMARY_CSV_COLUMNS}
+            # a summary.csv from before the recorded-latency columns: those read empty
+            missing = [''] * (len(SUMMARY_CSV_COLUMNS) - len(header))
             for cells in reader:
                 if len(cells) != len(header):
                     msg = f'{path}:{reader.line_num}: {len(cells)} cells, not {len(header)}'
                     raise SourceError(msg)
-                for name, text in zip(header, cells, strict=True):
+                for name, text in zip(SUMMARY_CSV_COLUMNS, cells + missing, strict=True):
                     columns[name].append(parsers[name](text))
     except (OSError, ValueError, csv.Error) as err:
         msg = f'{path}: cannot read summary.csv: {err}'

@@ -38,6 +38,7 @@ from replaybench.results.intervals import (
     throttle_warnings,
     with_intervals,
 )
+from replaybench.results.recorded_latency import RECORDED_COLUMNS
 from replaybench.results.records import FrameRecord, FramesCsvWriter, read_frames_csv
 from replaybench.results.stats import INTERVAL_COLUMNS, SUMMARY_CSV_COLUMNS, summarize
 from replaybench.types import BackendResult, StageTimes
@@ -174,7 +175,13 @@ def test_a_40_frame_run_has_intervals_around_its_estimates_everywhere_and_compar
     lo, hi = hsv['latency_ms_p50_ci_low'], hsv['latency_ms_p50_ci_high']
     digits = 3 if hsv['latency_ms_p50'] < 1 else 2
     assert f'<span class="muted ci">{lo:.{digits}f}–{hi:.{digits}f}</span>' in html
-    assert list(SUMMARY_CSV_COLUMNS[-9:-2]) == [*INTERVAL_COLUMNS, 'warnings']
+    # the segmentation and recorded-latency columns, added later, come after them
+    warnings_at = SUMMARY_CSV_COLUMNS.index('warnings')
+    assert list(SUMMARY_CSV_COLUMNS[warnings_at - 6 : warnings_at + 1]) == [
+        *INTERVAL_COLUMNS,
+        'warnings',
+    ]
+    assert SUMMARY_CSV_COLUMNS[-len(RECORDED_COLUMNS) :] == RECORDED_COLUMNS
 
 
 def test_a_10_frame_run_has_empty_intervals_and_says_there_are_too_few_frames(

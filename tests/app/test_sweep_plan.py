@@ -207,3 +207,40 @@ def test_a_missing_input_is_refused_before_ray_starts(tmp_path: Path) -> None:
         proc.stderr.strip()
         == f'replaybench: error: {tmp_path / "gone.mcap"}: no such file or directory'
     )
+
+
+def test_a_node_checks_the_input_by_size_and_time_and_hashes_only_when_the_times_differ(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import replaybench.sources.digest as digest
+    from replaybench.app.sweep.cell import check_input
+
+    bag = tmp_path / 'a.mcap'
+    bag.write_bytes(BAG.read_bytes())
+    inp = input_identity(bag)
+    hashed: list[object] = []
+    real = digest.files_sha256
+
+    def counted(files: object, **kwargs: object) -> str:
+        hashed.append(files)
+        return real(files, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(digest, 'files_sha256', counted)
+    check_input(inp, 'node')
+    assert hashed == []  # same sizes and times: no digest on the node
+    stat = bag.stat()
+    os.utime(bag, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
+    check_input(inp, 'node')  # another time, the same bytes
+    assert len(hashed) == 1
+    data = bytearray(bag.read_bytes())
+    data[-1] ^= 0xFF
+    bag.write_bytes(bytes(data))
+    with pytest.raises(SourceError, match=r"differs from the driver's copy \(sha256"):
+        check_input(inp, 'node')
+    bag.write_bytes(bytes(data) + b'\0')
+    with pytest.raises(SourceError, match='bytes instead of'):
+        check_input(inp, 'node')
+    assert len(hashed) == 2  # a size that differs needs no digest
+    bag.unlink()
+    with pytest.raises(SourceError, match='is not readable on node node'):
+        check_input(inp, 'node')

@@ -9,8 +9,7 @@ from typing import Annotated, Any
 
 import typer
 
-from replaybench.cli._common import EXIT_INTERRUPTED, app, echo, fail, fmt
-from replaybench.cli.options import with_run_options
+from replaybench.cli._common import EXIT_INTERRUPTED, app, echo, fail, fmt, with_run_options
 from replaybench.errors import ReplaybenchError
 
 __all__: list[str] = []

@@ -9,8 +9,15 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from replaybench.cli._common import EXIT_FAILURE, EXIT_INTERRUPTED, app, echo, fail, fmt
-from replaybench.cli.options import with_run_options
+from replaybench.cli._common import (
+    EXIT_FAILURE,
+    EXIT_INTERRUPTED,
+    app,
+    echo,
+    fail,
+    fmt,
+    with_run_options,
+)
 from replaybench.cli.progress import RunProgress
 from replaybench.errors import ReplaybenchError
 from replaybench.textsafe import visible

@@ -9,8 +9,7 @@ from typing import Annotated, Any
 
 import typer
 
-from replaybench.cli._common import app, echo, fail
-from replaybench.cli.options import with_run_options
+from replaybench.cli._common import app, echo, fail, with_run_options
 from replaybench.errors import ReplaybenchError
 
 __all__: list[str] = []

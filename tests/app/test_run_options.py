@@ -14,7 +14,7 @@ import typer
 
 from replaybench.app.options import RunOptions, option_specs, run_options
 from replaybench.cli import app
-from replaybench.cli.options import cli_name
+from replaybench.cli._common import cli_name
 
 REPO = Path(__file__).resolve().parents[2]
 BAG = REPO / 'fixtures' / 'bags' / 'jpeg.mcap'

@@ -266,22 +266,30 @@ class Driver:
             while pending or queue:
                 while queue and free:  # one timed cell per node
                     submit(queue.pop(0), free.pop(0))
+                if queue and not pending:  # every node that could run them is gone
+                    for cell in queue:
+                        error = 'no node of the Ray cluster is left to run this timed cell'
+                        self._finished(cell, self._entry(cell, 'failed', error=error))
+                    queue.clear()
+                    break
                 if self.stop is not None and self.stop.is_set():
                     interrupted = True
                     break
                 ready, _ = ray.wait(list(pending), num_returns=1, timeout=0.5)
                 for ref in ready:
                     cell, node = pending.pop(ref)
-                    if node is not None:
-                        free.append(node)
                     try:
                         report = ray.get(ref)
                     except RayError as err:
+                        if node is not None and node[0] in alive_nodes(ray):
+                            free.append(node)  # a node that died takes no more cells
                         retried = (
                             f'{error_line(err)} (Ray retried {self.config.max_retries} time(s))'
                         )
                         self._finished(cell, self._entry(cell, 'failed', error=retried))
                         continue
+                    if node is not None:
+                        free.append(node)
                     self._collect(cell, report)
                 self._show(ray, board, pending)
         except KeyboardInterrupt:

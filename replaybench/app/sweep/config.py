@@ -3,15 +3,15 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from replaybench.app.options import RunOptions, run_options
+from replaybench.app.options import run_options
 from replaybench.app.sweep.driver import Driver
 from replaybench.app.sweep.plan import (
+    DEFAULT_MAX_RETRIES,
     InputId,
-    ParamAxis,
+    SweepConfig,
     check_backend_options,
     input_identity,
     parse_params,
@@ -26,29 +26,6 @@ if TYPE_CHECKING:
     from replaybench.app.sweep.record import SweepProgress, SweepResult
 
 __all__ = ['DEFAULT_MAX_RETRIES', 'SweepConfig', 'run_sweep', 'sweep', 'sweep_config']
-
-#: Ray re-runs a cell this many times when its worker or node is lost (not on errors).
-DEFAULT_MAX_RETRIES = 3
-
-
-@dataclass(frozen=True, slots=True)
-class SweepConfig:
-    """``replaybench sweep``'s options, checked (``sweep_config``): what ``run_sweep`` runs."""
-
-    inputs: tuple[Path, ...]
-    backends: tuple[str, ...]
-    #: the sweep folder (the same one resumes)
-    out: Path
-    #: the ``--param`` axes, parsed
-    axes: tuple[ParamAxis, ...] = ()
-    #: a Ray cluster to join; None starts a local Ray instance
-    address: str | None = None
-    pack: bool = False
-    max_retries: int = DEFAULT_MAX_RETRIES
-    #: the run options every cell shares (``replaybench run``'s)
-    options: RunOptions = field(default_factory=RunOptions)
-    #: the command line recorded in sweep.json
-    command: tuple[str, ...] = ()
 
 
 def sweep_config(

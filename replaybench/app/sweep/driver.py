@@ -42,8 +42,7 @@ if TYPE_CHECKING:
     import threading
     from collections.abc import Callable, Mapping
 
-    from replaybench.app.sweep.config import SweepConfig
-    from replaybench.app.sweep.plan import Cell, InputId
+    from replaybench.app.sweep.plan import Cell, InputId, SweepConfig
     from replaybench.results.model import RunResult
     from replaybench.results.sweepfile import CellMetrics, SweepCell, SweepEngine, SweepRecord
 

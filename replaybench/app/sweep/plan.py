@@ -14,24 +14,26 @@ import itertools
 import json
 import re
 import stat
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from replaybench import _version
+from replaybench.app.options import RunOptions
 from replaybench.errors import ReplaybenchError, SourceError, UsageError
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
 
-    from replaybench.app.options import RunOptions
     from replaybench.backends.base import BackendOptions
     from replaybench.sources.digest import FileStamp
 
 __all__ = [
+    'DEFAULT_MAX_RETRIES',
     'Cell',
     'InputId',
     'ParamAxis',
+    'SweepConfig',
     'cell_options',
     'check_backend_options',
     'input_identity',
@@ -83,6 +85,30 @@ def parse_params(texts: Sequence[str], backends: Sequence[str]) -> tuple[ParamAx
             raise UsageError(msg)
         axes.append(ParamAxis(backend, key, parts))
     return tuple(axes)
+
+
+#: Ray re-runs a cell this many times when its worker or node is lost (not on errors).
+DEFAULT_MAX_RETRIES = 3
+
+
+@dataclass(frozen=True, slots=True)
+class SweepConfig:
+    """``replaybench sweep``'s options, checked (``sweep_config``): what ``run_sweep`` runs."""
+
+    inputs: tuple[Path, ...]
+    backends: tuple[str, ...]
+    #: the sweep folder (the same one resumes)
+    out: Path
+    #: the ``--param`` axes, parsed
+    axes: tuple[ParamAxis, ...] = ()
+    #: a Ray cluster to join; None starts a local Ray instance
+    address: str | None = None
+    pack: bool = False
+    max_retries: int = DEFAULT_MAX_RETRIES
+    #: the run options every cell shares (``replaybench run``'s)
+    options: RunOptions = field(default_factory=RunOptions)
+    #: the command line recorded in sweep.json
+    command: tuple[str, ...] = ()
 
 
 def cell_options(base: BackendOptions, params: Mapping[str, str]) -> BackendOptions:

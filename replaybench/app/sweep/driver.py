@@ -17,7 +17,7 @@ import os
 import shutil
 import sys
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
@@ -241,6 +241,7 @@ class Driver:
 
         from replaybench.app.sweep.cell import Board, execute_cell
 
+        assert self.engine is not None
         board = None
         if self.progress is not None:
             board = ray.remote(num_cpus=0)(Board).remote()
@@ -248,8 +249,12 @@ class Driver:
             max_retries=self.config.max_retries, retry_exceptions=False, max_calls=1
         )(execute_cell)
         pending: dict[Any, tuple[Cell, tuple[str, float] | None]] = {}
-        queue = [c for c in cells if placement.one_node_each(c)]
-        free = list(placement.nodes)
+        queue = deque(c for c in cells if placement.one_node_each(c))
+        free = deque(placement.nodes)
+        # the other cells go to Ray a window at a time: enough to fill the cluster, few enough
+        # that waiting on them costs the same however many cells the sweep has
+        backlog = deque(c for c in cells if not placement.one_node_each(c))
+        window = max(16, 2 * int(sum(self.engine.resources.get(k, 0) for k in ('CPU', 'GPU'))))
 
         def submit(cell: Cell, node: tuple[str, float] | None = None) -> None:
             ref = remote.options(**placement.options(cell, node)).remote(
@@ -257,14 +262,13 @@ class Driver:
             )
             pending[ref] = (cell, node)
 
-        for cell in cells:
-            if not placement.one_node_each(cell):
-                submit(cell)
         interrupted = False
         try:
-            while pending or queue:
+            while pending or queue or backlog:
                 while queue and free:  # one timed cell per node
-                    submit(queue.pop(0), free.pop(0))
+                    submit(queue.popleft(), free.popleft())
+                while backlog and len(pending) < window:
+                    submit(backlog.popleft())
                 if queue and not pending:  # every node that could run them is gone
                     for cell in queue:
                         error = 'no node of the Ray cluster is left to run this timed cell'
@@ -297,7 +301,7 @@ class Driver:
             for ref in pending:
                 with contextlib.suppress(Exception):
                     ray.cancel(ref)
-            for cell in [c for c, _ in pending.values()] + queue:
+            for cell in [*(c for c, _ in pending.values()), *queue, *backlog]:
                 self._set(cell, self._entry(cell, 'interrupted'))
         if board is not None:
             with contextlib.suppress(Exception):

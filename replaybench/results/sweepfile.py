@@ -266,11 +266,11 @@ def _check_schema(document: Mapping[str, Any], path: Path) -> None:
 
 def write_sweep_result(path: str | Path, record: SweepRecord) -> dict[str, Any]:
     """Write sweep.json (atomically); returns the JSON document written."""
-    from replaybench.results.runfile import json_text, write_text_atomic
+    from replaybench.results import write_text_atomic
 
-    document = sweep_document(record)
+    document = sweep_document(record)  # JSON values only: NaN and infinities are null
     _check_schema(document, Path(path))
-    write_text_atomic(path, json_text(document))
+    write_text_atomic(path, json.dumps(document, indent=2, allow_nan=False) + '\n')
     return document
 
 

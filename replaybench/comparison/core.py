@@ -29,9 +29,9 @@ if TYPE_CHECKING:
 
     from replaybench.comparison.runs import RunInfo
     from replaybench.results.blocks import ChangeInterval
+    from replaybench.results.folder import RunData
     from replaybench.results.model import RunResult
     from replaybench.results.records import FrameRecord
-    from replaybench.results.runfile import RunData
     from replaybench.results.stats import Summary
 
 __all__ = [

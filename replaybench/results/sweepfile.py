@@ -266,7 +266,7 @@ def _check_schema(document: Mapping[str, Any], path: Path) -> None:
 
 def write_sweep_result(path: str | Path, record: SweepRecord) -> dict[str, Any]:
     """Write sweep.json (atomically); returns the JSON document written."""
-    from replaybench.results import write_text_atomic
+    from replaybench.results.atomic import write_text_atomic
 
     document = sweep_document(record)  # JSON values only: NaN and infinities are null
     _check_schema(document, Path(path))

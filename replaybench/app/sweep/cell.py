@@ -128,7 +128,6 @@ def execute_cell(
         with tempfile.TemporaryDirectory(prefix='replaybench-cell-') as tmp:
             out = Path(tmp) / 'run'
             from replaybench.app.run import run_benchmark
-            from replaybench.results.records import as_written
 
             outcome = run_benchmark(cell_run_config(cell, options, out, command))
             finished = time.time()
@@ -141,7 +140,8 @@ def execute_cell(
             report['status'] = outcome.status
             report['files'] = files
             if outcome.status == 'complete':
-                records = [as_written(r) for r in outcome.records]
+                # frames.csv's rows as the file holds them (times rounded as written)
+                records = list(outcome.run.frame_records or ())
                 report['metrics'] = cell_metrics(outcome.run, records, cell.key)
         else:  # one backend per cell: no other status is expected
             report['status'] = 'failed'

@@ -463,7 +463,7 @@ class Driver:
     def write(self, status: str) -> tuple[SweepRecord, dict[str, Any]]:
         """sweep.json, sweep.csv (in cell order) and sweep.html, written whole."""
         from replaybench.report.sweep_html import render_sweep_html
-        from replaybench.results import write_text_atomic
+        from replaybench.results.atomic import write_text_atomic
         from replaybench.results.sweepfile import write_sweep_result
 
         record = self.record(status)

@@ -294,7 +294,7 @@ class CsvLog:
     (in the order they finish); the driver writes it again in cell order at the end."""
 
     def __init__(self, path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
-        from replaybench.results import write_text_atomic
+        from replaybench.results.atomic import write_text_atomic
 
         self.path = path
         write_text_atomic(path, csv_text(rows))

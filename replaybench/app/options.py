@@ -270,7 +270,7 @@ def _check(spec: RunOption, value: Any) -> None:
             msg = f'{spec.flag} must be at least {spec.low:g}, not {value!r}'
             raise UsageError(msg)
     if spec.choices and value not in spec.choices:
-        msg = f'invalid {spec.flag} {value!r}: use {" or ".join(spec.choices)}'
+        msg = f'unknown {spec.flag} {value!r}: use {" or ".join(spec.choices)}'
         raise UsageError(msg)
 
 

@@ -6,8 +6,10 @@ no report: one cell is one ``run_benchmark`` of one bag through one backend.
 * sequential: the cells as ``run_benchmark`` calls back to back in this process (no process
   start, models loaded again per cell as in a run), and as ``replaybench run`` processes one
   after another (what a shell loop does);
-* sweep --pack on two Ray nodes: a cluster of two ``ray start`` nodes on this machine (one CPU
-  each), joined with ``address``, cells placed by CPU (accuracy only); its start is timed apart;
+* sweeps on two Ray nodes: a plain cluster of two ``ray start`` nodes on this machine (one CPU
+  each, no custom resource, as a user's cluster is), joined with ``address``: with ``--pack``
+  (cells placed by CPU, accuracy only) and with the default placement (one timed cell per node,
+  holding the node's CPUs with node affinity); its start is timed apart;
 * sweep on one node (the default placement, one timed cell at a time) on a local instance:
   its wall time per cell less the in-process run's is the per-cell cost of Ray (a worker
   process per cell, scheduling, files back to the driver, the driver's outputs).
@@ -103,8 +105,8 @@ def _sweep(paths: list[Path], out: Path, **options: Any) -> float:
 
 @contextlib.contextmanager
 def two_nodes(temp: str) -> Iterator[tuple[str, dict[str, str]]]:
-    """Two Ray nodes on this machine (one CPU and one node slot each), under ``ray start
-    --block``; they are stopped by ending those two processes."""
+    """Two plain Ray nodes on this machine (one CPU each, no custom resource), under ``ray
+    start --block``; they are stopped by ending those two processes."""
     token = secrets.token_hex(32)
     env = {**os.environ, 'RAY_AUTH_MODE': 'token', 'RAY_AUTH_TOKEN': token}
     with socket.socket() as s:
@@ -113,7 +115,7 @@ def two_nodes(temp: str) -> Iterator[tuple[str, dict[str, str]]]:
     address = f'{_NODE_IP}:{port}'
     ray = str(Path(sys.executable).with_name('ray'))
     common = ['--block', '--node-ip-address', _NODE_IP, '--num-cpus', '1', '--num-gpus', '0']
-    common += ['--resources', '{"replaybench_timed_slot": 1}', '--disable-usage-stats']
+    common += ['--disable-usage-stats']
     head = [ray, 'start', '--head', '--port', str(port), '--include-dashboard', 'false']
     nodes = [
         subprocess.Popen(
@@ -194,6 +196,7 @@ def run(ctx: Context) -> ItemResult:
     seq: list[float] = []
     procs: list[float] = []
     packed: list[float] = []
+    timed: list[float] = []
     single: list[float] = []
     for n in range(repeats):  # no Ray running
         seq.append(_sequential(paths, out / f'seq-{n}'))
@@ -206,6 +209,7 @@ def run(ctx: Context) -> ItemResult:
             packed.extend(
                 _sweep(paths, out / f'pack-{n}', address=address, pack=True) for n in range(repeats)
             )
+            timed.extend(_sweep(paths, out / f'timed-{n}', address=address) for n in range(repeats))
         start = time.perf_counter()
         with local_ray(temp_dir=temp):
             local_start = time.perf_counter() - start
@@ -216,6 +220,9 @@ def run(ctx: Context) -> ItemResult:
     m_seq = _per_minute('sequential run_benchmark', cells, seq, 'in this process')
     m_proc = _per_minute('sequential replaybench run', cells, procs, 'a process per cell')
     m_pack = _per_minute('sweep --pack, 2 Ray nodes', cells, packed, 'one CPU per node')
+    m_timed = _per_minute(
+        'sweep, 2 plain Ray nodes', cells, timed, 'one timed cell per node, node affinity'
+    )
     m_single = _per_minute('sweep, 1 node, 1 timed cell', cells, single, 'local instance')
     per_cell = Measurement(
         'Ray cost per cell',
@@ -232,6 +239,7 @@ def run(ctx: Context) -> ItemResult:
         ratio(ITEM, 'sweep --pack on 2 nodes vs sequential run_benchmark', m_pack, m_seq, None),
         ratio(ITEM, 'sweep --pack on 2 nodes vs sequential processes', m_pack, m_proc, None),
         ratio(ITEM, 'sweep on 1 node vs sequential run_benchmark', m_single, m_seq, None),
+        ratio(ITEM, 'sweep on 2 plain nodes vs sequential run_benchmark', m_timed, m_seq, None),
     ]
     notes = [
         f'Workload: {workload}, {cells} cells, --threads 1, no report.html.',
@@ -243,7 +251,7 @@ def run(ctx: Context) -> ItemResult:
     return ItemResult(
         ITEM,
         'Sweep on Ray vs sequential runs',
-        [m_seq, m_proc, m_pack, m_single, per_cell, *starts],
+        [m_seq, m_proc, m_pack, m_timed, m_single, per_cell, *starts],
         checks,
         notes,
     )

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from replaybench.app.run import backend_options, name_list
 from replaybench.replay.peak import (
     CONFIRM_TRIALS,
     DEFAULT_TRIAL_FRAMES,
@@ -103,25 +102,34 @@ def peak_config(
     min_hz: float = 1.0,
     max_hz: float | None = None,
     refine_steps: int = 4,
-    topics: str | Sequence[str] | None = None,
-    threads: int | None = None,
     force: bool = False,
-    report: bool = True,
     command: Sequence[str] = (),
     **options: Any,
 ) -> PeakConfig:
     """The ``PeakConfig`` of ``replaybench peak``'s options: each keyword is the flag of the
-    same name in snake_case (``--topic`` is ``topics``, ``--no-report`` is ``report=False``);
-    ``options`` are the backend options, the keywords of ``app.run.backend_options``
-    (``config``, ``model``, ``conf``, ``engine``, ...). Raises ``UsageError`` naming the option
-    for a value out of range, the backend options included, before anything runs."""
+    same name in snake_case; ``options`` are the run options a peak search takes (the
+    ``RunOptions`` fields marked ``peak``: ``topics``, ``threads``, ``report``, and the backend
+    options ``config``, ``model``, ``conf``, ``device``, ``engine``, ...). Raises ``UsageError``
+    naming the option for a value out of range, before anything runs; ``TypeError`` for a
+    keyword that is not an option of peak."""
+    from replaybench.app.options import option_specs, run_options
+
+    takes = {name for name, spec, _ in option_specs() if spec.peak}
+    unknown = sorted(set(options) - takes)
+    if unknown:
+        msg = (
+            f'unexpected keyword argument(s): {", ".join(unknown)} (a peak search takes '
+            f'{", ".join(sorted(takes))})'
+        )
+        raise TypeError(msg)
     check_search(max_drop, p99_ms, trial_frames, min_hz, max_hz, refine_steps)
+    checked = run_options(**options)
     return PeakConfig(
         input=Path(input),
         backend=backend,
         out=Path(out) if out is not None else None,
-        options=backend_options(threads=threads, **options),
-        topics=tuple(name_list(topics)),
+        options=checked.backend_options(),
+        topics=checked.topics,
         max_drop=max_drop,
         p99_bound_ms=p99_ms,
         trial_frames=trial_frames,
@@ -129,8 +137,8 @@ def peak_config(
         max_hz=max_hz,
         refine_steps=refine_steps,
         force=force,
-        report=report,
-        threads=threads,
+        report=checked.report,
+        threads=checked.threads,
         command=tuple(command),
     )
 

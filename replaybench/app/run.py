@@ -8,12 +8,16 @@ the engine imports nothing from ``replaybench.report``.
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from replaybench.backends.base import BackendOptions
+from replaybench.app.options import (
+    BACKEND_OPTION_NAMES,
+    RunOptions,
+    check_gpu_options,
+    run_options,
+)
 from replaybench.errors import UsageError
 from replaybench.replay.runner import DEFAULT_GROUND_TRUTH_TOPIC, RunConfig, RunOutcome
 from replaybench.replay.runner import run_benchmark as replay_run
@@ -23,7 +27,7 @@ if TYPE_CHECKING:
     import threading
     from collections.abc import Callable, Iterable, Sequence
 
-    from replaybench.backends.base import Backend
+    from replaybench.backends.base import Backend, BackendOptions
     from replaybench.replay.clock import Clock
     from replaybench.replay.runner import SampleImage
     from replaybench.results.model import RunResult
@@ -34,6 +38,7 @@ __all__ = [
     'RunOutcome',
     'backend_options',
     'check_gpu_options',
+    'config_of',
     'input_paths',
     'name_list',
     'run_benchmark',
@@ -55,63 +60,15 @@ def name_list(value: str | Sequence[str] | None) -> list[str]:
     return [value] if isinstance(value, str) else list(value)
 
 
-def _at_least(flag: str, value: float | None, low: float) -> None:
-    if value is not None and not value >= low:
-        msg = f'{flag} must be at least {low:g}, not {value!r}'
-        raise UsageError(msg)
-
-
-def _fraction(flag: str, value: float | None) -> None:
-    if value is not None and not (math.isfinite(value) and 0 <= value <= 1):
-        msg = f'{flag} must be between 0 and 1, not {value!r}'
-        raise UsageError(msg)
-
-
-def check_gpu_options(engine: str, precision: str) -> None:
-    """Refuse an ``engine`` or ``precision`` no backend knows, whichever backends run: a typo
-    must not pass silently because this run happens to use only CPU backends."""
-    from replaybench.backends.gpu.cuda import ENGINES, PRECISIONS
-
-    for option, value, known in (
-        ('--engine', engine, ENGINES),
-        ('--precision', precision, PRECISIONS),
-    ):
-        if value not in known:
-            msg = f'invalid {option} {value!r}: use {", ".join(known[:-1])} or {known[-1]}'
-            raise UsageError(msg)
-
-
-def backend_options(
-    *,
-    threads: int | None = None,
-    config: str | Path | None = None,
-    model: str | Path | None = None,
-    model_family: str | None = None,
-    labels: str | None = None,
-    conf: float | None = None,
-    iou: float | None = None,
-    device: int = 0,
-    engine: str = 'auto',
-    precision: str = 'fp32',
-) -> BackendOptions:
-    """The options every backend is given, checked (``UsageError`` naming the option)."""
-    check_gpu_options(engine, precision)
-    _at_least('--threads', threads, 1)
-    _fraction('--conf', conf)
-    _fraction('--iou', iou)
-    _at_least('--device', device, 0)
-    return BackendOptions(
-        threads=threads,
-        config=Path(config) if config is not None else None,
-        model=Path(model) if model is not None else None,
-        model_family=model_family,
-        labels=labels,
-        conf=conf,
-        iou=iou,
-        device=device,
-        engine=engine,
-        precision=precision,
-    )
+def backend_options(**options: Any) -> BackendOptions:
+    """The options every backend is given (``threads``, ``config``, ``model``, ``model_family``,
+    ``labels``, ``conf``, ``iou``, ``device``, ``engine``, ``precision``: ``RunOptions`` fields),
+    checked (``UsageError`` naming the option)."""
+    unknown = sorted(set(options) - set(BACKEND_OPTION_NAMES))
+    if unknown:
+        msg = f'unexpected keyword argument(s): {", ".join(unknown)} (not backend options)'
+        raise TypeError(msg)
+    return run_options(**options).backend_options()
 
 
 def run_config(
@@ -120,55 +77,37 @@ def run_config(
     backends: str | Sequence[str] = ('hsv',),
     out: str | os.PathLike[str] | None = None,
     force: bool = False,
-    rate: str | float = 'max',
-    queue_depth: int = 1,
-    warmup: int | None = None,
-    threads: int | None = None,
-    max_frames: int | None = None,
-    start: float | None = None,
-    duration: float | None = None,
-    topics: str | Sequence[str] | None = None,
-    ground_truth: str | None = None,
-    config: str | Path | None = None,
-    model: str | Path | None = None,
-    model_family: str | None = None,
-    labels: str | None = None,
-    conf: float | None = None,
-    iou: float | None = None,
-    device: int = 0,
-    engine: str = 'auto',
-    precision: str = 'fp32',
-    recorded_topic: str | None = None,
-    ground_truth_file: str | Path | None = None,
-    ground_truth_match: str = 'stamp',
-    ground_truth_image_topic: str | None = None,
-    ground_truth_seq_offset: int = 0,
-    annotations: bool = False,
-    copy_images: bool = False,
-    detections_format: str = 'mcap',
-    report: bool = True,
-    hash_inputs: bool = True,
     command: Sequence[str] = (),
-    repeat: int = 1,
-    ground_truth_masks: str | Path | None = None,
+    **options: Any,
 ) -> RunConfig:
-    """The ``RunConfig`` of ``replaybench run``'s options, checked: each keyword is the option
-    of the same name in snake_case (``--max-frames`` is ``max_frames``, ``--topic`` is
-    ``topics``, ``--format`` is ``detections_format``, ``--no-report`` is ``report=False``,
-    ``--no-hash`` is ``hash_inputs=False``).
-    ``rate`` is a ``--rate`` text or a number of Hz; ``out`` None runs in memory. Raises
-    ``UsageError`` naming the option for a value out of range."""
+    """The ``RunConfig`` of ``replaybench run``'s options, checked: ``options`` are the
+    ``RunOptions`` fields (``replaybench.app.options``), each the option of the same name in
+    snake_case (``--max-frames`` is ``max_frames``, ``--topic`` is ``topics``, ``--format`` is
+    ``detections_format``, ``--no-report`` is ``report=False``, ``--no-hash`` is
+    ``hash_inputs=False``). ``rate`` is a ``--rate`` text or a number of Hz; ``out`` None runs
+    in memory. Raises ``UsageError`` naming the option for a value out of range, ``TypeError``
+    for a keyword that is no run option."""
+    return config_of(
+        run_options(**options), inputs, backends=backends, out=out, force=force, command=command
+    )
+
+
+def config_of(
+    options: RunOptions,
+    inputs: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+    *,
+    backends: str | Sequence[str],
+    out: str | os.PathLike[str] | None,
+    force: bool = False,
+    command: Sequence[str] = (),
+    input_sha256: tuple[str | None, ...] | None = None,
+) -> RunConfig:
+    """The ``RunConfig`` of checked ``options`` for ``inputs`` and ``backends`` (what
+    ``run_config`` builds, and each cell of a sweep); ``input_sha256``: the inputs' digests
+    when already known (not computed again by the run)."""
     from replaybench.replay.rate import Rate, parse_rate
 
-    _at_least('--queue-depth', queue_depth, 1)
-    _at_least('--repeat', repeat, 1)
-    _at_least('--warmup', warmup, 0)
-    _at_least('--max-frames', max_frames, 1)
-    _at_least('--start', start, 0)
-    _at_least('--duration', duration, 0)
-    if ground_truth_match not in ('stamp', 'seq'):
-        msg = f'invalid --ground-truth-match {ground_truth_match!r}: use stamp or seq'
-        raise UsageError(msg)
+    rate = options.rate
     if isinstance(rate, str):
         parsed = parse_rate(rate)
     elif isinstance(rate, int | float) and not isinstance(rate, bool) and rate > 0:
@@ -182,40 +121,32 @@ def run_config(
         out_dir=Path(out) if out is not None else None,
         force=force,
         rate=parsed,
-        queue_depth=queue_depth,
-        warmup=warmup,
-        threads=threads,
-        max_frames=max_frames,
-        start_s=start,
-        duration_s=duration,
-        topics=name_list(topics) or None,
-        ground_truth_topic=ground_truth or DEFAULT_GROUND_TRUTH_TOPIC,
-        ground_truth_explicit=ground_truth is not None,
-        options=backend_options(
-            threads=threads,
-            config=config,
-            model=model,
-            model_family=model_family,
-            labels=labels,
-            conf=conf,
-            iou=iou,
-            device=device,
-            engine=engine,
-            precision=precision,
-        ),
+        queue_depth=options.queue_depth,
+        warmup=options.warmup,
+        threads=options.threads,
+        max_frames=options.max_frames,
+        start_s=options.start,
+        duration_s=options.duration,
+        topics=list(options.topics) or None,
+        ground_truth_topic=options.ground_truth or DEFAULT_GROUND_TRUTH_TOPIC,
+        ground_truth_explicit=options.ground_truth is not None,
+        options=options.backend_options(),
         command=tuple(command),
-        report=report,
-        recorded_topic=recorded_topic,
-        ground_truth_file=Path(ground_truth_file) if ground_truth_file is not None else None,
-        ground_truth_match=ground_truth_match,
-        ground_truth_image_topic=ground_truth_image_topic,
-        ground_truth_seq_offset=ground_truth_seq_offset,
-        annotations=annotations,
-        copy_images=copy_images,
-        detections_format=detections_format,
-        hash_inputs=hash_inputs,
-        repeat=repeat,
-        ground_truth_masks=str(ground_truth_masks) if ground_truth_masks is not None else None,
+        report=options.report,
+        recorded_topic=options.recorded_topic,
+        ground_truth_file=options.ground_truth_file,
+        ground_truth_match=options.ground_truth_match,
+        ground_truth_image_topic=options.ground_truth_image_topic,
+        ground_truth_seq_offset=options.ground_truth_seq_offset,
+        annotations=options.annotations,
+        copy_images=options.copy_images,
+        detections_format=options.detections_format,
+        hash_inputs=options.hash_inputs,
+        input_sha256=input_sha256,
+        repeat=options.repeat,
+        ground_truth_masks=(
+            None if options.ground_truth_masks is None else str(options.ground_truth_masks)
+        ),
     )
 
 

@@ -9,13 +9,14 @@ from typing import Annotated, Any
 
 import typer
 
-from replaybench.cli._common import EXIT_INTERRUPTED, app, echo, fail, fmt
+from replaybench.cli._common import EXIT_INTERRUPTED, app, echo, fail, fmt, with_run_options
 from replaybench.errors import ReplaybenchError
 
 __all__: list[str] = []
 
 
 @app.command()
+@with_run_options('peak')
 def peak(
     bag: Annotated[Path, typer.Argument(help='Bag file or rosbag2 folder.', show_default=False)],
     backend: Annotated[str, typer.Option('--backend', '-b', help='Backend to sweep.')],
@@ -44,24 +45,8 @@ def peak(
     refine_steps: Annotated[
         int, typer.Option('--refine-steps', min=0, help='Bisection steps after the coarse search.')
     ] = 4,
-    topic: Annotated[
-        list[str], typer.Option('--topic', '-t', help='Image topic(s) to replay.')
-    ] = [],  # noqa: B006
-    threads: Annotated[
-        int | None, typer.Option('--threads', min=1, help='CPU threads for OpenCV and backends.')
-    ] = None,
-    config: Annotated[Path | None, typer.Option('--config', help='Backend TOML file.')] = None,
-    model: Annotated[Path | None, typer.Option('--model', help='ONNX model.')] = None,
-    model_family: Annotated[str | None, typer.Option('--model-family', help='Layout.')] = None,
-    labels: Annotated[str | None, typer.Option('--labels', help='Class names.')] = None,
-    conf: Annotated[float | None, typer.Option('--conf', min=0.0, max=1.0)] = None,
-    iou: Annotated[float | None, typer.Option('--iou', min=0.0, max=1.0)] = None,
-    device: Annotated[int, typer.Option('--device', min=0, help='GPU index.')] = 0,
-    engine: Annotated[str, typer.Option('--engine', help='auto, ort or torch.')] = 'auto',
-    precision: Annotated[
-        str, typer.Option('--precision', help='fp32 (TF32 off), tf32 or fp16.')
-    ] = 'fp32',
-    no_report: Annotated[bool, typer.Option('--no-report', help='Skip peak.html.')] = False,
+    *,
+    options: dict[str, Any],
 ) -> None:
     """Find the highest replay rate a backend sustains without dropping frames.
 
@@ -91,20 +76,9 @@ def peak(
             min_hz=min_hz,
             max_hz=max_hz,
             refine_steps=refine_steps,
-            topics=topic,
-            threads=threads,
             force=force,
-            report=not no_report,
             command=['replaybench', *sys.argv[1:]],
-            config=config,
-            model=model,
-            model_family=model_family,
-            labels=labels,
-            conf=conf,
-            iou=iou,
-            device=device,
-            engine=engine,
-            precision=precision,
+            **options,
         )
         with stop_on_signals(token):
             result = run_peak(settings, progress=show, stop=token)

@@ -5,11 +5,19 @@ from __future__ import annotations
 import sys
 import threading
 from pathlib import Path  # noqa: TC003 - typer reads the annotations at run time
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from replaybench.cli._common import EXIT_FAILURE, EXIT_INTERRUPTED, app, echo, fail, fmt
+from replaybench.cli._common import (
+    EXIT_FAILURE,
+    EXIT_INTERRUPTED,
+    app,
+    echo,
+    fail,
+    fmt,
+    with_run_options,
+)
 from replaybench.cli.progress import RunProgress
 from replaybench.errors import ReplaybenchError
 from replaybench.textsafe import visible
@@ -73,6 +81,7 @@ def _print_summary(summaries: list[Summary]) -> None:
 
 
 @app.command()
+@with_run_options('run')
 def run(
     bags: Annotated[
         list[Path],
@@ -100,176 +109,8 @@ def run(
             '--force', help='Replace the run folder --out, once the new run has finished.'
         ),
     ] = False,
-    rate: Annotated[
-        str,
-        typer.Option('--rate', help='max, recorded, 2x / 0.5x (scaled recorded), or 30hz (fixed).'),
-    ] = 'max',
-    queue_depth: Annotated[
-        int,
-        typer.Option(
-            '--queue-depth', min=1, help='Per-topic queue depth in timed modes (newest kept).'
-        ),
-    ] = 1,
-    warmup: Annotated[
-        int | None,
-        typer.Option(
-            '--warmup',
-            min=0,
-            help='Warm-up frames per backend and topic (default 10, at most a tenth of the topic).',
-        ),
-    ] = None,
-    threads: Annotated[
-        int | None,
-        typer.Option('--threads', min=1, help='CPU threads for OpenCV and the backends.'),
-    ] = None,
-    max_frames: Annotated[
-        int | None, typer.Option('--max-frames', min=1, help='At most N frames of each topic.')
-    ] = None,
-    start: Annotated[
-        float | None, typer.Option('--start', min=0.0, help='Skip the first S seconds of each bag.')
-    ] = None,
-    duration: Annotated[
-        float | None, typer.Option('--duration', min=0.0, help='Replay only S seconds.')
-    ] = None,
-    topic: Annotated[
-        list[str],
-        typer.Option(
-            '--topic',
-            '-t',
-            help='Image topic to replay (repeat; default: every non-depth image topic).',
-        ),
-    ] = [],  # noqa: B006
-    ground_truth: Annotated[
-        str | None,
-        typer.Option(
-            '--ground-truth',
-            help='Detection2DArray topic holding ground truth '
-            '(default: /ground_truth/detections when present).',
-        ),
-    ] = None,
-    config: Annotated[
-        Path | None,
-        typer.Option(
-            '--config', help='Backend configuration file (TOML), e.g. hsv colour classes.'
-        ),
-    ] = None,
-    model: Annotated[
-        Path | None,
-        typer.Option('--model', help='ONNX model for the DNN backends (default: the bundled one).'),
-    ] = None,
-    model_family: Annotated[
-        str | None,
-        typer.Option(
-            '--model-family',
-            help='Output layout: yolox, yolov5, yolov8 or nms; segmentation: logits-nchw, '
-            'logits-nhwc or labels.',
-        ),
-    ] = None,
-    labels: Annotated[
-        str | None,
-        typer.Option('--labels', help='Class names: coco, or a file with one name per line.'),
-    ] = None,
-    conf: Annotated[
-        float | None,
-        typer.Option('--conf', min=0.0, max=1.0, help='Score threshold for DNN detections.'),
-    ] = None,
-    iou: Annotated[
-        float | None, typer.Option('--iou', min=0.0, max=1.0, help='IoU threshold for NMS.')
-    ] = None,
-    device: Annotated[int, typer.Option('--device', min=0, help='GPU index.')] = 0,
-    engine: Annotated[
-        str, typer.Option('--engine', help='GPU engine for the cuda backend: auto, ort or torch.')
-    ] = 'auto',
-    precision: Annotated[
-        str,
-        typer.Option('--precision', help='fp32 (TF32 off), tf32 or fp16 (GPU backends).'),
-    ] = 'fp32',
-    recorded_topic: Annotated[
-        str | None,
-        typer.Option(
-            '--recorded-topic',
-            help='Detection2DArray topic scored by the `recorded` backend '
-            '(detections made on the robot).',
-        ),
-    ] = None,
-    ground_truth_file: Annotated[
-        Path | None,
-        typer.Option(
-            '--ground-truth-file',
-            help='COCO JSON or CVAT XML ground truth, instead of a topic (docs/ground-truth.md).',
-        ),
-    ] = None,
-    ground_truth_match: Annotated[
-        str,
-        typer.Option(
-            '--ground-truth-match',
-            help='Match --ground-truth-file to frames by stamp (header stamp) or seq (index '
-            'of the image within its topic).',
-        ),
-    ] = 'stamp',
-    ground_truth_image_topic: Annotated[
-        str | None,
-        typer.Option(
-            '--ground-truth-image-topic',
-            help='The image topic --ground-truth-file annotates (needed with several topics).',
-        ),
-    ] = None,
-    ground_truth_seq_offset: Annotated[
-        int,
-        typer.Option(
-            '--ground-truth-seq-offset',
-            help='Subtracted from image ids / frame numbers with --ground-truth-match seq '
-            '(1 for COCO files whose ids start at 1).',
-        ),
-    ] = 0,
-    annotations: Annotated[
-        bool,
-        typer.Option(
-            '--annotations',
-            help='Also write Foxglove ImageAnnotations (boxes and labels) into detections.mcap.',
-        ),
-    ] = False,
-    ground_truth_masks: Annotated[
-        str | None,
-        typer.Option(
-            '--ground-truth-masks',
-            help='Ground-truth label masks for segmentation backends: a mono8 Image topic or a '
-            'folder of <stamp_ns>.png (default: /ground_truth/labels when present).',
-        ),
-    ] = None,
-    copy_images: Annotated[
-        bool,
-        typer.Option(
-            '--copy-images',
-            help='Copy the replayed image messages into detections.mcap (docs/foxglove.md).',
-        ),
-    ] = False,
-    detections_format: Annotated[
-        str,
-        typer.Option(
-            '--format',
-            help='mcap, or rosbag2: also write metadata.yaml, so that the run folder opens as a '
-            'rosbag2 bag (docs/foxglove.md).',
-        ),
-    ] = 'mcap',
-    no_report: Annotated[bool, typer.Option('--no-report', help='Skip report.html.')] = False,
-    repeat: Annotated[
-        int,
-        typer.Option(
-            '--repeat',
-            help='Replay the inputs N times per backend, interleaved across backends, each pass '
-            'with its own warm-up; compare then judges the variation between passes '
-            '(docs/compare.md).',
-        ),
-    ] = 1,
-    no_hash: Annotated[
-        bool,
-        typer.Option(
-            '--no-hash',
-            help="Do not compute the inputs' sha256 (run.json records null; compare cannot "
-            'check the inputs).',
-        ),
-    ] = False,
+    *,
+    options: dict[str, Any],
 ) -> None:
     """Replay bags through backends and write detections, CSVs, run.json and a report.
 
@@ -285,37 +126,8 @@ def run(
             backends=backend,
             out=out if out is not None else new_run_dir(),
             force=force,
-            rate=rate,
-            queue_depth=queue_depth,
-            warmup=warmup,
-            threads=threads,
-            max_frames=max_frames,
-            start=start,
-            duration=duration,
-            topics=topic,
-            ground_truth=ground_truth,
-            config=config,
-            model=model,
-            model_family=model_family,
-            labels=labels,
-            conf=conf,
-            iou=iou,
-            device=device,
-            engine=engine,
-            precision=precision,
-            recorded_topic=recorded_topic,
-            ground_truth_file=ground_truth_file,
-            ground_truth_match=ground_truth_match,
-            ground_truth_image_topic=ground_truth_image_topic,
-            ground_truth_seq_offset=ground_truth_seq_offset,
-            annotations=annotations,
-            copy_images=copy_images,
-            detections_format=detections_format,
-            report=not no_report,
-            hash_inputs=not no_hash,
-            repeat=repeat,
             command=['replaybench', *sys.argv[1:]],
-            ground_truth_masks=ground_truth_masks,
+            **options,
         )
         outcome = _run_until_stopped(settings, progress)
     except ReplaybenchError as err:

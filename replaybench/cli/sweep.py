@@ -5,17 +5,18 @@ from __future__ import annotations
 import sys
 import threading
 from pathlib import Path  # noqa: TC003 - typer reads the annotations at run time
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
-from replaybench.cli._common import app, echo, fail
+from replaybench.cli._common import app, echo, fail, with_run_options
 from replaybench.errors import ReplaybenchError
 
 __all__: list[str] = []
 
 
 @app.command()
+@with_run_options('sweep')
 def sweep(
     bags: Annotated[
         list[Path],
@@ -58,54 +59,8 @@ def sweep(
             '--max-retries', min=0, help='Ray re-runs of a cell whose worker or node died.'
         ),
     ] = 3,
-    rate: Annotated[
-        str,
-        typer.Option('--rate', help='max, recorded, 2x / 0.5x (scaled recorded), or 30hz (fixed).'),
-    ] = 'max',
-    queue_depth: Annotated[
-        int, typer.Option('--queue-depth', min=1, help='Per-topic queue depth in timed modes.')
-    ] = 1,
-    warmup: Annotated[
-        int | None, typer.Option('--warmup', min=0, help='Warm-up frames per backend and topic.')
-    ] = None,
-    threads: Annotated[
-        int | None, typer.Option('--threads', min=1, help='CPU threads for OpenCV and backends.')
-    ] = None,
-    max_frames: Annotated[
-        int | None, typer.Option('--max-frames', min=1, help='At most N frames of each topic.')
-    ] = None,
-    start: Annotated[
-        float | None, typer.Option('--start', min=0.0, help='Skip the first S seconds of each bag.')
-    ] = None,
-    duration: Annotated[
-        float | None, typer.Option('--duration', min=0.0, help='Replay only S seconds.')
-    ] = None,
-    topic: Annotated[
-        list[str], typer.Option('--topic', '-t', help='Image topic(s) to replay.')
-    ] = [],  # noqa: B006
-    ground_truth: Annotated[
-        str | None, typer.Option('--ground-truth', help='Detection2DArray ground-truth topic.')
-    ] = None,
-    config: Annotated[Path | None, typer.Option('--config', help='Backend TOML file.')] = None,
-    model: Annotated[Path | None, typer.Option('--model', help='ONNX model.')] = None,
-    model_family: Annotated[str | None, typer.Option('--model-family', help='Layout.')] = None,
-    labels: Annotated[str | None, typer.Option('--labels', help='Class names.')] = None,
-    conf: Annotated[float | None, typer.Option('--conf', min=0.0, max=1.0)] = None,
-    iou: Annotated[float | None, typer.Option('--iou', min=0.0, max=1.0)] = None,
-    engine: Annotated[str, typer.Option('--engine', help='auto, ort or torch.')] = 'auto',
-    precision: Annotated[str, typer.Option('--precision', help='GPU precision.')] = 'fp32',
-    recorded_topic: Annotated[
-        str | None, typer.Option('--recorded-topic', help='Topic for the `recorded` backend.')
-    ] = None,
-    annotations: Annotated[
-        bool, typer.Option('--annotations', help='Foxglove ImageAnnotations too.')
-    ] = False,
-    copy_images: Annotated[
-        bool, typer.Option('--copy-images', help='Copy the images into detections.mcap.')
-    ] = False,
-    no_report: Annotated[
-        bool, typer.Option('--no-report', help="Skip each cell's report.html.")
-    ] = False,
+    *,
+    options: dict[str, Any],
 ) -> None:
     """Run every bag x backend x --param combination as one run, on a Ray cluster (docs/sweep.md).
 
@@ -125,28 +80,8 @@ def sweep(
             address=address,
             pack=pack,
             max_retries=max_retries,
-            rate=rate,
-            queue_depth=queue_depth,
-            warmup=warmup,
-            threads=threads,
-            max_frames=max_frames,
-            start=start,
-            duration=duration,
-            topics=topic,
-            ground_truth=ground_truth,
-            config=config,
-            model=model,
-            model_family=model_family,
-            labels=labels,
-            conf=conf,
-            iou=iou,
-            engine=engine,
-            precision=precision,
-            recorded_topic=recorded_topic,
-            annotations=annotations,
-            copy_images=copy_images,
-            report=not no_report,
             command=['replaybench', *sys.argv[1:]],
+            **options,
         )
         with stop_on_signals(token):
             result = run_sweep(settings, progress=bar, stop=token)

@@ -48,10 +48,6 @@ class Digest(Protocol):
     def hexdigest(self) -> str: ...
 
 
-class _CancelledError(Exception):
-    pass
-
-
 class InputHash:
     """The sha256 of an input's files (in order, as one stream), in a thread or at once.
 
@@ -120,16 +116,16 @@ class InputHash:
         return max(0.0, self.finished_s - since)
 
     def _work(self) -> None:
-        try:
-            digest = self._digest()
-            for path in self.files:
-                with path.open('rb') as f:
-                    while chunk := f.read(self._chunk):
-                        if self._cancel.is_set():
-                            raise _CancelledError
-                        digest.update(chunk)
-            self._hex = digest.hexdigest()
-        except _CancelledError:
+        from replaybench.sources.digest import HashCancelled, files_sha256
+
+        try:  # the one definition of an input's digest (sources/digest.py)
+            self._hex = files_sha256(
+                self.files,
+                digest=self._digest,
+                chunk_bytes=self._chunk,
+                cancelled=self._cancel.is_set,
+            )
+        except HashCancelled:
             self.error = 'cancelled'
         except OSError as err:
             self.error = f'cannot read {err.filename or "the input"}: {err.strerror or err}'

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
+from replaybench.app.options import RunOptions
 from replaybench.app.run import run_config
 from replaybench.app.sweep import (
     SweepConfig,
-    SweepSettings,
-    _run_config,
+    cell_run_config,
     input_identity,
     plan_cells,
     sweep_config,
@@ -38,7 +38,7 @@ def test_sweep_config_parses_the_params_and_keeps_the_shared_run_options(tmp_pat
     assert config.inputs == (BAG,)
     assert config.backends == ('hsv', 'null')
     assert [tuple(a) for a in config.axes] == [('hsv', 'min_area', ('50', '100'))]
-    assert config.settings == SweepSettings(max_frames=5, threads=1)
+    assert config.options == RunOptions(max_frames=5, threads=1)
     assert config.command == ('replaybench', 'sweep')
     with pytest.raises(dataclasses.FrozenInstanceError):
         config.pack = True  # type: ignore[misc]
@@ -76,8 +76,8 @@ def test_a_cell_runs_with_the_run_commands_config_and_its_param_values(tmp_path:
         topics=['/camera/image_raw'],
         threads=1,
     )
-    (cell,) = plan_cells([input_identity(BAG)], ['hsv'], config.axes, config.settings)
-    made = _run_config(cell, config.settings, tmp_path / 'cell', ['replaybench', 'sweep'])
+    (cell,) = plan_cells([input_identity(BAG)], ['hsv'], config.axes, config.options)
+    made = cell_run_config(cell, config.options, tmp_path / 'cell', ['replaybench', 'sweep'])
     expected = run_config(
         [BAG],
         backends=['hsv'],
@@ -88,8 +88,11 @@ def test_a_cell_runs_with_the_run_commands_config_and_its_param_values(tmp_path:
         threads=1,
         command=['replaybench', 'sweep'],
     )
-    assert dataclasses.replace(made, options=BackendOptions()) == dataclasses.replace(
-        expected, options=BackendOptions()
-    )
+    assert dataclasses.replace(
+        made, options=BackendOptions(), input_sha256=None
+    ) == dataclasses.replace(expected, options=BackendOptions())
     assert made.options.threads == 1
     assert made.options.extra == {'min_area': '77'}
+    # the driver's digest goes with the cell: the run on the node does not hash the input
+    assert made.input_sha256 == (cell.input.sha256,)
+    assert made.hash_inputs is True

@@ -293,10 +293,11 @@ def test_a_cell_whose_worker_is_killed_is_run_again_by_ray_and_completes(
     import threading
     import time
 
-    from replaybench.app.sweep import SweepSettings, input_identity, parse_params, plan_cells
+    from replaybench.app.options import RunOptions
+    from replaybench.app.sweep import input_identity, parse_params, plan_cells
 
     params = ['busy.busy_ms=97']
-    settings = SweepSettings(max_frames=30)
+    settings = RunOptions(max_frames=30)
     cell = plan_cells(
         [input_identity(bags['a'])], ['busy'], parse_params(params, ['busy']), settings
     )[0]

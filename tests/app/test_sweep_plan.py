@@ -10,9 +10,8 @@ from pathlib import Path
 
 import pytest
 
-import replaybench.app.sweep as sweep_module
+from replaybench.app.options import RunOptions
 from replaybench.app.sweep import (
-    SweepSettings,
     cell_options,
     input_identity,
     join_auth_env,
@@ -29,7 +28,7 @@ BAG = REPO / 'fixtures' / 'bags' / 'jpeg.mcap'
 def test_a_param_grid_gives_one_cell_per_combination_for_its_backend_only() -> None:
     axes = parse_params(['hsv.min_area=50,100,200', 'hsv.kernel=3,5'], ['hsv', 'null'])
     inputs = [input_identity(BAG), input_identity(REPO / 'fixtures' / 'bags' / 'rgb8_raw.mcap')]
-    cells = plan_cells(inputs, ['hsv', 'null'], axes, SweepSettings())
+    cells = plan_cells(inputs, ['hsv', 'null'], axes, RunOptions())
     assert len(cells) == 2 * (3 * 2 + 1)
     first = [c for c in cells if c.input_index == 0]
     assert [c.params for c in first if c.backend == 'hsv'] == [
@@ -83,39 +82,42 @@ def test_a_cell_key_changes_with_options_input_and_version(
     bag.write_bytes(BAG.read_bytes())
     inp = input_identity(bag)
 
-    def key(settings: SweepSettings, params: tuple[tuple[str, str], ...] = ()) -> str:
+    def key(settings: RunOptions, params: tuple[tuple[str, str], ...] = ()) -> str:
         axes = parse_params([f'hsv.{k}={v}' for k, v in params], ['hsv'])
         return plan_cells([inp], ['hsv'], axes, settings)[0].key
 
-    base = key(SweepSettings(max_frames=5))
-    assert key(SweepSettings(max_frames=5)) == base
-    assert key(SweepSettings(max_frames=6)) != base
-    assert key(SweepSettings(max_frames=5), (('min_area', '50'),)) != base
+    base = key(RunOptions(max_frames=5))
+    assert key(RunOptions(max_frames=5)) == base
+    assert key(RunOptions(max_frames=6)) != base
+    assert key(RunOptions(max_frames=5), (('min_area', '50'),)) != base
     config = tmp_path / 'hsv.toml'
     config.write_text('[detector]\nmin_area = 10.0\n')
-    with_config = key(SweepSettings(max_frames=5, config=config))
+    with_config = key(RunOptions(max_frames=5, config=config))
     config.write_text('[detector]\nmin_area = 20.0\n')
-    assert key(SweepSettings(max_frames=5, config=config)) != with_config
-    monkeypatch.setattr(sweep_module, '__version__', '99.0.0')
-    assert key(SweepSettings(max_frames=5)) != base
+    assert key(RunOptions(max_frames=5, config=config)) != with_config
+    monkeypatch.setattr('replaybench._version.__version__', '99.0.0')
+    assert key(RunOptions(max_frames=5)) != base
     monkeypatch.undo()
     bag.write_bytes(BAG.read_bytes() + b'\0')
     inp = input_identity(bag)
-    assert key(SweepSettings(max_frames=5)) != base
+    assert key(RunOptions(max_frames=5)) != base
 
 
-def test_the_identity_of_a_folder_covers_its_files_names_and_contents(tmp_path: Path) -> None:
-    folder = tmp_path / 'bag2'
-    folder.mkdir()
-    (folder / 'metadata.yaml').write_text('x')
-    (folder / 'bag2_0.db3').write_bytes(b'12345')
-    first = input_identity(folder)
-    assert first.size_bytes == 6
-    (folder / 'bag2_0.db3').write_bytes(b'12346')
-    assert input_identity(folder).sha256 != first.sha256
-    (folder / 'bag2_0.db3').rename(folder / 'other.db3')
-    (folder / 'other.db3').write_bytes(b'12345')
-    assert input_identity(folder).sha256 != first.sha256
+def test_the_identity_of_a_rosbag2_folder_is_the_digest_of_its_data_files(tmp_path: Path) -> None:
+    from replaybench.fixtures.writer import write_rosbag2
+    from replaybench.sources.digest import files_sha256
+
+    folder = write_rosbag2(tmp_path / 'bag2', frames=3, size=(32, 24))
+    found = input_identity(folder)
+    data = sorted(p for p in folder.iterdir() if p.name != 'metadata.yaml')
+    assert found.sha256 == files_sha256(data)
+    assert found.size_bytes == sum(p.stat().st_size for p in data)
+    assert [s.path for s in found.files] == [p.resolve() for p in data]
+    before = found.sha256
+    with (folder / 'metadata.yaml').open('a') as f:  # not a data file: the digest stays
+        f.write('# note\n')
+    assert input_identity(folder).sha256 == before
+    assert input_identity(folder, digest=False).sha256 is None
 
 
 def test_a_missing_input_or_a_fifo_is_refused(tmp_path: Path) -> None:
@@ -205,3 +207,40 @@ def test_a_missing_input_is_refused_before_ray_starts(tmp_path: Path) -> None:
         proc.stderr.strip()
         == f'replaybench: error: {tmp_path / "gone.mcap"}: no such file or directory'
     )
+
+
+def test_a_node_checks_the_input_by_size_and_time_and_hashes_only_when_the_times_differ(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import replaybench.sources.digest as digest
+    from replaybench.app.sweep.cell import check_input
+
+    bag = tmp_path / 'a.mcap'
+    bag.write_bytes(BAG.read_bytes())
+    inp = input_identity(bag)
+    hashed: list[object] = []
+    real = digest.files_sha256
+
+    def counted(files: object, **kwargs: object) -> str:
+        hashed.append(files)
+        return real(files, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(digest, 'files_sha256', counted)
+    check_input(inp, 'node')
+    assert hashed == []  # same sizes and times: no digest on the node
+    stat = bag.stat()
+    os.utime(bag, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
+    check_input(inp, 'node')  # another time, the same bytes
+    assert len(hashed) == 1
+    data = bytearray(bag.read_bytes())
+    data[-1] ^= 0xFF
+    bag.write_bytes(bytes(data))
+    with pytest.raises(SourceError, match=r"differs from the driver's copy \(sha256"):
+        check_input(inp, 'node')
+    bag.write_bytes(bytes(data) + b'\0')
+    with pytest.raises(SourceError, match='bytes instead of'):
+        check_input(inp, 'node')
+    assert len(hashed) == 2  # a size that differs needs no digest
+    bag.unlink()
+    with pytest.raises(SourceError, match='is not readable on node node'):
+        check_input(inp, 'node')

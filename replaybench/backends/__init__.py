@@ -43,6 +43,8 @@ BUILTIN_BACKENDS: dict[str, str] = {
     'cuda': 'replaybench.backends.gpu.cuda:CudaBackend',
     'tensorrt': 'replaybench.backends.gpu.tensorrt:TensorrtBackend',
     'hsv-cuda': 'replaybench.backends.gpu.hsv_cuda:HsvCudaBackend',
+    'apriltag': 'replaybench.backends.apriltag:AprilTagBackend',
+    'aruco': 'replaybench.backends.aruco:ArucoBackend',
 }
 
 _NAME_RE = re.compile(r'[A-Za-z0-9][A-Za-z0-9_-]*\Z')

@@ -95,7 +95,18 @@ def entry_points(monkeypatch: pytest.MonkeyPatch, **targets: str) -> None:
     monkeypatch.setattr(registry, '_entry_points', lambda: sorted(eps, key=lambda e: e.name))
 
 
-BUILTINS = ['null', 'hsv', 'onnx-cpu', 'recorded', 'busy', 'cuda', 'tensorrt', 'hsv-cuda']
+BUILTINS = [
+    'null',
+    'hsv',
+    'onnx-cpu',
+    'recorded',
+    'busy',
+    'cuda',
+    'tensorrt',
+    'hsv-cuda',
+    'apriltag',
+    'aruco',
+]
 
 
 def test_builtin_backends_are_listed_in_registry_order() -> None:
@@ -111,7 +122,8 @@ def test_unknown_backend_is_a_usage_error_listing_the_names(
 ) -> None:
     entry_points(monkeypatch, toy=f'{plugin_module}:ToyBackend')
     with pytest.raises(
-        UsageError, match=r"unknown backend 'yolo'; known backends: null, hsv, .*hsv-cuda, toy"
+        UsageError,
+        match=r"unknown backend 'yolo'; known backends: null, hsv, .*hsv-cuda, apriltag, aruco, toy",
     ):
         get_backend('yolo')
 

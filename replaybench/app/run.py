@@ -21,7 +21,7 @@ from replaybench.results.runfolder import with_filename
 
 if TYPE_CHECKING:
     import threading
-    from collections.abc import Callable, Iterable, Sequence
+    from collections.abc import Callable, Iterable, Mapping, Sequence
 
     from replaybench.backends.base import Backend
     from replaybench.replay.clock import Clock
@@ -93,8 +93,10 @@ def backend_options(
     device: int = 0,
     engine: str = 'auto',
     precision: str = 'fp32',
+    tag_options: Mapping[str, str] | None = None,
 ) -> BackendOptions:
-    """The options every backend is given, checked (``UsageError`` naming the option)."""
+    """The options every backend is given, checked (``UsageError`` naming the option);
+    ``tag_options``: the tag backends' (``BackendOptions.tag_options``)."""
     check_gpu_options(engine, precision)
     _at_least('--threads', threads, 1)
     _fraction('--conf', conf)
@@ -111,6 +113,7 @@ def backend_options(
         device=device,
         engine=engine,
         precision=precision,
+        tag_options=dict(tag_options or {}),
     )
 
 
@@ -149,6 +152,7 @@ def run_config(
     report: bool = True,
     hash_inputs: bool = True,
     command: Sequence[str] = (),
+    tag_options: Mapping[str, str] | None = None,
 ) -> RunConfig:
     """The ``RunConfig`` of ``replaybench run``'s options, checked: each keyword is the option
     of the same name in snake_case (``--max-frames`` is ``max_frames``, ``--topic`` is
@@ -199,6 +203,7 @@ def run_config(
             device=device,
             engine=engine,
             precision=precision,
+            tag_options=tag_options,
         ),
         command=tuple(command),
         report=report,

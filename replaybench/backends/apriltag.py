@@ -56,7 +56,7 @@ class AprilTagBackend:
         self.options = options if options is not None else BackendOptions()
         self.tags = tag_options(
             self.name,
-            self.options.extra,
+            {**self.options.tag_options, **self.options.extra},
             threads=self.options.threads,
             config=self.options.config,
             families=APRILTAG_FAMILIES,

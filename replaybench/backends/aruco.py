@@ -64,7 +64,7 @@ class ArucoBackend:
         self.options = options if options is not None else BackendOptions()
         self.tags = tag_options(
             self.name,
-            self.options.extra,
+            {**self.options.tag_options, **self.options.extra},
             threads=self.options.threads,
             config=self.options.config,
             families=ARUCO_FAMILIES,

@@ -19,7 +19,16 @@ __all__: list[str] = []
 def fixtures(
     out: Annotated[Path, typer.Option('--out', '-o', help='Folder to write the bags into.')],
     frames: Annotated[int, typer.Option('--frames', min=1, help='Frames per camera.')] = 30,
-    size: Annotated[str, typer.Option('--size', help='Image size WxH.')] = '320x240',
+    size: Annotated[
+        str | None, typer.Option('--size', help='Image size WxH (320x240; 640x480 with --tags).')
+    ] = None,
+    tags: Annotated[
+        bool,
+        typer.Option(
+            '--tags',
+            help='Write the AprilTag bags instead (tags.mcap, tags_fisheye.mcap).',
+        ),
+    ] = False,
 ) -> None:
     """Generate the synthetic fixture bags (MCAP raw/jpeg, rosbag2 .db3, ROS 1 .bag, two cameras).
 
@@ -28,14 +37,23 @@ def fixtures(
     from replaybench.errors import UsageError
     from replaybench.fixtures import generate_fixtures
 
+    if size is None:
+        size = '640x480' if tags else '320x240'
     try:
         w, _, h = size.lower().partition('x')
         if not (w.isdigit() and h.isdigit() and int(w) >= 32 and int(h) >= 32):
             msg = f'invalid --size {size!r}: use WxH with both at least 32, e.g. 640x480'
             raise UsageError(msg)
-        paths = generate_fixtures(
-            out, frames=frames, size=(int(w), int(h)), progress=FixtureProgress(sys.stderr)
-        )
+        if tags:
+            from replaybench.fixtures.tags import generate_tag_fixtures
+
+            paths = generate_tag_fixtures(
+                out, frames=frames, size=(int(w), int(h)), progress=FixtureProgress(sys.stderr)
+            )
+        else:
+            paths = generate_fixtures(
+                out, frames=frames, size=(int(w), int(h)), progress=FixtureProgress(sys.stderr)
+            )
     except ReplaybenchError as err:
         raise fail(err) from None
     for path in paths:

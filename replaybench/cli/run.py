@@ -238,6 +238,26 @@ def run(
         ),
     ] = 'mcap',
     no_report: Annotated[bool, typer.Option('--no-report', help='Skip report.html.')] = False,
+    # the tag backends (apriltag, aruco): docs/fiducials.md
+    tag_family: Annotated[
+        str | None,
+        typer.Option('--tag-family', help='Tag family: tag36h11 (default), tag25h9, ...'),
+    ] = None,
+    tag_size: Annotated[
+        float | None,
+        typer.Option('--tag-size', help='Tag edge length in metres for every tag (0.22).'),
+    ] = None,
+    tag_sizes: Annotated[
+        str | None,
+        typer.Option('--tag-sizes', help='Edge lengths per tag id, e.g. 14=0.2,3=0.1.'),
+    ] = None,
+    tag_decimation: Annotated[
+        float | None,
+        typer.Option('--tag-decimation', help='Quad decimation of the tag detectors (2).'),
+    ] = None,
+    max_tags: Annotated[
+        int | None, typer.Option('--max-tags', help='At most N tags a frame (64).')
+    ] = None,
     no_hash: Annotated[
         bool,
         typer.Option(
@@ -252,6 +272,7 @@ def run(
     Example: replaybench run fixtures/bags/rgb8_raw.mcap --backend hsv --backend null --out runs/a
     """
     from replaybench.app.run import run_config
+    from replaybench.fiducials.detect import tag_extra
     from replaybench.replay.runner import new_run_dir
 
     progress = RunProgress()
@@ -290,6 +311,13 @@ def run(
             report=not no_report,
             hash_inputs=not no_hash,
             command=['replaybench', *sys.argv[1:]],
+            tag_options=tag_extra(
+                family=tag_family,
+                tag_size=tag_size,
+                tag_sizes=tag_sizes,
+                decimation=tag_decimation,
+                max_tags=max_tags,
+            ),
         )
         outcome = _run_until_stopped(settings, progress)
     except ReplaybenchError as err:
@@ -313,6 +341,7 @@ def _run_until_stopped(config: RunConfig, progress: RunProgress) -> RunOutcome:
 def _show_run(outcome: RunOutcome) -> int:
     """Print a finished run (the table, its warnings, the folder); its exit status."""
     from replaybench.backends.gpu import engine_lines
+    from replaybench.results.tags import tag_lines
 
     _print_summary(outcome.summaries)
     for s in outcome.summaries:  # stability of each (backend, topic): intervals need not hold
@@ -335,6 +364,8 @@ def _show_run(outcome: RunOutcome) -> int:
                 err=True,
             )
     for line in engine_lines(outcome.run):
+        echo(line)
+    for line in tag_lines(outcome.run):
         echo(line)
     assert outcome.run_dir is not None  # the command line always writes a folder
     report = outcome.run_dir / 'report.html'

@@ -37,6 +37,7 @@ __all__ = [
     'TagAssembler',
     'TagOptions',
     'gray8',
+    'tag_extra',
     'tag_options',
 ]
 
@@ -136,6 +137,25 @@ def tag_options(
     return TagOptions(family, sizes, decimation, int(max_tags), max(1, threads or 1), refine)
 
 
+def tag_extra(
+    *,
+    family: str | None = None,
+    tag_size: float | None = None,
+    tag_sizes: str | None = None,
+    decimation: float | None = None,
+    max_tags: int | None = None,
+) -> dict[str, str]:
+    """The ``BackendOptions.extra`` of the command line's tag options (those given)."""
+    given = {
+        'family': family,
+        'tag_size': tag_size,
+        'tag_sizes': tag_sizes,
+        'decimation': decimation,
+        'max_tags': max_tags,
+    }
+    return {key: str(value) for key, value in given.items() if value is not None}
+
+
 def _number(backend: str, key: str, text: str) -> float:
     try:
         value = float(text)
@@ -225,8 +245,9 @@ class TagAssembler:
                 options.family, tag.tag_id, (cx, cy), tag.corners, pose, size, tag.score
             )
             tags.append(detection)
-            x0, y0 = (float(v) for v in pts.min(axis=0))
-            x1, y1 = (float(v) for v in pts.max(axis=0))
+            # Detection boxes put the origin at the top-left pixel's corner: centres at +0.5
+            x0, y0 = (float(v) + 0.5 for v in pts.min(axis=0))
+            x1, y1 = (float(v) + 0.5 for v in pts.max(axis=0))
             boxes.append(Detection(tag.tag_id, detection.label, tag.score, x0, y0, x1, y1))
         if note:
             self.frames_without_pose += 1

@@ -44,6 +44,7 @@ from replaybench.replay.prefetch import Prefetched, Prefetcher
 from replaybench.replay.rate import Rate
 from replaybench.replay.resources import ResourceSampler
 from replaybench.replay.scheduler import replay_timed
+from replaybench.replay.tags import TagRun
 from replaybench.replay.threads import thread_limits
 from replaybench.results.agreement import AGREEMENT_IOU, Agreement, agreement_table
 from replaybench.results.intervals import with_intervals
@@ -835,6 +836,9 @@ class _Pass:
         n_done = run.processed.get(label_key, 0)
         run.processed[label_key] = n_done + 1
         run.detections_out.add(self.label, topic, log_time_ns, stamp_ns, frame_id, detections)
+        tag_columns = run.tags.frame(
+            self.label, number, topic, log_time_ns, stamp_ns, frame_id, result, run.detections_out
+        )
         if self.inp.external is not None:
             truth = self.inp.external.lookup(topic, seq, stamp_ns)
             if truth is not None:
@@ -876,6 +880,7 @@ class _Pass:
                 _ms(stages.postprocess_device_ns),
                 _ms(stages.h2d_device_ns),
                 _ms(stages.d2h_device_ns),
+                **tag_columns,
             )
         )
 
@@ -933,6 +938,7 @@ class _Run:
         self.detections_out: Any
         self.warnings: list[str] = []
         self.warmups: dict[str, int] = {}
+        self.tags = TagRun()  # the tag task: truth, outputs and scores of tag backends
 
     def set_warmups(self) -> None:
         """Warm-up frames per topic, from ``topic_frames``: the default, or --warmup clamped
@@ -1284,6 +1290,7 @@ def _execute(
 
     run = _Run(config, clock, progress, stop)
     for inp in inputs:
+        run.tags.read_truth(inp.number, inp.source)
         for (frame_id, stamp), dets in inp.ground_truth.items():
             run.ground_truth[(inp.number, frame_id, stamp)] = dets
         for topic in inp.topics:
@@ -1363,6 +1370,7 @@ def _execute(
         raise _nothing_measured(run, inputs, config)
 
     summaries = _summaries(run)
+    run.warnings.extend(run.tags.warnings())
     if len(config.backends) > 1:
         run.agreements = agreement_table(run.detections, iou=AGREEMENT_IOU)
     if out is not None:
@@ -1574,6 +1582,7 @@ def _summaries(run: _Run) -> list[Summary]:
         }
         out.append(replace(s, accuracy=accuracy))
     out = [replace(s, resources=run.resources.get(s.backend)) for s in out]
+    out = run.tags.summaries(out)
     return with_intervals(out, run.records)
 
 

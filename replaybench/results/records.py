@@ -15,7 +15,7 @@ from replaybench.results.runfolder import with_filename
 from replaybench.textsafe import csv_text, from_csv
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterable
+    from collections.abc import Callable, Iterable, Sequence
     from types import TracebackType
     from typing import IO, Self
 
@@ -71,11 +71,22 @@ class FrameRecord(NamedTuple):
     postprocess_device_ms: float | None = None
     h2d_device_ms: float | None = None
     d2h_device_ms: float | None = None
+    # tag backends (replaybench.results.tags.TAG_FRAME_COLUMNS); empty for the others
+    tags: int | None = None
+    tag_truth: int | None = None
+    tag_matched: int | None = None
+    tag_wrong_ids: int | None = None
+    tag_phantoms: int | None = None
+    tag_corner_rmse_px: float | None = None
+    tag_trans_err_m: float | None = None
+    tag_rot_err_deg: float | None = None
 
 
 FRAMES_CSV_COLUMNS: tuple[str, ...] = FrameRecord._fields
 
-_INT_FIELDS = frozenset({'input', 'seq', 'log_time_ns', 'stamp_ns', 'detections'})
+_TAG_INT_FIELDS = frozenset({'tags', 'tag_truth', 'tag_matched', 'tag_wrong_ids', 'tag_phantoms'})
+_TAG_FIELDS = _TAG_INT_FIELDS | {'tag_corner_rmse_px', 'tag_trans_err_m', 'tag_rot_err_deg'}
+_INT_FIELDS = frozenset({'input', 'seq', 'log_time_ns', 'stamp_ns', 'detections'}) | _TAG_INT_FIELDS
 _BOOL_FIELDS = frozenset({'warmup', 'dropped'})
 _STR_FIELDS = frozenset({'backend', 'topic', 'status', 'note'})
 _OPTIONAL_FIELDS = frozenset(
@@ -99,8 +110,12 @@ _OPTIONAL_FIELDS = frozenset(
         'd2h_device_ms',
     },
 )
+_OPTIONAL_FIELDS |= _TAG_FIELDS
 #: The columns of frames.csv files written before the ``*_device_ms`` columns were added.
 _COLUMNS_BEFORE_DEVICE_TIMES = FRAMES_CSV_COLUMNS[:22]
+#: The columns of frames.csv files written before the tag columns were added.
+_COLUMNS_BEFORE_TAGS = FRAMES_CSV_COLUMNS[:27]
+_KNOWN_HEADERS = (FRAMES_CSV_COLUMNS, _COLUMNS_BEFORE_DEVICE_TIMES, _COLUMNS_BEFORE_TAGS)
 
 
 def _float_format(name: str) -> str:
@@ -181,6 +196,18 @@ def _quote(text: str) -> str:
     return cell
 
 
+_TAG_CELLS = _CELLS[27:]
+_NO_TAGS = ',' * len(_TAG_CELLS)
+
+
+def _tag_cells(values: Sequence[object]) -> str:
+    """The tag columns' cells, each after its comma."""
+    if all(v is None for v in values):
+        return _NO_TAGS
+    cells = ['' if v is None else cell(v) for cell, v in zip(_TAG_CELLS, values, strict=True)]
+    return ',' + ','.join(cells)
+
+
 def _line(record: FrameRecord) -> str:
     """One frames.csv line with its ``\\r\\n``: what ``csv_writer`` writes for ``_row(record)``.
 
@@ -212,6 +239,7 @@ def _line(record: FrameRecord) -> str:
         detections,
         *device,
     ) = record
+    device, tagged = device[:5], device[5:]
     stages = [preprocess_ms, infer_ms, postprocess_ms, h2d_ms, d2h_ms]
     if (
         latency_ms is not None
@@ -246,7 +274,7 @@ def _line(record: FrameRecord) -> str:
                     f'{quoted.get(topic) or _quote(topic)},{seq:d},{log_time_ns:d},{stamp_ns:d},'
                     f'{quoted.get(status) or _quote(status)},{quoted.get(note) or _quote(note)},'
                     f'{"1" if warmup else "0"},{"1" if dropped else "0"},{times},{staged},'
-                    f'{latency},{detections:d},{on_device}\r\n'
+                    f'{latency},{detections:d},{on_device}{_tag_cells(tagged)}\r\n'
                 )
             except ValueError:  # an int cell holding something else
                 pass
@@ -427,7 +455,7 @@ def read_frames_csv(path: str | Path) -> list[FrameRecord]:
             reader = csv.reader(file)
             header = next(reader, None)
             columns = tuple(header) if header is not None else ()
-            if columns not in (FRAMES_CSV_COLUMNS, _COLUMNS_BEFORE_DEVICE_TIMES):
+            if columns not in _KNOWN_HEADERS:
                 msg = f'{path}: not a frames.csv (header does not match the expected columns)'
                 raise SourceError(msg) from None
             missing = [''] * (len(FRAMES_CSV_COLUMNS) - len(columns))

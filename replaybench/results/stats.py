@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from replaybench.results.records import written
+from replaybench.results.tags import TAG_SUMMARY_COLUMNS
+from replaybench.results.tags import summary_columns as tag_summary_columns
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -91,6 +93,8 @@ class Summary:
     throughput_fps_ci_low: float | None = None
     throughput_fps_ci_high: float | None = None
     warnings: tuple[str, ...] = ()
+    # tag backends against tag ground truth (replaybench.results.tags.TagAccuracy.document)
+    tag_accuracy: dict[str, Any] | None = None
 
 
 #: Interval columns of summary.csv (after the resource columns, before ``warnings``).
@@ -106,7 +110,7 @@ INTERVAL_COLUMNS: tuple[str, ...] = (
 _FLAT_FIELDS: tuple[str, ...] = tuple(
     f.name
     for f in fields(Summary)
-    if f.name not in {'accuracy', 'resources', 'warnings', *INTERVAL_COLUMNS}
+    if f.name not in {'accuracy', 'resources', 'warnings', 'tag_accuracy', *INTERVAL_COLUMNS}
 )
 
 #: Resource-use columns of summary.csv (from the backend's ResourceSampler summary).
@@ -122,7 +126,12 @@ RESOURCE_COLUMNS: tuple[str, ...] = (
 
 #: Columns of summary.csv, in order (later additions at the end, so older readers keep working).
 SUMMARY_CSV_COLUMNS: tuple[str, ...] = (
-    _FLAT_FIELDS + ACCURACY_COLUMNS + RESOURCE_COLUMNS + INTERVAL_COLUMNS + ('warnings',)
+    _FLAT_FIELDS
+    + ACCURACY_COLUMNS
+    + RESOURCE_COLUMNS
+    + INTERVAL_COLUMNS
+    + ('warnings',)
+    + TAG_SUMMARY_COLUMNS
 )
 
 
@@ -244,6 +253,8 @@ def _flat(summary: Summary) -> dict[str, Any]:
         row[name] = resources.get(name)
     for name in INTERVAL_COLUMNS:
         row[name] = getattr(summary, name)
+    row['warnings'] = None  # set by the callers; here it keeps its place before the tag columns
+    row.update(tag_summary_columns(summary.tag_accuracy))
     return row
 
 
@@ -261,4 +272,5 @@ def summary_json(summary: Summary) -> dict[str, Any]:
     row = _flat(summary)
     row['warnings'] = list(summary.warnings)
     row['accuracy'] = dict(summary.accuracy) if summary.accuracy is not None else None
+    row['tag_accuracy'] = dict(summary.tag_accuracy) if summary.tag_accuracy is not None else None
     return row

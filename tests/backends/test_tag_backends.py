@@ -1,11 +1,11 @@
 """The apriltag and aruco backends on rendered tags with exact truth.
 
 Tolerances, from what the detectors reach on these frames (measured over 30 frames of each
-camera, docs/fiducials.md) with room for the frames chosen here: AprilTag 3 corners are within
-0.26 px RMSE of the truth (0.12 mean), its poses within 0.6 % of the range and 3.6 degrees;
-ArUco's corners within 1 px, poses within 2.6 % of the range, and a few of its poses are off
-by up to 25 degrees (the two-fold ambiguity of a small square's pose), so its rotation is
-checked by the median.
+camera at 640x480, docs/fiducials.md) with room for the frames chosen here: AprilTag 3 corners
+are within 0.28 px RMSE of the truth (0.15 mean), its poses within 3.4 mm (under 1 % of the
+range) and 2.5 degrees; ArUco's corners within 1.03 px, its poses within 2 cm, and a few of its
+poses are off by up to 26 degrees (the two-fold ambiguity of a small square's pose, which its
+noisier corners reach), so its rotation is checked by the median.
 """
 
 from __future__ import annotations
@@ -95,7 +95,8 @@ def test_each_tag_also_comes_as_a_box_labelled_family_and_id(name: str) -> None:
     result = _open(name).detect(frame)
     assert [d.label for d in result.detections] == [f'tag36h11:{t.tag_id}' for t in rendered.truth]
     for box, tag in zip(result.detections, result.tags, strict=True):
-        xs, ys = [c[0] for c in tag.corners], [c[1] for c in tag.corners]
+        # boxes in Detection's convention (the origin at the top-left pixel's corner)
+        xs, ys = [c[0] + 0.5 for c in tag.corners], [c[1] + 0.5 for c in tag.corners]
         assert (box.x0, box.y0, box.x1, box.y1) == (min(xs), min(ys), max(xs), max(ys))
         assert box.class_index == tag.tag_id
     assert result.camera_frame == 'camera_optical_frame'

@@ -148,7 +148,7 @@ def test_a_replay_writes_host_and_device_times_to_frames_csv(tmp_path):
         rows = list(csv.DictReader(file))
     ok = [r for r in rows if r['status'] == 'ok']
     assert ok
-    assert tuple(rows[0])[-5:] == DEVICE_COLUMNS
+    assert tuple(rows[0])[22:27] == DEVICE_COLUMNS
     for row in ok:
         assert [row[c] for c in DEVICE_COLUMNS] == ['0.2500'] * 5
         assert row['h2d_ms'] != ''
@@ -211,16 +211,17 @@ def test_frames_csv_keeps_device_times_and_reads_files_written_before_them(tmp_p
         writer.write(record)
     assert read_frames_csv(path) == [record]
     text = path.read_text(encoding='utf-8')
-    assert text.splitlines()[1].endswith(',3.0000,2,0.5000,1.2500,0.1250,0.0625,0.0375')
+    # the device times, then the (empty) tag columns
+    assert text.splitlines()[1].endswith(',3.0000,2,0.5000,1.2500,0.1250,0.0625,0.0375,,,,,,,,')
 
     old = tmp_path / 'old.csv'
     lines = text.splitlines()
     header = ','.join(FRAMES_CSV_COLUMNS[:22])
-    old.write_text(f'{header}\r\n{lines[1].rsplit(",", 5)[0]}\r\n', encoding='utf-8')
+    old.write_text(f'{header}\r\n{lines[1].rsplit(",", 13)[0]}\r\n', encoding='utf-8')
     no_device: dict[str, Any] = dict.fromkeys(DEVICE_COLUMNS)
     assert read_frames_csv(old) == [record._replace(**no_device)]
 
 
-def test_the_device_columns_are_the_last_five():
-    assert FRAMES_CSV_COLUMNS[-5:] == DEVICE_COLUMNS
+def test_the_device_columns_are_the_five_after_detections():
+    assert FRAMES_CSV_COLUMNS[22:27] == DEVICE_COLUMNS
     assert FRAMES_CSV_COLUMNS[:22][-2:] == ('latency_ms', 'detections')

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from replaybench.fiducials.types import Corners, TagResult
     from replaybench.types import Frame
 
-__all__ = ['APRILTAG_FAMILIES', 'AprilTagBackend']
+__all__ = ['APRILTAG_FAMILIES', 'AprilTagBackend', 'release_detector']
 
 #: The families AprilTag 3 decodes.
 APRILTAG_FAMILIES: tuple[str, ...] = (
@@ -116,5 +116,37 @@ class AprilTagBackend:
             'frames_without_pose': self._assembler.frames_without_pose,
         }
 
+    def __del__(self) -> None:
+        # a backend dropped without close() still frees its detector in the right order
+        self.close()
+
     def close(self) -> None:
-        self._detector = None
+        detector, self._detector = self._detector, None
+        if detector is not None:
+            release_detector(detector)
+
+
+def release_detector(detector: Any) -> None:
+    """Free a pupil-apriltags ``Detector`` in the right order: the detector, then its tag
+    families.
+
+    ``Detector.__del__`` (pupil-apriltags 1.0.4) frees the families first, and
+    ``apriltag_detector_destroy`` then writes into them (``quick_decode_uninit``): a
+    use-after-free that valgrind shows and that corrupted the heap of replaybench runs (glibc
+    aborted with "malloc(): mismatching next->prev_size"). Freed here first, the detector is
+    marked as freed so that ``__del__`` does nothing. A Detector without those internals is
+    left to its own ``__del__``.
+    """
+    lib = getattr(detector, 'libc', None)
+    pointer = getattr(detector, 'tag_detector_ptr', None)
+    families = getattr(detector, 'tag_families', None)
+    if lib is None or pointer is None or not isinstance(families, dict):
+        return
+    lib.apriltag_detector_destroy.restype = None
+    lib.apriltag_detector_destroy(pointer)
+    detector.tag_detector_ptr = None
+    for family, handle in families.items():
+        destroy = getattr(lib, f'{family}_destroy')
+        destroy.restype = None
+        destroy(handle)
+    families.clear()

@@ -11,6 +11,7 @@ noisier corners reach), so its rotation is checked by the median.
 from __future__ import annotations
 
 import statistics
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -21,6 +22,9 @@ from replaybench.errors import BackendError
 from replaybench.fiducials import TagResult, rotation_error_deg
 from replaybench.fixtures.tags import render_tag_frame, tag_camera_info
 from replaybench.types import Frame
+
+if TYPE_CHECKING:
+    from pathlib import Path
 
 FIXTURE_SIZES = {'tag_size': '0.16', 'tag_sizes': '14=0.2,3=0.1'}
 FRAMES = 30
@@ -178,3 +182,28 @@ def test_both_tag_backends_are_listed_and_available() -> None:
     for name in ('apriltag', 'aruco'):
         assert rows[name].origin == 'built-in'
         assert rows[name].availability.ok, rows[name].availability.reason
+
+
+def test_replaying_apriltag_twice_in_one_process_leaves_the_heap_intact(tmp_path: Path) -> None:
+    """pupil-apriltags' own Detector.__del__ frees the tag families before the detector, whose
+    destruction then writes into them; with glibc's heap checks on, the second run of a process
+    aborted. The backend frees them in the right order."""
+    import os
+    import subprocess
+    import sys
+
+    script = (
+        'import sys, replaybench as rb\n'
+        'from replaybench.fixtures.tags import write_tag_mcap\n'
+        'bag = write_tag_mcap(sys.argv[1] + "/t.mcap", 2)\n'
+        'for i in range(3):\n'
+        '    rb.run(bag, backends="apriltag", out=sys.argv[1] + f"/r{i}", max_frames=1)\n'
+        'print("done")\n'
+    )
+    env = {**os.environ, 'MALLOC_CHECK_': '3'}
+    done = subprocess.run(
+        [sys.executable, '-c', script, str(tmp_path)],
+        capture_output=True, text=True, env=env, check=False, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == 'done'

@@ -26,6 +26,7 @@ from replaybench.report.svg import (
     stacked_bar_chart,
     step_cdf,
 )
+from replaybench.report.tags import tag_accuracy_html
 from replaybench.results.intervals import with_intervals
 from replaybench.results.io import from_document, read_peak_result, to_json
 from replaybench.results.model import PEAK_SCHEMA_VERSION, ResourceSummary, SummaryRow
@@ -1030,6 +1031,7 @@ def render_html(data: RunData) -> str:
         '<h2 id="summary">Summary</h2>',
         _summary_table(rows, colours),
         _accuracy_details(rows),
+        tag_accuracy_html(rows),
         _plots(frames, rows, backends, topics, colours),
         _agreement(run, colours),
         _resources(run, colours),

@@ -5,8 +5,8 @@ with AprilTag corner refinement by default (``infer``); undistortion with the fr
 CameraInfo and each pose solved (``postprocess``). Latency covers all three. Families: the
 AprilTag ones (``tag36h11``, ``tag25h9``, ``tag16h5``, ``tag36h10``) and OpenCV's ArUco
 dictionaries as ``aruco_4x4_50`` ... ``aruco_original``. ``decimation`` is
-``aprilTagQuadDecimate`` (used by the AprilTag refinement). OpenCV's threads follow
-``--threads``.
+``aprilTagQuadDecimate``, used by the AprilTag refinement (default 1, none, as OpenCV's).
+OpenCV's threads follow ``--threads``.
 """
 
 from __future__ import annotations
@@ -48,9 +48,9 @@ _REFINE = {
 
 
 #: Where a refinement puts pixel centres, subtracted to reach CameraInfo's convention (centres
-#: at integers). Measured on the tag fixtures (mean corner offset from the truth, x and y):
-#: apriltag +0.34 / +0.38 px before the shift, -0.16 / -0.12 px after it (AprilTag 3 itself: +0.48 /
-#: +0.51 before, -0.02 / +0.01 after): the shift of the AprilTag quad code it uses.
+#: at integers): the AprilTag quad code's half pixel. Measured on the tag fixtures (mean corner
+#: offset from the truth in x / y, after the shift): -0.06 / -0.05 px (AprilTag 3 itself:
+#: -0.00 / +0.02).
 PIXEL_CENTRE_SHIFT: dict[str, float] = {'apriltag': 0.5}
 
 
@@ -69,6 +69,7 @@ class ArucoBackend:
             config=self.options.config,
             families=ARUCO_FAMILIES,
             refinements=tuple(_REFINE),
+            decimation=1.0,
         )
         self._detector: Any = None
         self._shift = 0.0
@@ -90,7 +91,10 @@ class ArucoBackend:
         )
         params = cv2.aruco.DetectorParameters()
         params.cornerRefinementMethod = getattr(cv2.aruco, _REFINE[self.tags.refine])
-        params.aprilTagQuadDecimate = float(self.tags.decimation)
+        # OpenCV's default, 0, is no decimation, as 1 is
+        params.aprilTagQuadDecimate = (
+            float(self.tags.decimation) if self.tags.decimation > 1 else 0.0
+        )
         self._detector = cv2.aruco.ArucoDetector(dictionary, params)
         self._shift = PIXEL_CENTRE_SHIFT.get(self.tags.refine, 0.0)
 

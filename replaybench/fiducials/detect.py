@@ -102,9 +102,11 @@ def tag_options(
     config: Any = None,
     families: Iterable[str] = (),
     refinements: Iterable[str] = ('apriltag',),
+    decimation: float = 2.0,
 ) -> TagOptions:
     """TagOptions from a ``--config`` TOML file and ``extra`` (which wins), checked; a
-    ``BackendError`` naming the backend and the key for a value that does not fit."""
+    ``BackendError`` naming the backend and the key for a value that does not fit.
+    ``decimation``: the library's own default (AprilTag 3: 2; OpenCV's ArUco: 1, none)."""
     given = _from_toml(config, backend) if config is not None else {}
     given.update(extra)
     unknown = sorted(set(given) - set(TAG_OPTION_KEYS))
@@ -121,7 +123,8 @@ def tag_options(
     except ReplaybenchError as err:
         msg = f'{backend}: {err}'
         raise BackendError(msg) from None
-    decimation = _number(backend, 'decimation', given.get('decimation', '2'))
+    default_decimation = decimation
+    decimation = _number(backend, 'decimation', given.get('decimation', str(default_decimation)))
     if not decimation >= 1:
         msg = f'{backend}: decimation must be >= 1, got {given["decimation"]!r}'
         raise BackendError(msg)

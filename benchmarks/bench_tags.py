@@ -123,15 +123,21 @@ def run(ctx: Context) -> ItemResult:
 
     frames = 8 if ctx.settings.quick else 60
     bag = write_tag_mcap(ctx.tmp / 'tags.mcap', frames)
+    from replaybench.backends.apriltag import release_detector
+
     bare = _Bare(bag)
     replays = _Replays(ctx, bag)
-    bare_m, replay_m = interleaved(
-        [
-            Sampler('bare detect + undistort + solvePnP', 'ms/frame', bare.sample, frames),
-            Sampler('apriltag replay', 'ms/frame', replays.sample, frames),
-        ],
-        ctx.settings.repeats,
-    )
+    try:
+        bare_m, replay_m = interleaved(
+            [
+                Sampler('bare detect + undistort + solvePnP', 'ms/frame', bare.sample, frames),
+                Sampler('apriltag replay', 'ms/frame', replays.sample, frames),
+            ],
+            ctx.settings.repeats,
+        )
+    finally:
+        # pupil-apriltags' own __del__ frees in an order that corrupts the heap
+        release_detector(bare.detector)
     checks: list[Check] = [
         ratio(ITEM, 'apriltag replay vs bare library loop', replay_m, bare_m, TARGET, op='<=')
     ]

@@ -241,15 +241,21 @@ def run(
     # the tag backends (apriltag, aruco): docs/fiducials.md
     tag_family: Annotated[
         str | None,
-        typer.Option('--tag-family', help='Tag family: tag36h11 (default), tag25h9, ...'),
+        typer.Option(
+            '--tag-family', metavar='FAMILY', help='Tag family: tag36h11 (default), tag25h9, ...'
+        ),
     ] = None,
     tag_size: Annotated[
         float | None,
-        typer.Option('--tag-size', help='Tag edge length in metres for every tag (0.22).'),
+        typer.Option(
+            '--tag-size', metavar='M', help='Tag edge length in metres for every tag (0.22).'
+        ),
     ] = None,
     tag_sizes: Annotated[
         str | None,
-        typer.Option('--tag-sizes', help='Edge lengths per tag id, e.g. 14=0.2,3=0.1.'),
+        typer.Option(
+            '--tag-sizes', metavar='ID=M,...', help='Edge lengths per tag id, e.g. 14=0.2,3=0.1.'
+        ),
     ] = None,
     tag_decimation: Annotated[
         float | None,

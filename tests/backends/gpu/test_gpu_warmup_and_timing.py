@@ -201,7 +201,9 @@ def test_a_stage_clock_records_each_boundary_before_it_synchronises():
 
 
 def test_frames_csv_keeps_device_times_and_reads_files_written_before_them(tmp_path):
-    times = dict(zip(DEVICE_COLUMNS, (0.5, 1.25, 0.125, 0.0625, 0.0375), strict=True))
+    times: dict[str, Any] = dict(
+        zip(DEVICE_COLUMNS, (0.5, 1.25, 0.125, 0.0625, 0.0375), strict=True)
+    )
     record = FrameRecord(
         0, 'cuda', '/cam', 1, 10, 10, 'ok', '', False, False, 0.5, 0.5, 0.51, 0.0, 1.0,
         0.75, 1.5, 0.25, 0.1, 0.05, 3.0, 2, *times.values(),

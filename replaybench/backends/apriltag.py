@@ -121,7 +121,7 @@ class AprilTagBackend:
         self.close()
 
     def close(self) -> None:
-        detector, self._detector = self._detector, None
+        detector, self._detector = getattr(self, '_detector', None), None
         if detector is not None:
             release_detector(detector)
 

@@ -121,8 +121,9 @@ def run(ctx: Context) -> ItemResult:
         return ItemResult(ITEM, title, [], [], [], skipped='pupil-apriltags not installed')
     from replaybench.fixtures.tags import write_tag_mcap
 
-    frames = 8 if ctx.settings.quick else 60
-    bag = write_tag_mcap(ctx.tmp / 'tags.mcap', frames)
+    frames = 4 if ctx.settings.quick else 60
+    size = (320, 240) if ctx.settings.quick else (640, 480)  # quick: only that it runs
+    bag = write_tag_mcap(ctx.tmp / 'tags.mcap', frames, size)
     from replaybench.backends.apriltag import release_detector
 
     bare = _Bare(bag)
@@ -143,8 +144,8 @@ def run(ctx: Context) -> ItemResult:
     ]
     notes = [
         (
-            f'{frames} frames of 640x480 mono8 (three tags a frame) per pass; one AprilTag '
-            'thread, decimation 2, on both sides.'
+            f'{frames} frames of {size[0]}x{size[1]} mono8 (three tags a frame) per pass; '
+            'one AprilTag thread, decimation 2, on both sides.'
         ),
         (
             'replay ms/frame = (done time of the last frame - done time of the first) / '

@@ -158,7 +158,9 @@ def run_config(
     of the same name in snake_case (``--max-frames`` is ``max_frames``, ``--topic`` is
     ``topics``, ``--format`` is ``detections_format``, ``--no-report`` is ``report=False``,
     ``--no-hash`` is ``hash_inputs=False``).
-    ``rate`` is a ``--rate`` text or a number of Hz; ``out`` None runs in memory. Raises
+    ``rate`` is a ``--rate`` text or a number of Hz; ``out`` None runs in memory;
+    ``tag_options`` holds the tag options (``--tag-family``, ``--tag-size``, ``--tag-sizes``,
+    ``--tag-decimation``, ``--max-tags``) by their keys (docs/fiducials.md). Raises
     ``UsageError`` naming the option for a value out of range."""
     from replaybench.replay.rate import Rate, parse_rate
 

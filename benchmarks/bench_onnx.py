@@ -300,7 +300,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     import dataclasses
 
     from benchmarks.core import fix_threads
-    from replaybench.results.runfile import environment, write_json_atomic
+    from replaybench.results.atomic import write_json_atomic
+    from replaybench.results.machine import environment
 
     args = _parse(argv)
     settings = Settings.tiny() if args.quick else Settings.full()

@@ -254,7 +254,8 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
 
     from benchmarks.core import Context, Settings, pin_thread_env
-    from replaybench.results.runfile import environment, write_json_atomic
+    from replaybench.results.atomic import write_json_atomic
+    from replaybench.results.machine import environment
 
     parser = argparse.ArgumentParser(prog='python -m benchmarks.bench_sweep')
     parser.add_argument('--quick', action='store_true', help='tiny bags (smoke test)')

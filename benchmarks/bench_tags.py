@@ -161,7 +161,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     import dataclasses
 
     from benchmarks.core import fix_threads
-    from replaybench.results.runfile import environment, write_json_atomic
+    from replaybench.results.atomic import write_json_atomic
+    from replaybench.results.machine import environment
 
     parser = argparse.ArgumentParser(prog='python -m benchmarks.bench_tags')
     parser.add_argument('--quick', action='store_true', help='few frames, two rounds')

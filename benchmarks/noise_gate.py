@@ -263,7 +263,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the experiment; returns the exit status."""
     from benchmarks.core import fix_threads
     from replaybench.backends.busywait import spin_options
-    from replaybench.results.runfile import environment, write_json_atomic
+    from replaybench.results.atomic import write_json_atomic
+    from replaybench.results.machine import environment
 
     args = _parse(argv)
     threads = fix_threads()

@@ -163,7 +163,7 @@ def _document(
     started: dt.datetime,
     wall_s: float,
 ) -> dict[str, Any]:
-    from replaybench.results.runfile import environment
+    from replaybench.results.machine import environment
 
     checks = [c for r in results for c in r['checks']]
     return {
@@ -284,7 +284,7 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line entry point; returns the exit status."""
-    from replaybench.results.runfile import write_json_atomic
+    from replaybench.results.atomic import write_json_atomic
 
     args = _parse(argv)
     settings = Settings.tiny() if args.quick else Settings.full()

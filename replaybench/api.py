@@ -15,8 +15,11 @@ nothing.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ParamSpec, TypeVar
+
+from replaybench._environ import kept_environ
 
 if TYPE_CHECKING:
     import os
@@ -29,7 +32,23 @@ if TYPE_CHECKING:
 
 __all__ = ['compare', 'load_run', 'peak', 'run', 'sweep']
 
+_P = ParamSpec('_P')
+_R = TypeVar('_R')
 
+
+def _keeps_environ(call: Callable[_P, _R]) -> Callable[_P, _R]:
+    """``call`` leaves ``os.environ`` as it found it (``kept_environ``): what the libraries it
+    loads set there is undone when it returns."""
+
+    @functools.wraps(call)
+    def kept(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        with kept_environ():
+            return call(*args, **kwargs)
+
+    return kept
+
+
+@_keeps_environ
 def run(
     input: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     *,
@@ -59,9 +78,6 @@ def run(
     nothing.
     """
     from replaybench.app.run import run_benchmark, run_config
-    from replaybench.results.io import from_json, to_json
-    from replaybench.results.model import RunResult
-    from replaybench.results.records import as_written
 
     config = run_config(
         input,
@@ -72,26 +88,25 @@ def run(
         threads=threads,
         **options,
     )
-    outcome = run_benchmark(config, progress=progress, stop=stop)
-    if outcome.run_dir is not None:
-        return load_run(outcome.run_dir)
-    # in memory: what the files would hold (JSON values, times rounded as in frames.csv)
-    result = from_json(RunResult, to_json(outcome.run), where='run')
-    return dataclasses.replace(result, frame_records=tuple(as_written(r) for r in outcome.records))
+    # built as the files hold it (JSON values, times rounded as in frames.csv), whether or not
+    # they were written: rb.load_run(out) equals it
+    return run_benchmark(config, progress=progress, stop=stop).run
 
 
+@_keeps_environ
 def load_run(path: str | os.PathLike[str]) -> RunResult:
     """A run folder read back: run.json as a ``RunResult`` with its frames.csv (``frames``).
 
     ``rb.load_run(folder)`` equals the ``RunResult`` that ``rb.run(..., out=folder)`` returned,
     DataFrames included. Raises ``SourceError`` when the folder is not a readable run.
     """
-    from replaybench.results.runfile import load_run as read_folder
+    from replaybench.results.folder import load_run as read_folder
 
     data = read_folder(Path(path))
     return dataclasses.replace(data.run, frame_records=tuple(data.frames))
 
 
+@_keeps_environ
 def compare(
     *runs: RunResult | str | os.PathLike[str],
     fail_if: str | Sequence[str] = (),
@@ -114,9 +129,9 @@ def compare(
     from replaybench.app.compare import compare_config, run_compare
     from replaybench.comparison.output import CSV_COLUMNS, comparison_json, csv_rows
     from replaybench.errors import UsageError
+    from replaybench.results.folder import RunData
     from replaybench.results.io import from_json
     from replaybench.results.model import Comparison, RunResult
-    from replaybench.results.runfile import RunData
 
     items: list[str | Path | RunData] = []
     for index, item in enumerate(runs):
@@ -152,6 +167,7 @@ def compare(
     )
 
 
+@_keeps_environ
 def peak(
     input: str | os.PathLike[str],
     *,
@@ -181,8 +197,6 @@ def peak(
     contents) with ``peak_hz`` and ``trials``, a pandas DataFrame (``rate_hz``, ``ok``, ...).
     """
     from replaybench.app.peak import peak_config, run_peak
-    from replaybench.results.io import from_json, to_json
-    from replaybench.results.model import PeakResult
 
     settings = peak_config(
         input,
@@ -202,10 +216,10 @@ def peak(
     )
     record = run_peak(settings, progress=progress, stop=stop).record
     assert record is not None  # the search always sets it
-    # what peak.json holds (JSON values), whether or not it was written
-    return from_json(PeakResult, to_json(record), where='peak')
+    return record
 
 
+@_keeps_environ
 def sweep(
     inputs: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     *,

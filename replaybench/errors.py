@@ -18,6 +18,7 @@ __all__ = [
     'RunAborted',
     'SourceError',
     'UsageError',
+    'one_line',
 ]
 
 
@@ -75,3 +76,9 @@ class RunAborted(BaseException):
     Not a ``ReplaybenchError`` (nor an ``Exception``): like ``KeyboardInterrupt`` it is a
     request to stop, not a failure, and no ``except Exception`` should swallow it.
     """
+
+
+def one_line(err: BaseException) -> str:
+    """``err`` as one line, ``TypeName: first line of its message``: how a plugin's own
+    exception is named in an error, a warning or run.json."""
+    return f'{type(err).__name__}: {err}'.splitlines()[0]

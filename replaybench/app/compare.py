@@ -21,7 +21,7 @@ from replaybench.comparison.output import write_comparison
 from replaybench.comparison.verdict import EXIT_STATUS
 from replaybench.errors import ReplaybenchError, UsageError
 from replaybench.results.bootstrap import DEFAULT_RESAMPLES
-from replaybench.results.runfile import RunData
+from replaybench.results.folder import RunData
 
 if TYPE_CHECKING:
     import os

@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
     from replaybench.backends.base import BackendOptions
+    from replaybench.results.model import PeakResult as PeakRecord
 
 __all__ = [
     'CONFIRM_TRIALS',
@@ -52,10 +53,12 @@ __all__ = [
 ]
 
 
-def _render(out_dir: Path) -> None:
-    from replaybench.report import render_peak_report
+def _render(out_dir: Path, record: PeakRecord) -> None:
+    """peak.html beside peak.json, from the record peak.json was written from."""
+    from replaybench.report import render_peak_html
+    from replaybench.results.atomic import write_text_atomic
 
-    render_peak_report(out_dir)
+    write_text_atomic(out_dir / 'peak.html', render_peak_html(record))
 
 
 def find_peak_rate(

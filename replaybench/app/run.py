@@ -240,12 +240,12 @@ class ReportRenderer:
         return paths
 
     def report(self, out: Path, run: RunResult) -> None:
-        """report.html from ``run`` (run.json to be) and the frames.csv in ``out``."""
+        """report.html from ``run`` (run.json to be) and its frames (frames.csv's rows)."""
         from replaybench.report import render_html
-        from replaybench.results.records import read_frames_csv
-        from replaybench.results.runfile import RunData, write_text_atomic
+        from replaybench.results.atomic import write_text_atomic
+        from replaybench.results.folder import RunData
 
-        data = RunData(run=run, frames=read_frames_csv(out / 'frames.csv'), dir=out)
+        data = RunData(run=run, frames=list(run.frame_records or ()), dir=out)
         write_text_atomic(out / 'report.html', render_html(data))
 
 

@@ -1248,7 +1248,7 @@ class _Sweep:
 
     def write_outputs(self, status: str) -> dict[str, Any]:
         from replaybench.report.sweep_html import render_sweep_html
-        from replaybench.results.runfile import write_json_atomic, write_text_atomic
+        from replaybench.results.atomic import write_json_atomic, write_text_atomic
 
         record: dict[str, Any] = _clean(self.record(status))
         write_json_atomic(self.out / 'sweep.json', record)

@@ -39,9 +39,8 @@ def _print_summary(summaries: list[Summary]) -> None:
     )
     rows = []
     for s in summaries:
-        acc = s.accuracy or {}
         # private (anonymous) memory, not the RSS that counts the memory-mapped input
-        private = (s.resources or {}).get('private_mb_peak')
+        private = s.private_mb_peak
         rows.append(
             (
                 visible(s.backend),
@@ -53,9 +52,9 @@ def _print_summary(summaries: list[Summary]) -> None:
                 fmt(s.latency_ms_p50),
                 fmt(s.latency_ms_p99),
                 fmt(s.detections_per_frame),
-                fmt(acc.get('precision50'), 3),
-                fmt(acc.get('recall50'), 3),
-                fmt(acc.get('map50'), 3),
+                fmt(s.precision50, 3),
+                fmt(s.recall50, 3),
+                fmt(s.map50, 3),
                 fmt(private, 0),
             )
         )

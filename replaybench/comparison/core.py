@@ -18,9 +18,9 @@ from replaybench.results.bootstrap import (
     percentile_interval,
     replicates,
 )
+from replaybench.results.columns import TAG_SUMMARY_COLUMNS
 from replaybench.results.intervals import interval_rng, measured_series
 from replaybench.results.stats import summarize
-from replaybench.results.tags import TAG_SUMMARY_COLUMNS
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -30,9 +30,9 @@ if TYPE_CHECKING:
 
     from replaybench.comparison.runs import RunInfo
     from replaybench.results.blocks import ChangeInterval
+    from replaybench.results.folder import RunData
     from replaybench.results.model import RunResult
     from replaybench.results.records import FrameRecord
-    from replaybench.results.runfile import RunData
     from replaybench.results.stats import Summary
 
 __all__ = [

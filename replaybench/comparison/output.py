@@ -12,13 +12,13 @@ from replaybench.comparison.core import ACCURACY_METRICS, TAG_METRICS, TIMING_ME
 from replaybench.comparison.gate import gate_verdict, method_text
 from replaybench.comparison.runs import CV_LIMIT, engine_text
 from replaybench.comparison.verdict import EXIT_STATUS
+from replaybench.results.atomic import write_text_atomic
 from replaybench.results.blocks import BLOCK_FRAMES, MAX_BLOCKS, MIN_BLOCKS
 from replaybench.results.bootstrap import MIN_FRAMES
 from replaybench.results.io import from_document, write_comparison_result
 from replaybench.results.model import COMPARISON_SCHEMA_VERSION
 from replaybench.results.model import Comparison as ComparisonResult
 from replaybench.results.records import csv_writer
-from replaybench.results.runfile import write_text_atomic
 from replaybench.textsafe import csv_text
 
 if TYPE_CHECKING:

@@ -8,8 +8,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from replaybench.results.folder import RunData, load_run
 from replaybench.results.intervals import CV_LIMIT
-from replaybench.results.runfile import RunData, load_run
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

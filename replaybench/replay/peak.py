@@ -19,25 +19,21 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple, ParamSpec, cast
 
-import numpy as np
-
 from replaybench._version import __version__
 from replaybench.errors import OutputError, SourceError, UsageError
 from replaybench.replay.rate import Rate
 from replaybench.replay.runner import RunConfig, default_warmup, run_benchmark
-from replaybench.results.io import from_document, write_peak_result
+from replaybench.replay.trials import Trial, peak_rule, trial_row, trial_verdict
+from replaybench.results.io import write_peak_result
+from replaybench.results.machine import describe_machine
 from replaybench.results.model import (
     PEAK_SCHEMA_VERSION,
-    Environment,
     InputInfo,
     PeakSettings,
     PeakStart,
-    PeakTrial,
     Tool,
 )
 from replaybench.results.model import PeakResult as PeakRecord
-from replaybench.results.records import as_written, read_frames_csv
-from replaybench.results.runfile import environment
 from replaybench.results.runfolder import RunFolder
 
 if TYPE_CHECKING:
@@ -47,7 +43,6 @@ if TYPE_CHECKING:
     from replaybench.backends.base import Backend, BackendOptions
     from replaybench.replay.clock import Clock
     from replaybench.replay.runner import RunOutcome
-    from replaybench.results.records import FrameRecord
 
 __all__ = [
     'CONFIRM_TRIALS',
@@ -76,25 +71,6 @@ MIN_TRIAL_FRAMES = 100
 _PROBE_DIR = 'trials/max'
 
 
-class Trial(NamedTuple):
-    """One fixed-rate run of the sweep.
-
-    ``frames`` and ``dropped`` count the frames released from the end of the warm-up on (see
-    ``trial_verdict``); ``p99_ms`` is over the measured frames of every topic together;
-    ``run_dir`` is the trial's run folder relative to the sweep's ``out_dir``; ``attempt`` is
-    1 for the first trial at a rate, 2 and up for the trials that confirm it.
-    """
-
-    rate_hz: float
-    frames: int
-    dropped: int
-    drop_fraction: float
-    p99_ms: float | None
-    ok: bool
-    run_dir: str
-    attempt: int = 1
-
-
 class PeakResult(NamedTuple):
     """The peak (``peak_rule``; None when no rate qualifies) and every trial, in run order.
 
@@ -112,35 +88,6 @@ class PeakResult(NamedTuple):
     warnings: tuple[str, ...] = ()
     #: peak.json's contents (written into the peak folder unless the search ran in memory)
     record: PeakRecord | None = None
-
-
-def trial_verdict(
-    records: Sequence[FrameRecord], *, max_drop: float, p99_bound_ms: float | None
-) -> tuple[int, int, float | None, bool]:
-    """``(frames, dropped, p99_ms, ok)`` of one trial's frames.csv rows.
-
-    Per topic, frames released before the first measured (non-warm-up) frame are left out: a
-    backend's first calls (model loading, allocation, JIT) would otherwise count as drops. A
-    trial is ok when it measured at least one frame, ``dropped / frames <= max_drop`` and, with
-    a bound, the p99 latency of the measured frames is at most ``p99_bound_ms``.
-    """
-    by_topic: dict[str, list[FrameRecord]] = {}
-    for record in records:
-        by_topic.setdefault(record.topic, []).append(record)
-    frames = dropped = 0
-    latencies: list[float] = []
-    for rows in by_topic.values():
-        measured = [r for r in rows if r.status == 'ok' and not r.warmup]
-        latencies += [r.latency_ms for r in measured if r.latency_ms is not None]
-        start = min((r.release_s for r in measured), default=None)
-        counted = rows if start is None else [r for r in rows if r.release_s >= start]
-        frames += len(counted)
-        dropped += sum(1 for r in counted if r.status == 'dropped')
-    p99 = float(np.percentile(latencies, 99, method='linear')) if latencies else None
-    ok = bool(latencies) and frames > 0 and dropped / frames <= max_drop
-    if ok and p99_bound_ms is not None:
-        ok = p99 is not None and p99 <= p99_bound_ms
-    return frames, dropped, p99, ok
 
 
 class _BagFacts(NamedTuple):
@@ -310,10 +257,8 @@ class _Sweep:
         attempt = len(done) + 1
         rel = f'trials/{hz:.3f}hz' if attempt == 1 else f'trials/{hz:.3f}hz-{attempt}'
         outcome = self.run(Rate('fixed', hz=hz), rel)
-        if outcome.run_dir is not None:
-            records = read_frames_csv(outcome.run_dir / 'frames.csv')
-        else:  # in memory: the rows as frames.csv would hold them
-            records = [as_written(r) for r in outcome.records]
+        # the rows as frames.csv holds them, whether or not it was written
+        records = list(outcome.run.frame_records or ())
         frames, dropped, p99, ok = trial_verdict(
             records, max_drop=self.max_drop, p99_bound_ms=self.p99_bound_ms
         )
@@ -394,30 +339,6 @@ def _search(
             state.failing = mid
 
 
-def peak_rule(trials: Sequence[Trial], confirm_trials: int) -> tuple[float | None, bool]:
-    """The peak the trials support, and whether it is confirmed.
-
-    The peak is the highest rate that passed every one of its trials and lies below every rate
-    that failed a trial; it is confirmed when it passed at least ``confirm_trials`` trials.
-    ``(None, False)`` when no rate qualifies.
-    """
-    failed = [t.rate_hz for t in trials if not t.ok]
-    lowest_failed = min(failed, default=None)
-    passed: dict[float, int] = {}
-    for t in trials:
-        if t.ok:
-            passed[t.rate_hz] = passed.get(t.rate_hz, 0) + 1
-    candidates = [
-        rate
-        for rate in passed
-        if rate not in failed and (lowest_failed is None or rate < lowest_failed)
-    ]
-    if not candidates:
-        return None, False
-    best = max(candidates)
-    return best, passed[best] >= confirm_trials
-
-
 def _confirm(sweep: _Sweep, state: _State, *, confirm_trials: int, min_hz: float) -> None:
     """Trials until ``peak_rule`` gives a confirmed peak or none: the candidate is tried again
     until it has passed ``confirm_trials`` trials; when one fails, that rate is failing and the
@@ -486,7 +407,7 @@ def find_peak_rate(
     command: Sequence[str] = (),
     progress: Callable[[Trial], None] | None = None,
     stop: threading.Event | None = None,
-    render_report: Callable[[Path], object] | None = None,
+    render_report: Callable[[Path, PeakRecord], object] | None = None,
 ) -> PeakResult:
     """Find the highest fixed rate at which ``backend`` keeps up with ``bag``; write peak.json.
 
@@ -498,7 +419,8 @@ def find_peak_rate(
     and lies below every rate that failed one; a failed confirmation moves it down). The
     rate applies to each selected topic. ``out_dir`` gets peak.json, peak.html (``report``) and
     ``trials/``: the probe's run folder (``trials/max``) and one per tested rate; peak.html is
-    drawn by ``render_report(folder)`` (the application's, ``replaybench.app.peak``).
+    drawn by ``render_report(folder, record)`` from the record it was written from (the
+    application's, ``replaybench.app.peak``).
     ``out_dir`` None: every trial runs in memory and nothing is written. Setting
     ``stop`` (a cancellation token) ends the trial under way and the search (status
     ``interrupted``).
@@ -617,11 +539,11 @@ def find_peak_rate(
         resolution_hz=failing - best if best is not None and failing is not None else None,
         limit_reached=limit_reached,
         warnings=tuple(warnings),
-        trial_rows=tuple(from_document(PeakTrial, t._asdict()) for t in sweep.trials),
-        environment=from_document(Environment, environment()),
+        trial_rows=tuple(trial_row(t) for t in sweep.trials),
+        environment=describe_machine(),
     )
     if out_dir is not None:
         write_peak_result(out_dir / 'peak.json', record)
         if report and render_report is not None:
-            render_report(out_dir)
+            render_report(out_dir, record)
     return result._replace(record=record)

@@ -14,6 +14,15 @@ reports a device; they describe the whole device (every process on it), not only
 device is matched to the CUDA device the backend uses by UUID / PCI bus id (see ``_Nvml``).
 Without NVML the GPU fields are None.
 
+GPU memory per backend: the runner starts one sampler at the start of each backend's pass, when
+every backend of the run is open already (models, sessions, engines loaded) and the backends
+before it are closed. ``gpu_mem_mb_peak`` is the highest device memory used during the pass, so
+it also counts the other open backends and every other process; ``gpu_mem_mb_start`` is the
+device memory used at the first sample (the start of the pass) and ``gpu_mem_mb_pass_peak`` the
+peak above it: what the backend's frames added on top of what was resident when its pass began
+(buffers, allocator growth, workspaces), not the memory its ``open()`` took before the pass
+(``GPU_MEM_BASIS``, recorded in the summary as ``gpu_mem_basis``).
+
 Throttling: each sample also reads the current frequency of the CPUs this process may run on
 (``/sys/devices/system/cpu/cpu*/cpufreq/scaling_cur_freq``, the highest of them, in MHz) and,
 with NVML, the GPU's clock event (throttle) reasons. The kernel's thermal throttle counters
@@ -49,6 +58,7 @@ __all__ = [
     'BUSY_CPU_PERCENT',
     'DEFAULT_INTERVAL_S',
     'DEFAULT_MAX_SAMPLES',
+    'GPU_MEM_BASIS',
     'GPU_THROTTLE_REASONS',
     'ResourceSampler',
 ]
@@ -63,6 +73,12 @@ SYS_CPU = Path('/sys/devices/system/cpu')
 #: at least this much CPU (percent of one core) over the interval before it: an idle CPU's
 #: frequency falls by design and says nothing about throttling.
 BUSY_CPU_PERCENT = 50.0
+#: What ``gpu_mem_mb_pass_peak`` is, as the summary records it (``gpu_mem_basis``).
+GPU_MEM_BASIS = (
+    'NVML memory used on the whole device; gpu_mem_mb_pass_peak = gpu_mem_mb_peak - '
+    "gpu_mem_mb_start, the device's memory at the start of this backend's pass (every backend "
+    'of the run already open, those before it closed)'
+)
 #: NVML clock event reason bits that mean the GPU's clocks were held down (power cap, thermal or
 #: hardware slowdown); idle, application clock settings, sync boost and display clocks are not.
 GPU_THROTTLE_REASONS: dict[int, str] = {
@@ -412,6 +428,7 @@ class ResourceSampler:
         self._gpu_util_sum = 0.0
         self._gpu_util_n = 0
         self._gpu_mem_peak: float | None = None
+        self._gpu_mem_start: float | None = None
         self._gpu_power_sum = 0.0
         self._gpu_power_n = 0
         self._cost_s = 0.0
@@ -525,6 +542,8 @@ class ResourceSampler:
                 self._gpu_mem_peak = (
                     mem if self._gpu_mem_peak is None else max(self._gpu_mem_peak, mem)
                 )
+                if self._gpu_mem_start is None:  # the first reading: the start of the pass
+                    self._gpu_mem_start = mem
             if power is not None:
                 self._gpu_power_sum += power
                 self._gpu_power_n += 1
@@ -561,6 +580,11 @@ class ResourceSampler:
                 if self._gpu_util_n
                 else None,
                 'gpu_mem_mb_peak': self._gpu_mem_peak,
+                'gpu_mem_mb_start': self._gpu_mem_start,
+                'gpu_mem_mb_pass_peak': None
+                if self._gpu_mem_peak is None or self._gpu_mem_start is None
+                else self._gpu_mem_peak - self._gpu_mem_start,
+                'gpu_mem_basis': GPU_MEM_BASIS if self._gpu_mem_start is not None else None,
                 'gpu_power_w_mean': self._gpu_power_sum / self._gpu_power_n
                 if self._gpu_power_n
                 else None,

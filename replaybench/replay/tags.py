@@ -1,14 +1,15 @@
-"""The tag task beside the replay: ground truth read from the inputs, each tag backend's tags
-written into detections.mcap and scored per frame, and the tag accuracy of each summary.
+"""The tag task in the engine: tag ground truth read from an input, and each tag backend's tags
+written into detections.mcap and scored per frame.
 
-The engine calls it from three places (``_execute``, ``_Pass.record_processed``,
-``_summaries``) after a frame's timing is taken: nothing here runs inside a timed region.
-Backends that return no ``TagResult`` pass through untouched (their tag columns stay empty).
+``read_tag_truth`` runs when an input opens (``replaybench.replay.inputs.open_input``);
+``TagScores`` is kept by the ``Recorder`` (``Recorder.task_outputs`` calls ``frame`` after the
+pass, outside any timed region) and gives each (backend, topic) its ``TagAccuracy``
+(``replaybench.replay.record.summaries``). Backends that return no ``TagResult`` pass through
+untouched (their tag columns stay empty).
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import DecodeError
@@ -18,92 +19,83 @@ from replaybench.results.tags import score_frame, tag_accuracy
 from replaybench.sinks.tags import write_tags
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
-
     from replaybench.fiducials.types import TagDetection
-    from replaybench.results.stats import Summary
+    from replaybench.results.model import TagAccuracy
     from replaybench.results.tags import FrameTagScore
     from replaybench.sources import Source
     from replaybench.types import BackendResult
 
-__all__ = ['TAG_GROUND_TRUTH_TOPIC', 'TagRun']
+__all__ = ['TAG_GROUND_TRUTH_TOPIC', 'TagScores', 'TagTable', 'read_tag_truth']
 
 #: Where tag ground truth is read from (AprilTagDetectionArray, keyed by frame_id and stamp).
 TAG_GROUND_TRUTH_TOPIC = '/ground_truth/tags'
 
+#: Truth tags by (frame_id, stamp_ns), as the ground-truth topic holds them
+TagTable = dict[tuple[str, int], tuple['TagDetection', ...]]
 
-class TagRun:
-    """The tag task's state over one run."""
 
-    def __init__(self, truth_topic: str = TAG_GROUND_TRUTH_TOPIC) -> None:
-        self.truth_topic = truth_topic
-        # (input, frame_id, stamp) -> truth tags
-        self.truth: dict[tuple[int, str, int], tuple[TagDetection, ...]] = {}
-        self.truth_frames: dict[int, int] = {}
+def read_tag_truth(source: Source, notes: list[str]) -> TagTable:
+    """The input's tag ground truth (empty without the topic); ``notes`` gets one line when
+    some of its messages are not a readable AprilTagDetectionArray (they are left out)."""
+    topic = TAG_GROUND_TRUTH_TOPIC
+    if not any(t.name == topic for t in source.topics()):
+        return {}
+    truth: TagTable = {}
+    bad = 0
+    for raw in source.messages(topics=[topic]):
+        if raw.msgtype != APRILTAG_DETECTION_ARRAY:
+            bad += 1
+            continue
+        try:
+            found = decode_tag_array(raw)
+        except DecodeError:
+            bad += 1
+            continue
+        truth[(found.frame_id, found.stamp_ns)] = found.tags
+    if bad:
+        notes.append(
+            f'{topic}: {bad} message(s) are not a readable AprilTagDetectionArray; left out'
+        )
+    return truth
+
+
+class TagScores:
+    """The tag task's state over one run: each (backend label, topic)'s frame scores."""
+
+    def __init__(self) -> None:
         # (backend label, topic) -> scores of its frames with truth, in replay order
         self.scores: dict[tuple[str, str], list[FrameTagScore]] = {}
         self.notes: dict[tuple[str, str], str] = {}
-        self.bad_truth = 0
-
-    def read_truth(self, number: int, source: Source) -> None:
-        """The input's tag ground truth, if it has the topic."""
-        if not any(t.name == self.truth_topic for t in source.topics()):
-            return
-        count = 0
-        for raw in source.messages(topics=[self.truth_topic]):
-            if raw.msgtype != APRILTAG_DETECTION_ARRAY:
-                self.bad_truth += 1
-                continue
-            try:
-                found = decode_tag_array(raw)
-            except DecodeError:
-                self.bad_truth += 1
-                continue
-            self.truth[(number, found.frame_id, found.stamp_ns)] = found.tags
-            count += 1
-        self.truth_frames[number] = count
 
     def frame(
         self,
         label: str,
-        number: int,
         topic: str,
         log_time_ns: int,
         stamp_ns: int,
         frame_id: str,
         result: BackendResult,
-        writer: Any,
+        truth: tuple[TagDetection, ...] | None,
+        writer: object,
     ) -> dict[str, Any]:
-        """One processed frame: its tags written and scored; its frames.csv tag columns."""
+        """One processed frame: its tags written and, against ``truth`` (None: the frame has
+        none), scored; its frames.csv tag columns (none for a backend that finds no tags)."""
         if not isinstance(result, TagResult):
             return {}
         if result.note and (label, topic) not in self.notes:
             self.notes[(label, topic)] = f'{label}: {result.note}'
         write_tags(writer, label, topic, log_time_ns, stamp_ns, frame_id, result)
-        truth = self.truth.get((number, frame_id, stamp_ns))
         if truth is None:
             return {'tags': len(result.tags)}
         score = score_frame(result.tags, truth)
         self.scores.setdefault((label, topic), []).append(score)
         return score.columns()
 
-    def summaries(self, summaries: Sequence[Summary]) -> list[Summary]:
-        """Each summary with its tag accuracy (``tag_accuracy``), where it was scored."""
-        out = []
-        for s in summaries:
-            scores = self.scores.get((s.backend, s.topic))
-            if scores:
-                out.append(replace(s, tag_accuracy=tag_accuracy(scores).document()))
-            else:
-                out.append(s)
-        return out
+    def accuracy(self, backend: str, topic: str) -> TagAccuracy | None:
+        """The tag accuracy of a (backend label, topic), None where no frame was scored."""
+        scores = self.scores.get((backend, topic))
+        return tag_accuracy(scores) if scores else None
 
     def warnings(self) -> list[str]:
-        """One line per (backend, topic) whose tags got no pose, and for bad truth."""
-        lines = list(self.notes.values())
-        if self.bad_truth:
-            lines.append(
-                f'{self.truth_topic}: {self.bad_truth} message(s) are not a readable '
-                'AprilTagDetectionArray; left out'
-            )
-        return lines
+        """One line per (backend label, topic) whose tags got no pose."""
+        return list(self.notes.values())

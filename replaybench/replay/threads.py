@@ -17,6 +17,8 @@ from __future__ import annotations
 import contextlib
 from typing import TYPE_CHECKING
 
+from replaybench._environ import kept_environ
+
 if TYPE_CHECKING:
     from collections.abc import Iterator
 
@@ -30,8 +32,9 @@ def thread_limits(threads: int | None) -> Iterator[None]:
     if threads is None:
         yield
         return
-    import cv2
-    from threadpoolctl import threadpool_limits
+    with kept_environ():  # threadpoolctl sets KMP_DUPLICATE_LIB_OK when it loads
+        import cv2
+        from threadpoolctl import threadpool_limits
 
     before = cv2.getNumThreads()
     cv2.setNumThreads(threads)

@@ -27,16 +27,18 @@ from replaybench.report.svg import (
     step_cdf,
 )
 from replaybench.report.tags import tag_accuracy_html
+from replaybench.results.atomic import write_text_atomic
+from replaybench.results.folder import load_run
 from replaybench.results.intervals import with_intervals
-from replaybench.results.io import from_document, read_peak_result, to_json
+from replaybench.results.io import read_peak_result, to_json
 from replaybench.results.model import PEAK_SCHEMA_VERSION, ResourceSummary, SummaryRow
-from replaybench.results.runfile import load_run, write_text_atomic
-from replaybench.results.stats import summarize, summary_json
+from replaybench.results.stats import summarize
 from replaybench.textsafe import visible, visible_lines
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Mapping, Sequence
 
+    from replaybench.results.folder import RunData
     from replaybench.results.model import (
         AgreementRow,
         Environment,
@@ -45,7 +47,6 @@ if TYPE_CHECKING:
         RunResult,
     )
     from replaybench.results.records import FrameRecord
-    from replaybench.results.runfile import RunData
 
 __all__ = [
     'PEAK_SCHEMA_VERSION',
@@ -227,10 +228,7 @@ def _summary_rows(run: RunResult, frames: Sequence[FrameRecord]) -> list[Summary
     resource samples)."""
     if run.summary_rows:
         return list(run.summary_rows)
-    return [
-        from_document(SummaryRow, summary_json(s))
-        for s in with_intervals(summarize(frames), frames)
-    ]
+    return with_intervals(summarize(frames), frames)
 
 
 # --------------------------------------------------------------------------- header

@@ -5,22 +5,16 @@ The accuracy scorer lives in ``replaybench.results.accuracy`` and is imported on
 
 from __future__ import annotations
 
+from replaybench.results.atomic import write_json_atomic, write_text_atomic
+from replaybench.results.folder import RunData, load_run
+from replaybench.results.machine import environment
+from replaybench.results.model import RUN_SCHEMA_VERSION as SCHEMA_VERSION
 from replaybench.results.records import (
     FRAMES_CSV_COLUMNS,
     FrameRecord,
     FramesCsvWriter,
     FrameStatus,
     read_frames_csv,
-)
-from replaybench.results.runfile import (
-    SCHEMA_VERSION,
-    RunData,
-    environment,
-    load_run,
-    write_json_atomic,
-    write_run_json,
-    write_summary_csv,
-    write_text_atomic,
 )
 from replaybench.results.stats import (
     ACCURACY_COLUMNS,
@@ -31,6 +25,7 @@ from replaybench.results.stats import (
     summary_json,
     summary_row,
 )
+from replaybench.results.summarycsv import write_summary_csv
 
 __all__ = [
     'ACCURACY_COLUMNS',
@@ -50,7 +45,6 @@ __all__ = [
     'summary_json',
     'summary_row',
     'write_json_atomic',
-    'write_run_json',
     'write_summary_csv',
     'write_text_atomic',
 ]

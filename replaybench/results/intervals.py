@@ -245,8 +245,14 @@ def throttle_warnings(resources: Mapping[str, Any] | None) -> list[str]:
     return out
 
 
-def stability_warnings(summary: Summary, series: Series, drifted: Drift | None = None) -> list[str]:
-    """The warnings of one (backend, topic), in a fixed order (frames, CV, drift, throttling)."""
+def stability_warnings(
+    summary: Summary,
+    series: Series,
+    drifted: Drift | None = None,
+    resources: Mapping[str, Any] | None = None,
+) -> list[str]:
+    """The warnings of one (backend, topic), in a fixed order (frames, CV, drift, throttling
+    seen in its backend's ``resources``)."""
     out = []
     n = int(series.latency_ms.size)
     if n < MIN_FRAMES:
@@ -262,15 +268,20 @@ def stability_warnings(summary: Summary, series: Series, drifted: Drift | None =
             f'{drifted.first_ms:.3g} ms, {100 * (drifted.ratio - 1):+.0f} % (more than '
             f'{100 * DRIFT_LIMIT:g} %; 95 % interval of the ratio {lo:.3f} to {hi:.3f})'
         )
-    out += throttle_warnings(summary.resources)
+    out += throttle_warnings(resources)
     return out
 
 
 def with_intervals(
-    summaries: Sequence[Summary], records: Sequence[FrameRecord], *, seed: int = 0
+    summaries: Sequence[Summary],
+    records: Sequence[FrameRecord],
+    *,
+    seed: int = 0,
+    resources: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> list[Summary]:
     """``summaries`` with their intervals and warnings filled in from ``records`` (the frame
-    records they were computed from; resources, when wanted, already attached)."""
+    records they were computed from) and, for throttling, each backend's resource summary
+    (``resources``, by backend label)."""
     groups: dict[tuple[str, str], list[FrameRecord]] = {}
     for record in records:
         groups.setdefault((record.backend, record.topic), []).append(record)
@@ -294,7 +305,14 @@ def with_intervals(
                 latency_ms_p99_ci_high=p99[1] if p99 else None,
                 throughput_fps_ci_low=fps[0] if fps else None,
                 throughput_fps_ci_high=fps[1] if fps else None,
-                warnings=tuple(stability_warnings(s, series, drift(series.latency_ms))),
+                warnings=tuple(
+                    stability_warnings(
+                        s,
+                        series,
+                        drift(series.latency_ms),
+                        (resources or {}).get(s.backend),
+                    )
+                ),
             )
         )
     return out

@@ -30,6 +30,7 @@ from pathlib import Path, PurePath
 from typing import Any, TypeVar
 
 from replaybench.errors import OutputError, SourceError
+from replaybench.results.atomic import json_text, write_text_atomic
 from replaybench.results.model import (
     COMPARISON_SCHEMA_VERSION,
     PEAK_SCHEMA_VERSION,
@@ -38,7 +39,6 @@ from replaybench.results.model import (
     PeakResult,
     RunResult,
 )
-from replaybench.results.runfile import json_text, write_text_atomic
 
 __all__ = [
     'CHECK_SCHEMAS_ENV',

@@ -272,6 +272,11 @@ class ResourceSummary:
     cpu_throttle_events: int | None = None
     #: NVML clock throttle reasons seen (None: NVML gave none)
     gpu_throttle_reasons: tuple[str, ...] | None = None
+    #: device memory used at the start of the backend's pass, and the pass's peak above it
+    gpu_mem_mb_start: float | None = None
+    gpu_mem_mb_pass_peak: float | None = None
+    #: what gpu_mem_mb_pass_peak is measured against (``replay.resources.GPU_MEM_BASIS``)
+    gpu_mem_basis: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -607,7 +612,7 @@ class PeakResult:
         """The trials as a pandas DataFrame (``rate_hz``, ``ok``, ...; run order)."""
         from replaybench.results.tables import trials_table
 
-        return trials_table(self.trial_rows)
+        return trials_table(self.trial_rows, PeakTrial)
 
 
 # --------------------------------------------------------------------------- comparison.json

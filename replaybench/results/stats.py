@@ -1,22 +1,28 @@
-"""Per (backend, topic) statistics over frame records.
+"""Per (backend, topic) statistics over frame records, as summary rows (``SummaryRow``).
 
 Only measured frames (status ``ok`` and not warm-up) enter latency, jitter, throughput,
 detection and stage statistics; warm-up, dropped and skipped frames are only counted.
 
-``summarize`` leaves the 95 % intervals and the warnings empty: ``replaybench.results.intervals``
-fills them in (``with_intervals``), since they cost a bootstrap.
+``summarize`` leaves the accuracy, the resource use, the 95 % intervals and the warnings
+empty: the engine adds the first two, and ``replaybench.results.intervals`` fills in the others
+(``with_intervals``), since they cost a bootstrap.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+import dataclasses
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from replaybench.results.columns import (
+    ACCURACY_COLUMNS,
+    INTERVAL_COLUMNS,
+    RESOURCE_COLUMNS,
+    SUMMARY_CSV_COLUMNS,
+)
+from replaybench.results.model import SummaryRow
 from replaybench.results.records import written
-from replaybench.results.tags import TAG_SUMMARY_COLUMNS
-from replaybench.results.tags import summary_columns as tag_summary_columns
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -35,11 +41,12 @@ __all__ = [
     'summary_row',
 ]
 
+#: One (backend, topic) of a run: the summary row run.json and summary.csv hold; the one type
+#: the statistics, the engine, the report and the comparison pass around.
+Summary = SummaryRow
+
 #: Latency percentiles reported, computed with numpy's 'linear' method.
 PERCENTILES: tuple[int, ...] = (50, 90, 95, 99)
-
-#: Accuracy keys flattened into summary.csv columns.
-ACCURACY_COLUMNS: tuple[str, ...] = ('precision50', 'recall50', 'map50', 'map50_95')
 
 _STAGES: tuple[str, ...] = (
     'queue_wait_ms',
@@ -49,89 +56,6 @@ _STAGES: tuple[str, ...] = (
     'postprocess_ms',
     'h2d_ms',
     'd2h_ms',
-)
-
-
-@dataclass(frozen=True, slots=True)
-class Summary:
-    """Statistics of one (backend, topic); see docs/outputs.md for the definitions."""
-
-    backend: str
-    topic: str
-    frames: int
-    processed: int
-    measured: int
-    warmup: int
-    dropped: int
-    skipped: int
-    throughput_fps: float | None
-    latency_ms_mean: float | None
-    latency_ms_std: float | None
-    latency_ms_min: float | None
-    latency_ms_p50: float | None
-    latency_ms_p90: float | None
-    latency_ms_p95: float | None
-    latency_ms_p99: float | None
-    latency_ms_max: float | None
-    jitter_ms: float | None
-    detections_per_frame: float | None
-    queue_wait_ms_mean: float | None
-    read_decode_ms_mean: float | None
-    preprocess_ms_mean: float | None
-    infer_ms_mean: float | None
-    postprocess_ms_mean: float | None
-    h2d_ms_mean: float | None
-    d2h_ms_mean: float | None
-    accuracy: dict[str, Any] | None = None
-    resources: dict[str, Any] | None = None
-    # 95 % block-bootstrap intervals (None below MIN_FRAMES measured frames) and warnings,
-    # filled in by replaybench.results.intervals.with_intervals
-    latency_ms_p50_ci_low: float | None = None
-    latency_ms_p50_ci_high: float | None = None
-    latency_ms_p99_ci_low: float | None = None
-    latency_ms_p99_ci_high: float | None = None
-    throughput_fps_ci_low: float | None = None
-    throughput_fps_ci_high: float | None = None
-    warnings: tuple[str, ...] = ()
-    # tag backends against tag ground truth (replaybench.results.tags.TagAccuracy.document)
-    tag_accuracy: dict[str, Any] | None = None
-
-
-#: Interval columns of summary.csv (after the resource columns, before ``warnings``).
-INTERVAL_COLUMNS: tuple[str, ...] = (
-    'latency_ms_p50_ci_low',
-    'latency_ms_p50_ci_high',
-    'latency_ms_p99_ci_low',
-    'latency_ms_p99_ci_high',
-    'throughput_fps_ci_low',
-    'throughput_fps_ci_high',
-)
-
-_FLAT_FIELDS: tuple[str, ...] = tuple(
-    f.name
-    for f in fields(Summary)
-    if f.name not in {'accuracy', 'resources', 'warnings', 'tag_accuracy', *INTERVAL_COLUMNS}
-)
-
-#: Resource-use columns of summary.csv (from the backend's ResourceSampler summary).
-RESOURCE_COLUMNS: tuple[str, ...] = (
-    'cpu_percent_mean',
-    'private_mb_peak',
-    'mapped_mb_peak',
-    'rss_mb_peak',
-    'gpu_util_mean',
-    'gpu_mem_mb_peak',
-    'gpu_power_w_mean',
-)
-
-#: Columns of summary.csv, in order (later additions at the end, so older readers keep working).
-SUMMARY_CSV_COLUMNS: tuple[str, ...] = (
-    _FLAT_FIELDS
-    + ACCURACY_COLUMNS
-    + RESOURCE_COLUMNS
-    + INTERVAL_COLUMNS
-    + ('warnings',)
-    + TAG_SUMMARY_COLUMNS
 )
 
 
@@ -171,7 +95,7 @@ def _throughput(ordered: Sequence[FrameRecord], measured: Sequence[FrameRecord])
     return len(measured) / window
 
 
-def _summary(backend: str, topic: str, records: Sequence[FrameRecord]) -> Summary:
+def _summary(backend: str, topic: str, records: Sequence[FrameRecord]) -> SummaryRow:
     ordered = _replay_order(records)
     processed = [r for r in ordered if r.status == 'ok']
     measured = [r for r in processed if not r.warmup]
@@ -196,7 +120,7 @@ def _summary(backend: str, topic: str, records: Sequence[FrameRecord]) -> Summar
         if latencies.size >= 2:
             jitter = float(np.mean(np.abs(np.diff(latencies))))
     stage_means = {name: _mean([getattr(r, name) for r in measured]) for name in _STAGES}
-    return Summary(
+    return SummaryRow(
         backend=backend,
         topic=topic,
         frames=len(records),
@@ -226,8 +150,8 @@ def _summary(backend: str, topic: str, records: Sequence[FrameRecord]) -> Summar
     )
 
 
-def summarize(records: Sequence[FrameRecord]) -> list[Summary]:
-    """One ``Summary`` per (backend, topic).
+def summarize(records: Sequence[FrameRecord]) -> list[SummaryRow]:
+    """One ``SummaryRow`` per (backend, topic).
 
     Ordered by the first appearance of the backend in ``records``, then by the first appearance
     of the topic.
@@ -243,34 +167,21 @@ def summarize(records: Sequence[FrameRecord]) -> list[Summary]:
     return [_summary(backend, topic, groups[backend, topic]) for backend, topic in keys]
 
 
-def _flat(summary: Summary) -> dict[str, Any]:
-    row: dict[str, Any] = {name: getattr(summary, name) for name in _FLAT_FIELDS}
-    accuracy = summary.accuracy or {}
-    for name in ACCURACY_COLUMNS:
-        row[name] = accuracy.get(name)
-    resources = summary.resources or {}
-    for name in RESOURCE_COLUMNS:
-        row[name] = resources.get(name)
-    for name in INTERVAL_COLUMNS:
-        row[name] = getattr(summary, name)
-    row['warnings'] = None  # set by the callers; here it keeps its place before the tag columns
-    row.update(tag_summary_columns(summary.tag_accuracy))
-    return row
-
-
-def summary_row(summary: Summary) -> dict[str, Any]:
+def summary_row(summary: SummaryRow) -> dict[str, Any]:
     """Flat dict of one summary.csv row; accuracy keys are None when there is no accuracy;
     ``warnings`` joined by ``'; '`` ('' when there is none)."""
-    row = _flat(summary)
+    row = {name: getattr(summary, name) for name in SUMMARY_CSV_COLUMNS}
     row['warnings'] = '; '.join(summary.warnings)
     return row
 
 
-def summary_json(summary: Summary) -> dict[str, Any]:
+def summary_json(summary: SummaryRow) -> dict[str, Any]:
     """One run.json ``summary`` entry: the summary.csv columns with ``warnings`` as a list, and
-    the full ``accuracy`` dict."""
-    row = _flat(summary)
+    the full ``accuracy`` and ``tag_accuracy`` dicts."""
+    row = {name: getattr(summary, name) for name in SUMMARY_CSV_COLUMNS}
     row['warnings'] = list(summary.warnings)
-    row['accuracy'] = dict(summary.accuracy) if summary.accuracy is not None else None
-    row['tag_accuracy'] = dict(summary.tag_accuracy) if summary.tag_accuracy is not None else None
+    accuracy = summary.accuracy
+    row['accuracy'] = dataclasses.asdict(accuracy) if accuracy is not None else None
+    tags = summary.tag_accuracy
+    row['tag_accuracy'] = dataclasses.asdict(tags) if tags is not None else None
     return row

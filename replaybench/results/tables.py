@@ -21,10 +21,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import MissingDependencyError, SourceError
-from replaybench.results.model import PeakTrial, SummaryRow
+from replaybench.results.columns import (
+    COUNT_COLUMNS,
+    SUMMARY_CSV_COLUMNS,
+    TEXT_COLUMNS,
+    summary_cell,
+)
 from replaybench.results.records import FRAMES_CSV_COLUMNS, FrameRecord, as_written
-from replaybench.results.runfile import summary_cell
-from replaybench.results.stats import SUMMARY_CSV_COLUMNS
 from replaybench.textsafe import from_csv
 
 if TYPE_CHECKING:
@@ -36,8 +39,6 @@ __all__ = [
     'FRAMES_DTYPES',
     'PANDAS_HINT',
     'SUMMARY_DTYPES',
-    'TRIALS_COLUMNS',
-    'TRIALS_DTYPES',
     'frames_table',
     'read_summary_csv',
     'records_table',
@@ -77,18 +78,18 @@ def _dtype(tp: Any) -> str:
 
 
 def _dtypes(cls: type[Any], columns: Sequence[str]) -> dict[str, str]:
+    """The pandas dtype of each column, from ``cls``'s annotations."""
     hints = typing.get_type_hints(cls)
     return {name: _dtype(hints[name]) for name in columns}
 
 
 #: frames.csv column -> pandas dtype (``RunResult.frames``)
 FRAMES_DTYPES: dict[str, str] = _dtypes(FrameRecord, FRAMES_CSV_COLUMNS)
-#: summary.csv column -> pandas dtype (``RunResult.summary``)
-SUMMARY_DTYPES: dict[str, str] = _dtypes(SummaryRow, SUMMARY_CSV_COLUMNS)
-#: ``PeakResult.trials`` columns, the fields of a peak.json trial
-TRIALS_COLUMNS: tuple[str, ...] = tuple(PeakTrial.__dataclass_fields__)
-#: ``PeakResult.trials`` column -> pandas dtype
-TRIALS_DTYPES: dict[str, str] = _dtypes(PeakTrial, TRIALS_COLUMNS)
+#: summary.csv column -> pandas dtype (``RunResult.summary``): integer counts, text, numbers
+SUMMARY_DTYPES: dict[str, str] = {
+    name: 'Int64' if name in COUNT_COLUMNS else 'str' if name in TEXT_COLUMNS else 'float64'
+    for name in SUMMARY_CSV_COLUMNS
+}
 
 
 def _frame(columns: Mapping[str, list[Any]], dtypes: Mapping[str, str]) -> pd.DataFrame:
@@ -107,7 +108,7 @@ def frames_table(records: Iterable[FrameRecord]) -> pd.DataFrame:
     return _frame(columns, FRAMES_DTYPES)
 
 
-def summary_table(rows: Sequence[SummaryRow]) -> pd.DataFrame:
+def summary_table(rows: Sequence[object]) -> pd.DataFrame:
     """summary.csv as a DataFrame, from run.json's ``summary`` rows: each value is written as
     the file's cell (``summary_cell``) and read back as ``read_summary_csv`` reads it."""
     parsers = _parsers()
@@ -156,10 +157,13 @@ def read_summary_csv(path: str | Path) -> pd.DataFrame:
     return _frame(columns, SUMMARY_DTYPES)
 
 
-def trials_table(trials: Sequence[PeakTrial]) -> pd.DataFrame:
-    """A peak search's trials, in run order: ``rate_hz``, ``ok`` and the other trial fields."""
-    columns = {name: [getattr(t, name) for t in trials] for name in TRIALS_COLUMNS}
-    return _frame(columns, TRIALS_DTYPES)
+def trials_table(trials: Sequence[object], cls: type[Any]) -> pd.DataFrame:
+    """A peak search's trials (``cls``: peak.json's trial, ``PeakTrial``), in run order:
+    ``rate_hz``, ``ok`` and its other fields. This module takes the model classes from its
+    callers, so that it does not import the model that imports it."""
+    names = tuple(typing.get_type_hints(cls))
+    columns = {name: [getattr(t, name) for t in trials] for name in names}
+    return _frame(columns, _dtypes(cls, names))
 
 
 def records_table(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> pd.DataFrame:

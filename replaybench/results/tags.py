@@ -23,9 +23,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from replaybench.fiducials.pose import rotation_error_deg
+from replaybench.results.columns import TAG_SUMMARY_COLUMNS
+from replaybench.results.model import TagAccuracy
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable, Mapping, Sequence
+    from collections.abc import Iterable, Sequence
 
     from replaybench.fiducials.types import TagDetection
     from replaybench.results.model import RunResult
@@ -50,17 +52,6 @@ TAG_FRAME_COLUMNS: tuple[str, ...] = (
     'tag_phantoms',
     'tag_corner_rmse_px',
     'tag_trans_err_m',
-    'tag_rot_err_deg',
-)
-
-#: summary.csv columns (and run.json summary keys) of tag accuracy, after the existing ones.
-TAG_SUMMARY_COLUMNS: tuple[str, ...] = (
-    'tag_recall',
-    'tag_wrong_ids',
-    'tag_phantoms',
-    'tag_corner_rmse_px',
-    'tag_trans_err_m',
-    'tag_trans_err_pct',
     'tag_rot_err_deg',
 )
 
@@ -161,43 +152,6 @@ def score_frame(found: Sequence[TagDetection], truth: Sequence[TagDetection]) ->
     )
 
 
-@dataclass(frozen=True, slots=True)
-class TagAccuracy:
-    """Tag accuracy of one (backend, topic) over its frames with truth."""
-
-    frames: int
-    n_truth: int
-    n_found: int
-    matched: int
-    recall: float | None
-    wrong_ids: int
-    phantoms: int
-    corner_rmse_px: float | None
-    trans_err_m: float | None
-    trans_err_pct: float | None
-    rot_err_deg: float | None
-    rot_err_deg_p95: float | None
-    rot_err_deg_max: float | None
-    trans_err_m_max: float | None
-    poses: int
-
-    def columns(self) -> dict[str, Any]:
-        """The TAG_SUMMARY_COLUMNS values."""
-        return {
-            'tag_recall': self.recall,
-            'tag_wrong_ids': self.wrong_ids,
-            'tag_phantoms': self.phantoms,
-            'tag_corner_rmse_px': self.corner_rmse_px,
-            'tag_trans_err_m': self.trans_err_m,
-            'tag_trans_err_pct': self.trans_err_pct,
-            'tag_rot_err_deg': self.rot_err_deg,
-        }
-
-    def document(self) -> dict[str, Any]:
-        """Everything, as run.json's ``tag_accuracy`` holds it."""
-        return {name: getattr(self, name) for name in self.__slots__}
-
-
 def tag_accuracy(scores: Iterable[FrameTagScore]) -> TagAccuracy:
     """The summary of a (backend, topic)'s frame scores."""
     frames = list(scores)
@@ -226,18 +180,19 @@ def tag_accuracy(scores: Iterable[FrameTagScore]) -> TagAccuracy:
     )
 
 
-def summary_columns(accuracy: Mapping[str, Any] | None) -> dict[str, Any]:
-    """TAG_SUMMARY_COLUMNS from a run.json ``tag_accuracy`` document (None: all None)."""
+def summary_columns(accuracy: TagAccuracy | None) -> dict[str, Any]:
+    """The ``TAG_SUMMARY_COLUMNS`` values of a (backend, topic)'s tag accuracy (None: all
+    None)."""
     if accuracy is None:
         return dict.fromkeys(TAG_SUMMARY_COLUMNS)
     return {
-        'tag_recall': accuracy.get('recall'),
-        'tag_wrong_ids': accuracy.get('wrong_ids'),
-        'tag_phantoms': accuracy.get('phantoms'),
-        'tag_corner_rmse_px': accuracy.get('corner_rmse_px'),
-        'tag_trans_err_m': accuracy.get('trans_err_m'),
-        'tag_trans_err_pct': accuracy.get('trans_err_pct'),
-        'tag_rot_err_deg': accuracy.get('rot_err_deg'),
+        'tag_recall': accuracy.recall,
+        'tag_wrong_ids': accuracy.wrong_ids,
+        'tag_phantoms': accuracy.phantoms,
+        'tag_corner_rmse_px': accuracy.corner_rmse_px,
+        'tag_trans_err_m': accuracy.trans_err_m,
+        'tag_trans_err_pct': accuracy.trans_err_pct,
+        'tag_rot_err_deg': accuracy.rot_err_deg,
     }
 
 

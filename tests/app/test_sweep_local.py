@@ -329,7 +329,7 @@ def test_a_cell_whose_worker_is_killed_is_run_again_by_ray_and_completes(
 
 
 def test_a_cell_measured_on_another_cpu_is_flagged(bags: dict[str, Path], tmp_path: Path) -> None:
-    from replaybench.results.runfile import write_json_atomic
+    from replaybench.results.atomic import write_json_atomic
 
     inputs = [bags['a'], bags['b'], REPO / 'fixtures' / 'bags' / 'jpeg.mcap']
     out = tmp_path / 'sw'

@@ -278,7 +278,7 @@ def test_a_peak_search_hashes_its_input_once_and_every_trial_records_the_sha256(
 ):
     from replaybench.backends.base import BackendOptions
     from replaybench.replay import VirtualClock
-    from replaybench.replay import runner as runner_module
+    from replaybench.replay import inputs as inputs_module
     from replaybench.replay.peak import find_peak_rate
 
     made: list[InputHash] = []
@@ -288,7 +288,7 @@ def test_a_peak_search_hashes_its_input_once_and_every_trial_records_the_sha256(
             super().__init__(files)
             made.append(self)
 
-    monkeypatch.setattr(runner_module, 'InputHash', Counted)
+    monkeypatch.setattr(inputs_module, 'InputHash', Counted)
     out = tmp_path / 'peak'
     result = find_peak_rate(
         RAW,
@@ -310,9 +310,9 @@ def test_a_peak_search_hashes_its_input_once_and_every_trial_records_the_sha256(
 
 
 def test_a_backend_still_opening_after_two_seconds_is_announced(tmp_path, monkeypatch):
-    from replaybench.replay import runner as runner_module
+    from replaybench.replay import sessions
 
-    monkeypatch.setattr(runner_module, 'SLOW_OPEN_S', 0.01)
+    monkeypatch.setattr(sessions, 'SLOW_OPEN_S', 0.01)
     announced = threading.Event()
     lines: list[str] = []
 

@@ -63,7 +63,7 @@ def test_a_coco_file_scores_like_the_ground_truth_topic(
         )
     )
     assert _accuracy(from_file)[LEFT] == _accuracy(from_topic)[LEFT]
-    assert _accuracy(from_file)[LEFT]['frames'] == 10
+    assert _accuracy(from_file)[LEFT].frames == 10
     assert _accuracy(from_file)['/cam_right/image_raw/compressed'] is None
     settings = from_file.run.settings
     assert (settings.ground_truth_file, settings.ground_truth_match) == (str(gt), match)

@@ -15,7 +15,7 @@ from replaybench.comparison import compare_runs
 from replaybench.report import render_report
 from replaybench.report.headline import topic_headlines
 from replaybench.results import write_json_atomic
-from replaybench.results.runfile import load_run
+from replaybench.results.folder import load_run
 
 if TYPE_CHECKING:
     from collections.abc import Callable

@@ -12,16 +12,13 @@ import numpy as np
 import pytest
 
 from replaybench.errors import SourceError
+from replaybench.results.atomic import write_json_atomic
+from replaybench.results.folder import load_run
+from replaybench.results.machine import environment
+from replaybench.results.model import RUN_SCHEMA_VERSION as SCHEMA_VERSION
 from replaybench.results.records import FrameRecord, FramesCsvWriter
-from replaybench.results.runfile import (
-    SCHEMA_VERSION,
-    environment,
-    load_run,
-    write_json_atomic,
-    write_run_json,
-    write_summary_csv,
-)
 from replaybench.results.stats import SUMMARY_CSV_COLUMNS, summarize
+from replaybench.results.summarycsv import write_summary_csv
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -41,6 +38,13 @@ def _records() -> list[FrameRecord]:
                     i * 0.1 + 0.01, 0.0, 1.0, None, 8.0, None, None, None, 10.0 + i, i)
         for i in range(5)
     ]  # fmt: skip
+
+
+def write_run_json(path: Path, run: dict[str, Any]) -> None:
+    """A hand-made run.json: ``run`` with ``schema_version`` first when it is missing."""
+    if 'schema_version' not in run:
+        run = {'schema_version': SCHEMA_VERSION, **run}
+    write_json_atomic(path, run)
 
 
 def _run_folder(tmp_path: Path, **run: Any) -> Path:

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import math
 import random
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import pytest
 
+from replaybench.results.model import Accuracy, SummaryRow
 from replaybench.results.records import FrameRecord
 from replaybench.results.stats import SUMMARY_CSV_COLUMNS, summarize, summary_json, summary_row
 
@@ -148,10 +149,18 @@ def test_summary_row_flattens_accuracy() -> None:
     assert tuple(row) == SUMMARY_CSV_COLUMNS
     assert row['map50'] is None
     assert 'accuracy' not in row
-    accuracy = {'precision50': 0.5, 'recall50': 0.25, 'map50': 0.4, 'map50_95': 0.2, 'ap50': {}}
-    with_acc = summary_row(replace(s, accuracy=accuracy))
+    accuracy = Accuracy(precision50=0.5, recall50=0.25, map50=0.4, map50_95=0.2, ap50={})
+    scored = replace(s, accuracy=accuracy, precision50=0.5, recall50=0.25, map50=0.4, map50_95=0.2)
+    with_acc = summary_row(scored)
     assert (with_acc['precision50'], with_acc['map50_95']) == (0.5, 0.2)
     assert 'ap50' not in with_acc
-    full = summary_json(replace(s, accuracy=accuracy))
-    assert full['accuracy'] == accuracy
+    full = summary_json(scored)
+    assert full['accuracy'] == {**asdict(accuracy), 'ap50': {}}
+    assert full['accuracy']['map50'] == 0.4
     assert full['latency_ms_p50'] == s.latency_ms_p50
+
+
+def test_a_summary_is_the_summary_row_of_run_json() -> None:
+    [s] = summarize(_records())
+    assert isinstance(s, SummaryRow)
+    assert tuple(summary_row(s)) == SUMMARY_CSV_COLUMNS

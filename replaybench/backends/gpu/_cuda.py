@@ -23,6 +23,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     'MIN_DRIVER_RELEASE',
+    'STAGE_EVENTS',
     'DeviceFacts',
     'DeviceIdentity',
     'EventTimer',
@@ -40,6 +41,8 @@ __all__ = [
 
 #: The oldest NVIDIA driver branch that runs CUDA 13 (the CUDA major of the ``gpu`` extra).
 MIN_DRIVER_RELEASE = 580
+#: Timing events per frame: a start and an end event for each of the 5 stages (``StageClock``).
+STAGE_EVENTS = 10
 #: ``CUdevice_attribute`` values (cuda.h).
 _CC_MAJOR = 75
 _CC_MINOR = 76
@@ -295,40 +298,73 @@ class EventTimer:
 class StageClock:
     """Stage durations of device work, on the host's clock and on the device's.
 
-    Host: each lap synchronises the device, then reads ``perf_counter_ns``, so a lap is when
-    the host saw the stage finished (queueing, launch and synchronisation included).
-    Device: with an ``EventTimer``, each boundary also records an event on the backend's stream
-    just before that synchronisation; ``device_laps()`` (after the last lap, when every event
-    has completed) gives the GPU's own time between consecutive boundaries.
+    Per stage: ``begin()`` just before the stage's first GPU call, ``lap()`` after its last.
+
+    Host: ``lap()`` synchronises the device, then reads ``perf_counter_ns``; a host lap runs
+    from the previous lap (or ``start``) to that moment, so the host laps add up to the whole
+    frame: host work before the first GPU call (a copy into pinned memory), launches, waits
+    and synchronisation included.
+    Device: with an ``EventTimer``, ``begin()`` records a start event on the backend's stream
+    and ``lap()`` an end event just before it synchronises; ``device_laps()`` (after the last
+    lap, when every event has completed) gives, per stage, the time the stream took from the
+    start event to the end event: the stage's kernels and copies, the gaps between them while
+    the host prepared the next launch, and any wait inside the stage for the host (a stage that
+    synchronises part-way spends that time idle on the stream), but not the host work before
+    ``begin()`` nor the synchronisation after ``lap()``.
     """
 
-    def __init__(self, synchronize: Callable[[], object], events: EventTimer | None = None) -> None:
+    def __init__(
+        self,
+        synchronize: Callable[[], object],
+        events: EventTimer | None = None,
+        stages: int = 5,
+    ) -> None:
         self._synchronize = synchronize
         self._events = events
+        if events is not None and len(events.events) < 2 * stages:
+            have = len(events.events)
+            msg = f'a StageClock of {stages} stages needs {2 * stages} events, not {have}'
+            raise ValueError(msg)
         self._last = 0
-        self._slot = 0
+        self._stage = 0
+        self._begun = False
 
     def start(self) -> None:
-        self._slot = 0
-        if self._events is not None:
-            self._events.record(0)
+        """Synchronise the device and start the host clock of the first stage."""
+        self._stage = 0
+        self._begun = False
         self._synchronize()
         self._last = time.perf_counter_ns()
 
-    def lap(self) -> int:
-        """Nanoseconds since ``start`` or the previous lap, device work included."""
-        self._slot += 1
+    def begin(self) -> None:
+        """Just before the stage's first GPU call: its start event on the stream."""
+        if self._begun:
+            msg = f'stage {self._stage} has begun already'
+            raise RuntimeError(msg)
+        self._begun = True
         if self._events is not None:
-            self._events.record(self._slot)
+            self._events.record(2 * self._stage)
+
+    def lap(self) -> int:
+        """After the stage's last GPU call: its end event, then nanoseconds on the host since
+        ``start`` or the previous lap, device work and synchronisation included."""
+        if not self._begun:
+            msg = f'stage {self._stage} ended without begin()'
+            raise RuntimeError(msg)
+        if self._events is not None:
+            self._events.record(2 * self._stage + 1)
         self._synchronize()
         now = time.perf_counter_ns()
         elapsed = now - self._last
         self._last = now
+        self._stage += 1
+        self._begun = False
         return elapsed
 
     def device_laps(self) -> list[int | None]:
-        """Device nanoseconds of each lap so far (None each without events)."""
+        """Device nanoseconds of each stage so far, start event to end event (None each
+        without events)."""
         events = self._events
         if events is None:
-            return [None] * self._slot
-        return [events.elapsed_ns(i - 1, i) for i in range(1, self._slot + 1)]
+            return [None] * self._stage
+        return [events.elapsed_ns(2 * i, 2 * i + 1) for i in range(self._stage)]

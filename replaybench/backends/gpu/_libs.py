@@ -30,6 +30,7 @@ __all__ = [
     'cudart_version',
     'cudnn_version',
     'find_library',
+    'load_error',
     'load_libraries',
     'other_tensorrt',
     'tensorrt_version',
@@ -84,6 +85,16 @@ def _dlopen(name: str) -> Any:
     """Load a shared library by name or path (``OSError`` when it cannot be loaded)."""
     mode = getattr(ctypes, 'RTLD_GLOBAL', 0)
     return ctypes.CDLL(name, mode=mode)
+
+
+def load_error(path: str) -> str | None:
+    """The loader's message when the library at ``path`` (or one it links) does not load,
+    None when it loads."""
+    try:
+        _dlopen(path)
+    except OSError as exc:
+        return str(exc)
+    return None
 
 
 def _wheel_folders() -> list[Path]:

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import functools
 import importlib.util
+import sys
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from replaybench.backends.base import Availability
@@ -23,6 +25,7 @@ from replaybench.backends.gpu._libs import (
     TENSORRT_LIBRARIES,
     TENSORRT_MAJOR,
     find_library,
+    load_error,
     load_libraries,
     other_tensorrt,
     version_of,
@@ -42,6 +45,8 @@ __all__ = [
     'hsv_cuda_availability',
     'module_missing',
     'ort_cuda_library_problem',
+    'ort_provider_library',
+    'ort_provider_load_problem',
     'ort_provider_problem',
     'tensorrt_availability',
     'tensorrt_library_version',
@@ -169,6 +174,57 @@ def ort_cuda_library_problem() -> str | None:
         f"onnxruntime-gpu's CUDA provider links {', '.join(missing)}, not found (CUDA "
         f"{CUDA_MAJOR} / cuDNN 9): pip install 'onnxruntime-gpu[cuda,cudnn]' ({_DOCS})"
     )
+
+
+#: onnxruntime's shared library of each GPU provider (``onnxruntime/capi``).
+_PROVIDER_LIBRARIES = {
+    'CUDAExecutionProvider': 'onnxruntime_providers_cuda',
+    'TensorrtExecutionProvider': 'onnxruntime_providers_tensorrt',
+}
+
+
+def ort_provider_library(provider: str) -> Path | None:
+    """Where onnxruntime keeps ``provider``'s shared library (``capi/libonnxruntime_providers_
+    cuda.so``), found without importing onnxruntime; None for another provider or no
+    onnxruntime."""
+    stem = _PROVIDER_LIBRARIES.get(provider)
+    if stem is None:
+        return None
+    try:
+        spec = importlib.util.find_spec('onnxruntime')
+    except (ImportError, ValueError):
+        return None
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    name = f'{stem}.dll' if sys.platform == 'win32' else f'lib{stem}.so'
+    return Path(next(iter(spec.submodule_search_locations))) / 'capi' / name
+
+
+def ort_provider_load_problem(provider: str) -> str | None:
+    """Why onnxruntime cannot load ``provider`` (its shared library or one that it links), in
+    the loader's own words, or None when it loads.
+
+    With ``session.disable_cpu_ep_fallback`` a provider that does not load leaves every node to
+    the CPU, and session creation fails saying only that nodes were "assigned to the default
+    CPU EP": this names what is missing instead. The CUDA / cuDNN libraries the CUDA provider
+    links are checked first (``ort_cuda_library_problem``: every one missing is named), then the
+    provider's own library is loaded, which names the first library the loader could not find.
+    """
+    libraries = ort_cuda_library_problem()
+    if libraries is not None:
+        return libraries
+    path = ort_provider_library(provider)
+    if path is None:
+        return None
+    if not path.is_file():
+        return (
+            f'onnxruntime has no {path.name} (not an onnxruntime-gpu build): install '
+            f'onnxruntime-gpu in place of onnxruntime ({_DOCS})'
+        )
+    error = load_error(str(path))
+    if error is not None:
+        return f'{path.name} does not load: {error} ({_DOCS})'
+    return None
 
 
 def _join(problems: Sequence[str | None]) -> Availability:

@@ -15,12 +15,14 @@ Per frame, all on one GPU (``options.device``):
 * ``d2h``: only the kept boxes (x0, y0, x1, y1, score, class) come back, with the count of
   candidates left out for NaN or inf model outputs (``info()``: ``nonfinite_dropped``).
 
-Each stage boundary records a CUDA event on the backend's stream, then synchronises it before
-the host clock is read (``StageClock``): host and device time per stage. ``open()`` runs one
-whole frame (the warm-up). The backend never runs on the CPU: the session gets the GPU
-providers only with ``session.disable_cpu_ep_fallback``, and a session whose first provider is
-not the GPU one, or with a node placed on the CPU, is refused with ``BackendUnavailableError``.
-``precision='fp32'`` keeps TF32 off (torch and the CUDA provider); ``tf32`` allows it.
+Each stage records a CUDA event on the backend's stream just before its first GPU call and one
+after its last, then synchronises the stream before the host clock is read (``StageClock``):
+host time per stage from the previous stage's end, device time from start to end event.
+``open()`` runs one whole frame (the warm-up). The backend never runs on the CPU: the session
+gets the GPU providers only with ``session.disable_cpu_ep_fallback``, and a session whose first
+provider is not the GPU one, or with a node placed on the CPU, is refused with
+``BackendUnavailableError``. ``precision='fp32'`` keeps TF32 off (torch and the CUDA provider);
+``tf32`` allows it.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ import numpy as np
 from replaybench.backends.base import Availability, BackendOptions
 from replaybench.backends.gpu import _torch_ops as ops
 from replaybench.backends.gpu._cuda import (
+    STAGE_EVENTS,
     DeviceFacts,
     EventTimer,
     StageClock,
@@ -44,6 +47,7 @@ from replaybench.backends.gpu._cuda import (
 )
 from replaybench.backends.gpu._fold import fold_shapes, pin_host_arguments
 from replaybench.backends.gpu._libs import ORT_CUDA_LIBRARIES, load_libraries
+from replaybench.backends.gpu._tf32 import Tf32Hold, set_tf32
 from replaybench.backends.gpu.availability import (
     GPU_EXTRA,
     check_placement,
@@ -52,6 +56,7 @@ from replaybench.backends.gpu.availability import (
     ep_node_counts,
     module_missing,
     ort_cuda_library_problem,
+    ort_provider_load_problem,
     ort_provider_problem,
     torch_problem,
 )
@@ -275,9 +280,12 @@ def count_syncs(torch: Any, call: Callable[[], object]) -> int | None:
 class TorchEngine:
     """A torch module (the ONNX graph converted by onnx2torch) on the input tensor.
 
-    With ``cuda_graph`` the forward pass is captured once and replayed each frame; when
-    capture fails (ops that synchronise or allocate on the host) it runs eagerly and
-    ``graph_note`` says why.
+    With ``cuda_graph`` the forward pass is captured once and replayed each frame; a forward
+    that synchronises with the host (``syncs`` > 0, counted first) is not captured, since a
+    capture fails on it; when capture fails for another reason it runs eagerly too, and
+    ``graph_note`` says why. Warm-up and capture run on a side stream made on the input's
+    device, passed to ``torch.cuda.graph`` (whose own default is a process-wide stream made on
+    whichever device was current first).
     """
 
     def __init__(
@@ -304,6 +312,12 @@ class TorchEngine:
 
     def _capture(self) -> None:
         torch = self.torch
+        if self.syncs:
+            self.graph_note = (
+                f'eager (the forward synchronises with the host {self.syncs} time(s), which a '
+                'CUDA graph cannot capture)'
+            )
+            return
         try:
             side = torch.cuda.Stream(device=self.input.device)
             side.wait_stream(torch.cuda.current_stream(self.input.device))
@@ -312,7 +326,7 @@ class TorchEngine:
                     self._forward()
             torch.cuda.current_stream(self.input.device).wait_stream(side)
             graph = torch.cuda.CUDAGraph()
-            with torch.cuda.graph(graph):
+            with torch.cuda.graph(graph, stream=side):
                 self.static = self._forward()
         except Exception as exc:  # noqa: BLE001  capture is an optimisation: eager mode
             torch.cuda.synchronize(self.input.device)
@@ -372,6 +386,11 @@ class DnnPipeline:
 
     def upload(self, pixels: npt.NDArray[np.uint8]) -> Tensor:
         """The pixels on the device; through one reused pinned buffer on CUDA."""
+        return self.transfer(self.stage(pixels))
+
+    def stage(self, pixels: npt.NDArray[np.uint8]) -> Tensor:
+        """The host side of the upload: the pixels copied into the reused pinned buffer (CUDA),
+        or a CPU tensor of their own; no GPU call."""
         torch = self.torch
         if self.device.type != 'cuda':
             return torch.from_numpy(np.array(pixels))
@@ -379,14 +398,25 @@ class DnnPipeline:
         if pinned is None or tuple(pinned.shape) != pixels.shape:
             pinned = self._pinned = torch.empty(pixels.shape, dtype=torch.uint8, pin_memory=True)
         np.copyto(pinned.numpy(), pixels)
-        return pinned.to(self.device, non_blocking=True)
+        return pinned
 
-    def preprocess(self, image: Tensor, layout: str) -> Transform:
-        """Write the model input for ``image`` (on the device) into ``input``."""
+    def transfer(self, host: Tensor) -> Tensor:
+        """The staged pixels copied to the device, queued on the current stream."""
+        if self.device.type != 'cuda':
+            return host
+        return host.to(self.device, non_blocking=True)
+
+    def preprocess(
+        self, image: Tensor, layout: str, begin: Callable[[], object] | None = None
+    ) -> Transform:
+        """Write the model input for ``image`` (on the device) into ``input``; ``begin`` is
+        called just before the first GPU call (after the letterbox geometry on the host)."""
         from replaybench.detector.preprocess import geometry
 
         height, width = int(image.shape[0]), int(image.shape[1])
         new_w, new_h, left, top, transform = geometry(width, height, self.spec.preprocess)
+        if begin is not None:
+            begin()
         ops.letterbox_into(
             self.torch,
             self._work,
@@ -441,37 +471,7 @@ def _unit(backend: str, name: str, value: float | None) -> None:
         raise BackendError(msg)
 
 
-def set_tf32(torch: Any, allow: bool) -> Callable[[], None]:
-    """Allow or forbid TF32 in torch's fp32 matmuls and cuDNN convolutions; returns the undo.
-
-    Both default to TF32 on Ampere and newer for convolutions (cuDNN), so an "fp32" model
-    would silently run with a 10-bit mantissa. torch >= 2.9 has ``fp32_precision``
-    (``ieee`` / ``tf32``); older ones the ``allow_tf32`` flags.
-    """
-    backends = torch.backends
-    matmul = backends.cuda.matmul
-    conv = backends.cudnn.conv if hasattr(backends.cudnn, 'conv') else None
-    if conv is not None and hasattr(matmul, 'fp32_precision'):
-        saved = (matmul.fp32_precision, conv.fp32_precision)
-        mode = 'tf32' if allow else 'ieee'
-        matmul.fp32_precision = mode
-        conv.fp32_precision = mode
-
-        def restore_new() -> None:
-            matmul.fp32_precision, conv.fp32_precision = saved
-
-        return restore_new
-    legacy = (matmul.allow_tf32, backends.cudnn.allow_tf32)
-    matmul.allow_tf32 = allow
-    backends.cudnn.allow_tf32 = allow
-
-    def restore_legacy() -> None:
-        matmul.allow_tf32, backends.cudnn.allow_tf32 = legacy
-
-    return restore_legacy
-
-
-def torch_events(torch: Any, stream: Any, slots: int = 6) -> EventTimer:
+def torch_events(torch: Any, stream: Any, slots: int = STAGE_EVENTS) -> EventTimer:
     """Timing events on ``stream`` (torch's CUDA events), reused every frame."""
     events = [torch.cuda.Event(enable_timing=True) for _ in range(slots)]
     return EventTimer(events, lambda e: e.record(stream), lambda a, b: a.elapsed_time(b))
@@ -551,7 +551,7 @@ class CudaBackend:
         self._events: EventTimer | None = None
         self._pipeline: DnnPipeline | None = None
         self._engine: OrtEngine | TorchEngine | None = None
-        self._restore_tf32: Callable[[], None] | None = None
+        self._tf32: Tf32Hold | None = None
         self._facts: dict[str, Any] = {}
 
     @classmethod
@@ -625,6 +625,15 @@ class CudaBackend:
                 raise BackendUnavailableError(problem) from exc
             text = f'{type(exc).__name__}: {exc}'
             if 'CPU EP' in str(exc):
+                # an unloadable provider leaves every node to the CPU: name what it lacks
+                reason = self._provider_load_problem()
+                if reason is not None:
+                    msg = (
+                        f'onnxruntime could not load {self._session_providers()}, so it '
+                        f'left the model to the CPU, which this backend refuses: {reason} '
+                        f'(onnxruntime: {text})'
+                    )
+                    raise BackendUnavailableError(msg) from exc
                 msg = (
                     f'onnxruntime would run part of {self.model_path.name} on the CPU, which '
                     f'this backend refuses ({text})'
@@ -632,6 +641,17 @@ class CudaBackend:
                 raise BackendUnavailableError(msg) from exc
             msg = f'cannot load {self.model_path}: {text}'
             raise BackendError(msg) from exc
+
+    def _session_providers(self) -> str:
+        return ' / '.join(str(p[0]) for p in self._providers())
+
+    def _provider_load_problem(self) -> str | None:
+        """Why onnxruntime cannot load one of the session's GPU providers, or None."""
+        for provider in self._providers():
+            problem = ort_provider_load_problem(str(provider[0]))
+            if problem is not None:
+                return problem
+        return None
 
     def _check_session(self, session: Any) -> tuple[list[str], dict[str, int] | None]:
         """The session's providers and nodes per provider; refused unless all is on the GPU."""
@@ -767,11 +787,14 @@ class CudaBackend:
                 hint = f' (not switching engines: pass --engine {others[0]} to try it)'
             msg = f'{self.name}: engine {engine} ({why}): {text}{hint}'
             raise type(exc)(msg) from exc
+        except BaseException:
+            self._release()  # the TF32 hold and device buffers, whatever stopped the open
+            raise
 
     def _open_engine(self, engine: str) -> None:
         torch, device = self._torch_device()
         self._torch, self._device = torch, device
-        self._restore_tf32 = set_tf32(torch, self._tf32_allowed())
+        self._tf32 = Tf32Hold(torch, self._tf32_allowed())
         with torch.cuda.device(device):
             self._stream = torch.cuda.Stream(device=device)
         if engine == 'ort':
@@ -846,9 +869,9 @@ class CudaBackend:
             # backend's GPU memory figure is its own
             torch.cuda.empty_cache()
         self._stream = None
-        if self._restore_tf32 is not None:
-            self._restore_tf32()
-            self._restore_tf32 = None
+        if self._tf32 is not None:
+            self._tf32.release()
+            self._tf32 = None
 
     def close(self) -> None:
         self._release()
@@ -869,8 +892,9 @@ class CudaBackend:
             'iou': self.iou,
             'max_det': self.max_det,
             'providers': [],
-            'timing': 'host: device synchronised at every stage boundary; device: CUDA events '
-            'on the backend stream (frames.csv *_device_ms)',
+            'timing': 'host: from the previous stage end, device synchronised at every stage end; '
+            'device: a start event before the first and an end event after the last GPU call '
+            'of each stage, on the backend stream (frames.csv *_device_ms)',
             **(self._pipeline.nonfinite if self._pipeline else NonfiniteTally()).info(),
         }
         spec = self.spec
@@ -901,20 +925,27 @@ class CudaBackend:
         assert pipeline is not None
         assert engine is not None
         clock = StageClock(self._stream.synchronize, self._events)
+        if self._tf32 is not None:  # another torch engine opened after this one may differ
+            self._tf32.reapply()
         with torch.cuda.device(self._device), torch.cuda.stream(self._stream):
             clock.start()
-            image = pipeline.upload(pixels)
+            staged = pipeline.stage(pixels)
+            clock.begin()
+            image = pipeline.transfer(staged)
             h2d = clock.lap()
             try:
-                transform = pipeline.preprocess(image, layout)
+                transform = pipeline.preprocess(image, layout, clock.begin)
             except BackendError as exc:
                 msg = f'{self.name}: frame {where}: {exc}'
                 raise BackendError(msg) from exc
             pre = clock.lap()
+            clock.begin()
             outputs = engine()
             infer = clock.lap()
+            clock.begin()
             tensors = pipeline.postprocess(outputs, transform)
             post_device = clock.lap()
+            clock.begin()
             arrays = pipeline.download(tensors)
             d2h = clock.lap()
         on_device = clock.device_laps()

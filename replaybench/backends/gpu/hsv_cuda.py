@@ -17,7 +17,13 @@ import numpy as np
 
 from replaybench.backends.base import Availability, BackendOptions
 from replaybench.backends.gpu import _hsv_ops
-from replaybench.backends.gpu._cuda import EventTimer, StageClock, device_facts, driver_problem
+from replaybench.backends.gpu._cuda import (
+    STAGE_EVENTS,
+    EventTimer,
+    StageClock,
+    device_facts,
+    driver_problem,
+)
 from replaybench.backends.gpu.availability import hsv_cuda_availability
 from replaybench.backends.hsv import HsvBackend, blob_score
 from replaybench.decode import to_bgr8
@@ -203,9 +209,13 @@ class HsvCudaBackend:
             with self._device:
                 stream = self._stream = cupy.cuda.Stream(non_blocking=True)
                 sdiv, hdiv = _hsv_ops.hsv_tables()
-                self._tables = (cupy.asarray(sdiv), cupy.asarray(hdiv))
-                self._gpu_kernel = None if self._kernel is None else cupy.asarray(self._kernel)
-                events = [cupy.cuda.Event() for _ in range(6)]
+                # copied on the backend's stream, so the kernels queued after them on it
+                # (the non-blocking stream does not wait for the null stream) see them
+                with stream:
+                    self._tables = (cupy.asarray(sdiv), cupy.asarray(hdiv))
+                    kernel = self._kernel
+                    self._gpu_kernel = None if kernel is None else cupy.asarray(kernel)
+                events = [cupy.cuda.Event() for _ in range(STAGE_EVENTS)]
                 self._events = EventTimer(
                     events, lambda e: e.record(stream), cupy.cuda.get_elapsed_time
                 )
@@ -217,7 +227,10 @@ class HsvCudaBackend:
 
     def close(self) -> None:
         """Drop the device buffers and return CuPy's cached blocks (device and pinned), so that
-        the next backend's GPU memory figure is its own."""
+        the next backend's GPU memory figure is its own.
+
+        CuPy's default memory pool frees the blocks of the current device only, so this runs
+        with ``options.device`` current (``--device 1`` returns GPU 1's blocks)."""
         if self._stream is not None:
             self._stream.synchronize()
         self._pinned = None
@@ -226,8 +239,9 @@ class HsvCudaBackend:
         self._gpu_kernel = None
         self._events = None
         cupy = self._cp
-        if cupy is not None:
-            cupy.get_default_memory_pool().free_all_blocks()
+        if cupy is not None and self._device is not None:
+            with self._device:
+                cupy.get_default_memory_pool().free_all_blocks()
             cupy.get_default_pinned_memory_pool().free_all_blocks()
 
     def info(self) -> dict[str, Any]:
@@ -250,8 +264,9 @@ class HsvCudaBackend:
             },
             'blobs': 'outer blobs: 8-connected components, holes filled; contour area estimated as '
             'filled - boundary/2 - 1',
-            'timing': 'host: stream synchronised at every stage boundary; device: CUDA events on '
-            'the stream (frames.csv *_device_ms)',
+            'timing': 'host: from the previous stage end, stream synchronised at every stage end; '
+            'device: a start event before the first and an end event after the last GPU call '
+            'of each stage, on the stream (frames.csv *_device_ms)',
             **self._facts,
         }
 
@@ -276,14 +291,18 @@ class HsvCudaBackend:
             params.close_iterations,
         )
 
-    def _upload(self, pixels: npt.NDArray[np.uint8]) -> Any:
-        cp = self._cp
+    def _stage(self, pixels: npt.NDArray[np.uint8]) -> Any:
+        """The host side of the upload: the pixels copied into the reused pinned buffer."""
         pinned = self._pinned
         if pinned is None or pinned.shape != pixels.shape:
             cupyx = importlib.import_module('cupyx')
             pinned = self._pinned = cupyx.empty_pinned(pixels.shape, dtype=np.uint8)
         np.copyto(pinned, pixels)
-        gpu = cp.empty(pixels.shape, dtype=cp.uint8)
+        return pinned
+
+    def _transfer(self, pinned: Any) -> Any:
+        """The pinned pixels copied to the device, queued on the backend's stream."""
+        gpu = self._cp.empty(pinned.shape, dtype=self._cp.uint8)
         gpu.set(pinned, stream=self._stream)
         return gpu
 
@@ -298,14 +317,20 @@ class HsvCudaBackend:
         clock = StageClock(self._stream.synchronize, self._events)
         with self._device, self._stream:
             clock.start()
-            image = self._upload(pixels)
+            pinned = self._stage(pixels)
+            clock.begin()
+            image = self._transfer(pinned)
             h2d = clock.lap()
+            clock.begin()
             planes = _hsv_ops.to_hsv(cp, image, blue, tables)
             pre = clock.lap()
+            clock.begin()
             masks = self._masks(planes)
             infer = clock.lap()
+            clock.begin()
             stats = _hsv_ops.blob_stats(cp, ndi, masks, planes[1])
             post_device = clock.lap()
+            clock.begin()
             rows = stats.get(stream=self._stream)
             d2h = clock.lap()
         on_device = clock.device_laps()

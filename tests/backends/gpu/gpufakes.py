@@ -23,7 +23,7 @@ import ctypes
 import functools
 import types
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import onnxruntime
@@ -33,6 +33,9 @@ from replaybench.backends.gpu import _cuda, _libs
 from replaybench.backends.gpu import availability as availability_module
 from replaybench.backends.gpu import tensorrt as tensorrt_module
 from replaybench.backends.gpu.cuda import CudaBackend
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 GPU_PROVIDERS = ['TensorrtExecutionProvider', 'CUDAExecutionProvider', 'CPUExecutionProvider']
 
@@ -131,8 +134,13 @@ def install_libcuda(
     monkeypatch.setattr(_cuda, 'nvidia_driver_release', lambda: release)
 
 
-def fake_nvml(gpus: list[FakeGpu], release: str = '580.65.06') -> types.ModuleType:
-    """A ``pynvml`` module over ``gpus``, numbered as listed (NVML's PCI order)."""
+def fake_nvml(
+    gpus: list[FakeGpu],
+    release: str = '580.65.06',
+    used: Callable[[FakeGpu], int] | None = None,
+) -> types.ModuleType:
+    """A ``pynvml`` module over ``gpus``, numbered as listed (NVML's PCI order); ``used`` gives
+    a GPU's memory in use at each reading (default: its fixed ``used``)."""
     module = types.ModuleType('pynvml')
     state: dict[str, Any] = {'shutdown': 0, 'read': []}
 
@@ -141,7 +149,7 @@ def fake_nvml(gpus: list[FakeGpu], release: str = '580.65.06') -> types.ModuleTy
 
     def memory(gpu: FakeGpu) -> Any:
         state['read'].append(gpu.name)
-        return types.SimpleNamespace(used=gpu.used, total=gpu.memory)
+        return types.SimpleNamespace(used=gpu.used if used is None else used(gpu), total=gpu.memory)
 
     def pci(gpu: FakeGpu) -> Any:  # NVML writes 8 domain digits
         return types.SimpleNamespace(busId=('0000' + gpu.pci_bus_id).upper().encode())
@@ -341,31 +349,97 @@ class FakeEvent:
 
 
 @dataclass
+class CupyState:
+    """CuPy's current device and current stream (what ``with Device`` / ``with Stream`` set),
+    and the host -> device copies ``asarray`` made: (device, stream) each."""
+
+    devices: list[int] = field(default_factory=lambda: [0])
+    streams: list[Any] = field(default_factory=lambda: [None])
+    copies: list[tuple[int, Any]] = field(default_factory=list)
+
+    @property
+    def device(self) -> int:
+        return self.devices[-1]
+
+    @property
+    def stream(self) -> Any:
+        return self.streams[-1]
+
+
+@dataclass
 class FakePool:
+    """A memory pool; ``freed_on`` lists the current device at each ``free_all_blocks``."""
+
+    state: CupyState | None = None
     freed: int = 0
+    freed_on: list[int] = field(default_factory=list)
 
     def free_all_blocks(self) -> None:
         self.freed += 1
+        if self.state is not None:
+            self.freed_on.append(self.state.device)
 
 
 def fake_cupy() -> tuple[Any, Any, Any]:
-    """(cupy, cupyx, cupyx.scipy.ndimage) with NumPy and SciPy doing the work."""
+    """(cupy, cupyx, cupyx.scipy.ndimage) with NumPy and SciPy doing the work.
+
+    ``cupy.state`` (``CupyState``) follows the current device and stream as CuPy's context
+    managers set them; the default memory pool frees the current device's blocks as CuPy's does.
+    """
     ndimage = pytest.importorskip('scipy.ndimage', reason='scipy is not installed')
     numpy_like = types.SimpleNamespace(
         **{k: getattr(np, k) for k in dir(np) if not k.startswith('_')}
     )
+    state = CupyState()
+
+    @contextlib.contextmanager
+    def device(index: int) -> Any:
+        state.devices.append(index)
+        try:
+            yield
+        finally:
+            state.devices.pop()
+
+    class Device:
+        def __init__(self, index: int) -> None:
+            self.index = index
+            self._entered: list[Any] = []
+
+        def __enter__(self) -> Device:
+            context = device(self.index)
+            context.__enter__()
+            self._entered.append(context)
+            return self
+
+        def __exit__(self, *exc: object) -> None:
+            self._entered.pop().__exit__(None, None, None)
+
+    class Stream(FakeStream):
+        def __enter__(self) -> Stream:
+            state.streams.append(self)
+            return self
+
+        def __exit__(self, *exc: object) -> None:
+            state.streams.pop()
+
+    def asarray(array: Any, dtype: Any = None) -> Any:
+        state.copies.append((state.device, state.stream))
+        return np.asarray(array, dtype)
+
+    numpy_like.state = state
+    numpy_like.asarray = asarray
     numpy_like.empty = lambda shape, dtype=None: np.empty(shape, dtype).view(DeviceArray)
     numpy_like.stack = lambda arrays, axis=0: np.stack(arrays, axis).view(DeviceArray)
     numpy_like.zeros = lambda shape, dtype=float: np.zeros(shape, dtype).view(DeviceArray)
     numpy_like.__version__ = 'numpy stand-in'
     clock = [0.0]
     numpy_like.device_clock = clock
-    numpy_like.pools = (FakePool(), FakePool())
+    numpy_like.pools = (FakePool(state), FakePool())
     numpy_like.get_default_memory_pool = lambda: numpy_like.pools[0]
     numpy_like.get_default_pinned_memory_pool = lambda: numpy_like.pools[1]
     numpy_like.cuda = types.SimpleNamespace(
-        Device=lambda index: contextlib.nullcontext(),
-        Stream=FakeStream,
+        Device=Device,
+        Stream=Stream,
         Event=lambda: FakeEvent(clock),
         get_elapsed_time=lambda a, b: b.stamp - a.stamp,
         runtime=types.SimpleNamespace(runtimeGetVersion=lambda: 13000),

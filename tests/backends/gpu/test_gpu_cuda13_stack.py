@@ -19,6 +19,8 @@ from replaybench.backends.gpu import _libs, availability
 from replaybench.backends.gpu.tensorrt import EngineKey, engine_folder, trt_precision
 
 PYPROJECT = Path(__file__).resolve().parents[3] / 'pyproject.toml'
+#: The torch releases the GPU code is tested with (docs/gpu.md, Install).
+TORCH_RANGE = 'torch>=2.11,<2.14'
 CUDA_TOOLKIT_RUNTIME = Path('/usr/local/cuda-13.0/lib/libcudart.so.13')
 
 
@@ -36,7 +38,20 @@ def test_every_package_of_the_gpu_extra_is_built_for_cuda_13():
     assert names['onnxruntime-gpu'].startswith('onnxruntime-gpu[cuda,cudnn]>=1.31')
     assert re.fullmatch(r'tensorrt-cu13>=10\.\d+,<11', names['tensorrt-cu13'])
     assert 'nvidia-ml-py' in names
-    assert re.fullmatch(r'torch==\d+\.\d+\.\d+', names['torch'])
+    assert names['torch'] == TORCH_RANGE
+
+
+def test_the_gpu_extra_accepts_each_torch_it_is_tested_with_and_docs_gpu_md_says_which():
+    from packaging.requirements import Requirement
+
+    (torch,) = [Requirement(r) for r in _gpu_extra() if r.startswith('torch')]
+    accepted = [
+        v for v in ('2.10.0', '2.11.0', '2.12.1', '2.13.0', '2.14.0') if v in torch.specifier
+    ]
+    assert accepted == ['2.11.0', '2.12.1', '2.13.0']
+    docs = (PYPROJECT.parent / 'docs' / 'gpu.md').read_text(encoding='utf-8')
+    assert f'"{TORCH_RANGE}"' in docs
+    assert 'torch: 2.11, 2.12 and 2.13' in docs
 
 
 def test_tensorrt_needs_both_exact_sonames_its_provider_links(monkeypatch):

@@ -172,3 +172,88 @@ def test_hsv_cuda_gives_the_hsv_detections_within_the_stated_tolerance():
     assert identical == len(frames)  # what the CPU run of the same algorithm shows
     assert info['device_name']
     assert np.isfinite(info['device_memory_bytes'])
+
+
+def _assert_device_spans_within_host_laps(results: list[Any]) -> None:
+    """Each stage's device span (start to end event) lies within its host lap."""
+    for result in results:
+        s = result.stages
+        for device, host in (
+            (s.h2d_device_ns, s.h2d_ns),
+            (s.preprocess_device_ns, s.preprocess_ns),
+            (s.infer_device_ns, s.infer_ns),
+            (s.d2h_device_ns, s.d2h_ns),
+        ):
+            assert device is not None
+            assert host is not None
+            assert 0 < device <= host
+        assert s.postprocess_device_ns is not None
+        assert s.postprocess_ns is not None
+        assert 0 < s.postprocess_device_ns <= s.postprocess_ns
+
+
+@_needs('cuda')
+def test_cuda_device_spans_lie_within_the_host_stage_times(yolox_nano):
+    results, _ = _detect_all('cuda', BackendOptions(model=yolox_nano, engine='ort'), _frames())
+    _assert_device_spans_within_host_laps(results)
+
+
+@_needs('hsv-cuda')
+def test_hsv_cuda_device_spans_lie_within_the_host_stage_times():
+    results, _ = _detect_all('hsv-cuda', BackendOptions(), _frames())
+    _assert_device_spans_within_host_laps(results)
+
+
+@_needs('cuda')
+def test_the_cuda_provider_library_loads_on_a_machine_where_cuda_runs():
+    from replaybench.backends.gpu.availability import ort_provider_load_problem
+
+    assert ort_provider_load_problem('CUDAExecutionProvider') is None
+
+
+@_needs('cuda')
+@pytest.mark.skipif(not has('onnx2torch'), reason='onnx2torch is not installed')
+def test_an_fp32_torch_engine_keeps_both_tf32_apis_readable_and_off(yolox_nano):
+    import torch
+
+    backend = get_backend('cuda')(BackendOptions(model=yolox_nano, engine='torch'))  # type: ignore[call-arg]
+    backend.open()
+    try:
+        legacy = (torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32)
+        cudnn: Any = torch.backends.cudnn
+        modes = (cudnn.conv.fp32_precision, cudnn.rnn.fp32_precision)
+        graph = backend.info()
+    finally:
+        backend.close()
+    assert legacy == (False, False)
+    assert modes == ('ieee', 'ieee')
+    if graph['syncs_per_forward'] == 0:
+        assert graph['cuda_graph'] == 'captured'
+    else:
+        assert graph['cuda_graph'].startswith('eager (the forward synchronises')
+
+
+@_needs('hsv-cuda')
+@_needs('cuda')
+@pytest.mark.skipif(not has('pynvml'), reason='nvidia-ml-py (NVML) is not installed')
+def test_each_gpu_backend_of_a_run_gets_its_own_pass_peak(yolox_nano, tmp_path):
+    import json
+
+    from replaybench.replay.runner import RunConfig, run_benchmark
+
+    config = RunConfig(
+        inputs=[FIXTURE_BAGS / 'rgb8_raw.mcap'],
+        backends=['hsv-cuda', 'cuda'],
+        options=BackendOptions(model=yolox_nano),
+        out_dir=tmp_path / 'run',
+        max_frames=20,
+        report=False,
+    )
+    outcome = run_benchmark(config)
+    assert outcome.run_dir is not None
+    run = json.loads((outcome.run_dir / 'run.json').read_text(encoding='utf-8'))
+    for backend in run['backends']:
+        summary = backend['resources']['summary']
+        assert summary['gpu_mem_mb_start'] is not None, backend['name']
+        assert 0 <= summary['gpu_mem_mb_pass_peak'] <= summary['gpu_mem_mb_peak']
+        assert summary['gpu_mem_basis']

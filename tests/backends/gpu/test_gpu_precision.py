@@ -8,6 +8,7 @@ onnxruntime's GPU build are stood in for (``gpufakes``).
 from __future__ import annotations
 
 import importlib.util
+from typing import Any
 
 import pytest
 from backends.gpu.gpufakes import GPU_A, fake_gpu_build, torch_on_the_cpu
@@ -87,3 +88,66 @@ def test_precisions_are_fp32_tf32_and_fp16_and_nothing_else():
     assert PRECISIONS == ('fp32', 'tf32', 'fp16')
     with pytest.raises(BackendError, match=r"unknown --precision 'bf16'; known: fp32, tf32, fp16"):
         CudaBackend(BackendOptions(precision='bf16'))
+
+
+def _legacy() -> tuple[bool, bool]:
+    return torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32
+
+
+@pytest.mark.parametrize(('allow', 'mode'), [(False, 'ieee'), (True, 'tf32')])
+def test_the_legacy_tf32_flags_read_the_same_as_the_new_modes(allow, mode):
+    # conv alone set to 'ieee' makes reading cudnn.allow_tf32 raise in torch >= 2.9
+    restore = set_tf32(torch, allow=allow)
+    try:
+        assert _flags() == (mode, mode)
+        assert torch.backends.cudnn.rnn.fp32_precision == mode
+        assert _legacy() == (allow, allow)
+    finally:
+        restore()
+
+
+def test_a_process_whose_flags_already_disagree_gets_them_back_as_they_were():
+    restore_outer = set_tf32(torch, allow=True)
+    torch.backends.cudnn.conv.fp32_precision = 'ieee'  # conv and RNN now disagree
+    before = (_flags(), torch.backends.cudnn.rnn.fp32_precision)
+    restore = set_tf32(torch, allow=False)
+    assert _legacy() == (False, False)
+    restore()
+    assert (_flags(), torch.backends.cudnn.rnn.fp32_precision) == before
+    restore_outer()
+
+
+def _record_flags_per_frame(backend: CudaBackend, seen: list[tuple[str, str]]) -> None:
+    engine = backend._engine
+    assert engine is not None
+
+    def run() -> Any:
+        seen.append(_flags())
+        return engine()
+
+    backend._engine = run  # type: ignore[assignment]
+
+
+def test_two_open_engines_each_run_in_their_own_mode_and_the_first_closing_keeps_the_other(
+    monkeypatch, tiny_model, driver, scene
+):
+    driver([GPU_A])
+    torch_on_the_cpu(monkeypatch, torch)
+    fake_gpu_build(monkeypatch, GPU_SESSION)
+    before = _flags()
+    strict = CudaBackend(BackendOptions(model=tiny_model, engine='ort', precision='fp32'))
+    loose = CudaBackend(BackendOptions(model=tiny_model, engine='ort', precision='tf32'))
+    strict.open()
+    loose.open()  # every backend is opened before the first pass
+    seen: list[tuple[str, str]] = []
+    _record_flags_per_frame(strict, seen)
+    _record_flags_per_frame(loose, seen)
+    frame = scene(seed=1).frame('bgr8')
+    strict.detect(frame)
+    strict.close()
+    loose.detect(frame)
+    during = _flags()
+    loose.close()
+    assert seen == [('ieee', 'ieee'), ('tf32', 'tf32')]
+    assert during == ('tf32', 'tf32')
+    assert _flags() == before

@@ -149,3 +149,91 @@ def test_tensorrt_offers_only_the_ort_engine_and_takes_a_cache_option(tmp_path):
 def test_a_missing_model_is_a_backend_error_not_a_crash(tmp_path):
     with pytest.raises(BackendError, match='not found'):
         CudaBackend(BackendOptions(model=tmp_path / 'absent.onnx')).open()
+
+
+def _gpu_listed(monkeypatch):
+    """onnxruntime's build lists the GPU providers (as onnxruntime-gpu does); sessions are real."""
+    import onnxruntime
+
+    monkeypatch.setattr(
+        onnxruntime,
+        'get_available_providers',
+        lambda: ['CUDAExecutionProvider', 'CPUExecutionProvider'],
+    )
+
+
+def test_a_cuda_provider_that_cannot_load_is_blamed_on_the_libraries_it_lacks(
+    monkeypatch, tiny_model, driver
+):
+    # a real session: onnxruntime leaves the model to the CPU and, with CPU fallback disabled,
+    # fails with "... assigned to the default CPU EP ..."; the backend names what is missing
+    torch = pytest.importorskip('torch')
+    driver([GPU_A])
+    torch_on_the_cpu(monkeypatch, torch)
+    _gpu_listed(monkeypatch)
+    fake_loader(monkeypatch, {'libcudart.so.13': 13000})
+    backend = CudaBackend(BackendOptions(model=tiny_model, engine='ort'))
+    with pytest.raises(BackendUnavailableError) as err:
+        backend.open()
+    message = str(err.value)
+    assert 'onnxruntime could not load CUDAExecutionProvider' in message
+    assert 'libcublasLt.so.13, libcublas.so.13, libcudnn.so.9, not found' in message
+    assert 'assigned to the default CPU EP' in message  # onnxruntime's own words, kept
+    assert 'would run part of' not in message
+
+
+def test_with_every_library_there_the_loader_says_why_the_provider_library_does_not_load(
+    monkeypatch, tiny_model, driver, tmp_path
+):
+    from replaybench.backends.gpu import availability
+
+    torch = pytest.importorskip('torch')
+    driver([GPU_A])
+    torch_on_the_cpu(monkeypatch, torch)
+    _gpu_listed(monkeypatch)
+    provider = tmp_path / 'libonnxruntime_providers_cuda.so'
+    provider.write_bytes(b'')
+    monkeypatch.setattr(availability, 'ort_provider_library', lambda name: provider)
+    fake_loader(
+        monkeypatch,
+        {
+            'libcudart.so.13': 13000,
+            'libcublasLt.so.13': None,
+            'libcublas.so.13': None,
+            'libcudnn.so.9': 90100,
+        },
+    )
+    backend = CudaBackend(BackendOptions(model=tiny_model, engine='ort'))
+    with pytest.raises(BackendUnavailableError) as err:
+        backend.open()
+    message = str(err.value)
+    assert (
+        f'libonnxruntime_providers_cuda.so does not load: {provider}: cannot open shared object '
+        'file' in message
+    )
+
+
+def test_an_onnxruntime_without_the_provider_library_is_named_as_the_cpu_build(monkeypatch):
+    from replaybench.backends.gpu import availability
+
+    fake_loader(
+        monkeypatch,
+        {
+            'libcudart.so.13': 13000,
+            'libcublasLt.so.13': None,
+            'libcublas.so.13': None,
+            'libcudnn.so.9': 90100,
+        },
+    )
+    library = availability.ort_provider_library('CUDAExecutionProvider')
+    assert library is not None
+    assert library.name == 'libonnxruntime_providers_cuda.so'
+    assert library.parent.name == 'capi'
+    if library.is_file():
+        pytest.skip('this onnxruntime is a GPU build')
+    problem = availability.ort_provider_load_problem('CUDAExecutionProvider')
+    assert problem is not None
+    assert problem.startswith(
+        'onnxruntime has no libonnxruntime_providers_cuda.so (not an onnxruntime-gpu build)'
+    )
+    assert availability.ort_provider_load_problem('CPUExecutionProvider') is None

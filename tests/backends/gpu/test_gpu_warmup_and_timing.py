@@ -24,7 +24,7 @@ from backends.gpu.gpuhelpers import FIXTURE_BAGS
 
 from replaybench.backends.base import BackendOptions
 from replaybench.backends.gpu import _hsv_ops
-from replaybench.backends.gpu._cuda import EventTimer, StageClock
+from replaybench.backends.gpu._cuda import STAGE_EVENTS, EventTimer, StageClock
 from replaybench.backends.gpu.cuda import CudaBackend
 from replaybench.backends.gpu.hsv_cuda import (
     HsvCudaBackend,
@@ -172,29 +172,34 @@ def test_cuda_runs_one_inference_in_open_and_gives_cached_memory_back(
 
 
 class _Events:
-    """Timing events on a fake device clock: each one stamps the time its stage ended."""
+    """Timing events on a fake device clock: each one stamps the next of the given times."""
 
-    def __init__(self, ends_ms: list[float]) -> None:
-        self.ends = iter(ends_ms)
+    def __init__(self, stamps_ms: list[float]) -> None:
+        self.stamps = iter(stamps_ms)
         self.recorded: list[str] = []
 
     def make(self) -> EventTimer:
-        events = [{'t': None} for _ in range(6)]
+        events = [{'t': None} for _ in range(STAGE_EVENTS)]
 
         def record(event: dict[str, float | None]) -> None:
-            event['t'] = next(self.ends)
+            event['t'] = next(self.stamps)
             self.recorded.append('record')
 
         return EventTimer(events, record, lambda a, b: b['t'] - a['t'])
 
 
-def test_a_stage_clock_records_each_boundary_before_it_synchronises():
-    fake = _Events([10.0, 10.5, 12.0, 20.0, 20.25, 21.0])
+def test_a_stage_clock_records_a_start_and_an_end_event_per_stage_before_it_synchronises():
+    # start, end of each stage; the gaps between one stage's end and the next one's start
+    # (host work between them) are not in any device time
+    fake = _Events([10.0, 10.5, 11.0, 12.5, 13.0, 21.0, 25.0, 25.25, 26.0, 26.75])
     calls = fake.recorded
     clock = StageClock(lambda: calls.append('sync'), fake.make())
     clock.start()
-    host = [clock.lap() for _ in range(5)]
-    assert calls == ['record', 'sync'] * 6
+    host = []
+    for _ in range(5):
+        clock.begin()
+        host.append(clock.lap())
+    assert calls == ['sync'] + ['record', 'record', 'sync'] * 5
     assert clock.device_laps() == [500_000, 1_500_000, 8_000_000, 250_000, 750_000]
     assert all(h >= 0 for h in host)
     assert StageClock(lambda: None).device_laps() == []

@@ -1,0 +1,170 @@
+"""What a run is asked to do: ``RunConfig``, and the part of it each stage of the engine uses.
+
+``RunConfig`` is what the command line and the API build (``replaybench.app.run.run_config``);
+the engine hands each stage only its own part, resolved: ``InputOptions`` to open the inputs
+(``replaybench.replay.inputs``), ``PassOptions`` to the timed passes
+(``replaybench.replay.passes``) and ``OutputOptions`` to the writers
+(``replaybench.replay.output``).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from replaybench.backends.base import BackendOptions
+from replaybench.replay.rate import Rate
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+__all__ = [
+    'DEFAULT_GROUND_TRUTH_TOPIC',
+    'InputOptions',
+    'OutputOptions',
+    'PassOptions',
+    'RunConfig',
+    'backend_label',
+    'default_warmup',
+    'new_run_dir',
+]
+
+DEFAULT_GROUND_TRUTH_TOPIC = '/ground_truth/detections'
+
+
+def default_warmup(frames: int) -> int:
+    """Warm-up frames for a topic of ``frames`` frames: 10, but never more than a tenth."""
+    return min(10, frames // 10)
+
+
+def new_run_dir(base: Path = Path('replaybench-runs')) -> Path:
+    """A new timestamped folder name under ``base`` (not created)."""
+    stamp = dt.datetime.now(dt.UTC).strftime('%Y%m%d-%H%M%S')
+    candidate = base / stamp
+    n = 1
+    while candidate.exists():
+        n += 1
+        candidate = base / f'{stamp}-{n}'
+    return candidate
+
+
+@dataclass(frozen=True, slots=True)
+class RunConfig:
+    """Everything one ``replaybench run`` needs; the CLI builds it from its options."""
+
+    inputs: Sequence[Path]
+    backends: Sequence[str]
+    out_dir: Path | None  # None: in memory, no file written
+    force: bool = False
+    rate: Rate = field(default_factory=lambda: Rate('max'))
+    queue_depth: int = 1
+    warmup: int | None = None
+    threads: int | None = None
+    max_frames: int | None = None
+    start_s: float | None = None
+    duration_s: float | None = None
+    topics: Sequence[str] | None = None
+    ground_truth_topic: str | None = DEFAULT_GROUND_TRUTH_TOPIC
+    ground_truth_explicit: bool = False
+    options: BackendOptions = field(default_factory=BackendOptions)
+    command: Sequence[str] = ()
+    report: bool = True
+    prefetch: int = 4
+    recorded_topic: str | None = None
+    ground_truth_file: Path | None = None
+    ground_truth_match: str = 'stamp'  # 'stamp' | 'seq'
+    ground_truth_image_topic: str | None = None
+    ground_truth_seq_offset: int = 0
+    annotations: bool = False
+    copy_images: bool = False
+    detections_format: str = 'mcap'  # 'rosbag2': also a metadata.yaml, the run folder is a bag
+    #: False (--no-hash): the inputs' sha256 is not computed; run.json records null and says so
+    hash_inputs: bool = True
+    #: the inputs' sha256 when already known (a peak search's later trials): not hashed again
+    input_sha256: tuple[str | None, ...] | None = None
+
+    def input_options(self) -> InputOptions:
+        """The part of the config that opens and reads the inputs."""
+        return InputOptions(
+            topics=tuple(self.topics) if self.topics else None,
+            start_s=self.start_s,
+            duration_s=self.duration_s,
+            max_frames=self.max_frames,
+            ground_truth_topic=self.ground_truth_topic,
+            ground_truth_explicit=self.ground_truth_explicit,
+            recorded_topic=self.recorded_topic,
+            hash_inputs=self.hash_inputs,
+            input_sha256=self.input_sha256,
+        )
+
+    def pass_options(self) -> PassOptions:
+        """The part of the config that drives the timed passes."""
+        return PassOptions(
+            rate=self.rate,
+            queue_depth=self.queue_depth,
+            prefetch=self.prefetch,
+            warmup=self.warmup,
+        )
+
+    def output_options(self, out: Path | None) -> OutputOptions:
+        """The part of the config that writes the run folder (``out``: the temporary folder
+        the run is written into, None in memory)."""
+        return OutputOptions(
+            out=out,
+            backend_labels=tuple(backend_label(name) for name in self.backends),
+            annotations=self.annotations,
+            copy_images=self.copy_images,
+            detections_format=self.detections_format,
+            report=self.report,
+        )
+
+
+def backend_label(name: str) -> str:
+    """The label a backend carries in frames.csv, summary.csv and detections.mcap's topics."""
+    return name.replace('-', '_')
+
+
+@dataclass(frozen=True, slots=True)
+class InputOptions:
+    """Which topics, which window and which recorded detections an input is read for, and
+    whether its sha256 is computed."""
+
+    topics: tuple[str, ...] | None = None
+    start_s: float | None = None
+    duration_s: float | None = None
+    max_frames: int | None = None
+    ground_truth_topic: str | None = DEFAULT_GROUND_TRUTH_TOPIC
+    ground_truth_explicit: bool = False
+    recorded_topic: str | None = None
+    hash_inputs: bool = True
+    input_sha256: tuple[str | None, ...] | None = None
+
+    @property
+    def windowed(self) -> bool:
+        """--start or --duration cut a time window out of each input."""
+        return self.start_s is not None or self.duration_s is not None
+
+
+@dataclass(frozen=True, slots=True)
+class PassOptions:
+    """How the frames of a pass are released: the rate, the queues, the read-ahead and the
+    warm-up asked for (None: the default per topic)."""
+
+    rate: Rate = field(default_factory=lambda: Rate('max'))
+    queue_depth: int = 1
+    prefetch: int = 4
+    warmup: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class OutputOptions:
+    """What is written into the run folder ``out`` (None: nothing, the run is in memory)."""
+
+    out: Path | None
+    backend_labels: tuple[str, ...] = ()
+    annotations: bool = False
+    copy_images: bool = False
+    detections_format: str = 'mcap'
+    report: bool = True

@@ -1,0 +1,381 @@
+"""The inputs of a run, opened: their topics, time window, camera infos, ground truth (boxes
+and tags), the recorded detections a backend replays, the sample frame of each topic and their
+sha256.
+
+``open_input`` opens and probes one BAG argument into an ``OpenedInput``; ``replayed`` is the
+stream of image messages each pass reads from it; ``decoder`` turns one into the ``Frame`` a
+backend gets. The sha256 is started when the input opens (``start_hash``) and settled when the
+passes have ended (``settle_hash``).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, NamedTuple, cast
+
+from replaybench.decode import decode_detections, decode_image, message_kind
+from replaybench.decode.camera_info import CameraInfoIndex
+from replaybench.decode.probe import CameraTopic, probe_topics, unreadable_image_topics
+from replaybench.errors import DecodeError, SourceError, UsageError
+from replaybench.replay.hashing import ANNOUNCE_MIN_BYTES, InputHash, describe_size
+from replaybench.replay.tags import TagTable, read_tag_truth
+from replaybench.sources import Source, open_source
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator, Sequence
+    from pathlib import Path
+
+    from replaybench.replay.config import InputOptions, RunConfig
+    from replaybench.results.groundtruth import ExternalGroundTruth, MatchMode
+    from replaybench.types import Detection, Frame, RawMessage, SkippedTopic, TopicInfo
+
+__all__ = [
+    'DetectionTable',
+    'HashOutcome',
+    'OpenedInput',
+    'decoder',
+    'expected_frames',
+    'load_external',
+    'open_input',
+    'replayed',
+    'settle_hash',
+    'start_hash',
+]
+
+_NS = 1_000_000_000
+
+#: Detections by (frame_id, stamp_ns), as a Detection2DArray topic holds them
+DetectionTable = dict[tuple[str, int], tuple['Detection', ...]]
+
+
+class OpenedInput(NamedTuple):
+    """One BAG argument, opened and probed; its source is closed when the run ends."""
+
+    number: int
+    path: Path
+    source: Source
+    topics: list[CameraTopic]
+    camera_infos: CameraInfoIndex
+    ground_truth: DetectionTable
+    start_ns: int | None
+    end_ns: int | None
+    sample_index: dict[str, int]  # per topic: index among the replayed frames of the sample frame
+    recorded: DetectionTable  # for the `recorded` backend
+    recorded_topic: str | None
+    tag_truth: TagTable  # tag ground truth (replaybench.replay.tags), by (frame_id, stamp)
+    external: ExternalGroundTruth | None = None  # --ground-truth-file; replaces ground_truth
+    notes: tuple[str, ...] = ()  # warnings found while opening (detections left out)
+    sha256: InputHash | None = None  # started when the input opened (``start_hash``)
+    max_frames: int | None = None  # at most this many frames of each topic are replayed
+    size_bytes: int = 0  # of its files, when it was opened
+
+
+def load_external(config: RunConfig) -> ExternalGroundTruth | None:
+    """The --ground-truth-file, read and checked against the other options."""
+    if config.ground_truth_file is None:
+        return None
+    from replaybench.results.groundtruth import load_ground_truth_file
+
+    if config.ground_truth_explicit:
+        msg = 'give --ground-truth (a topic) or --ground-truth-file, not both'
+        raise UsageError(msg)
+    if config.ground_truth_match == 'seq' and len(config.inputs) > 1:
+        msg = '--ground-truth-match seq needs a single BAG: seq numbers restart in every bag'
+        raise UsageError(msg)
+    return load_ground_truth_file(
+        config.ground_truth_file,
+        match=cast('MatchMode', config.ground_truth_match),
+        topic=config.ground_truth_image_topic,
+        seq_offset=config.ground_truth_seq_offset,
+    )
+
+
+def _select_topics(
+    path: Path,
+    found: list[CameraTopic],
+    wanted: Sequence[str] | None,
+    unreadable: Sequence[SkippedTopic] = (),
+) -> list[CameraTopic]:
+    """The camera topics to replay; ``unreadable``: image topics in an unsupported encoding."""
+    if wanted and (asked := [t for t in unreadable if t.name in wanted]):
+        t = asked[0]
+        msg = f'{path}: topic {t.name} cannot be replayed: {t.reason} ({t.count} messages)'
+        raise UsageError(msg)
+    if not found:
+        msg = f'{path}: no image messages (sensor_msgs Image / CompressedImage) in this file'
+        if unreadable:
+            held = '; '.join(f'{t.name}: {t.count} messages, {t.reason}' for t in unreadable)
+            msg = f'{path}: no readable image topic ({held})'
+        raise SourceError(msg)
+    if wanted:
+        by_name = {t.name: t for t in found}
+        missing = [w for w in wanted if w not in by_name]
+        if len(missing) == len(wanted):
+            names = ', '.join(t.name for t in found)
+            msg = f'{path}: no image topic named {", ".join(missing)}; image topics: {names}'
+            raise UsageError(msg)
+        return [by_name[w] for w in wanted if w in by_name]
+    colour = [t for t in found if not t.is_depth]
+    if not colour:
+        names = ' '.join(f'--topic {t.name}' for t in found)
+        msg = (
+            f'{path}: only depth image topics ({", ".join(t.name for t in found)}); depth is not '
+            f'sent to detectors unless selected: add {names}'
+        )
+        raise UsageError(msg)
+    return colour
+
+
+def open_input(
+    index: int,
+    path: Path,
+    options: InputOptions,
+    external: ExternalGroundTruth | None = None,
+    *,
+    recorded_detections: bool = False,
+) -> OpenedInput:
+    """Open and probe one input; ``recorded_detections``: a backend replays the recorded
+    Detection2DArray topic (``Backend.uses_recorded_detections``), which is read here."""
+    source = open_source(path)
+    try:
+        skipped = source.skipped_topics()
+        if not any(t.count for t in source.topics()) and not any(t.count for t in skipped):
+            damaged = ' before the damage' if source.truncated else ' in this file'
+            msg = f'{path}: no messages{damaged}'
+            raise SourceError(msg)
+        found = probe_topics(source)
+        topics = _select_topics(path, found, options.topics, unreadable_image_topics(source))
+        if external is not None:
+            _check_external_topics(path, external, [t.name for t in topics])
+        all_topics = source.topics()
+        first = min((t.first_ns for t in all_topics), default=0)
+        start_ns = first + round(options.start_s * _NS) if options.start_s else None
+        end_ns = None
+        if options.duration_s is not None:
+            end_ns = (start_ns if start_ns is not None else first) + round(options.duration_s * _NS)
+        info_topics = [t.name for t in all_topics if message_kind(t.msgtype) == 'camera_info']
+        camera_infos = CameraInfoIndex.from_source(source, info_topics)
+        notes: list[str] = []
+        ground_truth: DetectionTable = {}
+        gt_topic = options.ground_truth_topic
+        gt_present = any(t.name == gt_topic for t in all_topics)
+        if gt_topic and not gt_present and options.ground_truth_explicit:
+            msg = f'{path}: ground-truth topic {gt_topic} is not in this file'
+            raise UsageError(msg)
+        if gt_topic and gt_present and external is None:
+            ground_truth = _read_detections(source, gt_topic, notes)
+        recorded: DetectionTable = {}
+        recorded_topic = None
+        if recorded_detections:
+            recorded_topic = _recorded_topic(path, all_topics, options)
+            recorded = _read_detections(source, recorded_topic, notes)
+        tag_truth = read_tag_truth(source, notes)
+        # the frame drawn in samples/: the middle one of the replayed frames (the first one when
+        # --start/--duration cut a window whose size is unknown before reading)
+        sample_index = {
+            t.name: 0 if options.windowed else min(t.count, options.max_frames or t.count) // 2
+            for t in topics
+        }
+        return OpenedInput(
+            number=index,
+            path=path,
+            source=source,
+            topics=topics,
+            camera_infos=camera_infos,
+            ground_truth=ground_truth,
+            start_ns=start_ns,
+            end_ns=end_ns,
+            sample_index=sample_index,
+            recorded=recorded,
+            recorded_topic=recorded_topic,
+            external=external,
+            notes=tuple(notes),
+            max_frames=options.max_frames,
+            size_bytes=sum(f.stat().st_size for f in source.files),
+            tag_truth=tag_truth,
+        )
+    except BaseException:
+        source.close()
+        raise
+
+
+def _check_external_topics(
+    path: Path, external: ExternalGroundTruth, replayed: Sequence[str]
+) -> None:
+    """Refuse a ground-truth file that cannot tell which replayed topic it annotates."""
+    if external.topic is not None and external.topic not in replayed:
+        msg = (
+            f'{path}: --ground-truth-image-topic {external.topic} is not replayed; '
+            f'replayed image topics: {", ".join(replayed)}'
+        )
+        raise UsageError(msg)
+    if external.topic is None and not external.topics and len(replayed) > 1:
+        msg = (
+            f'{external.path} does not say which image topic it annotates and {path} replays '
+            f'{len(replayed)}: add --ground-truth-image-topic (one of {", ".join(replayed)})'
+        )
+        raise UsageError(msg)
+
+
+def _read_detections(source: Source, topic: str, notes: list[str] | None = None) -> DetectionTable:
+    """Detection2DArray messages of a topic keyed by (frame_id, stamp); bad messages skipped.
+
+    Detections with a NaN or infinite box or score are left out; ``notes`` gets a line
+    saying how many.
+    """
+    table: DetectionTable = {}
+    nonfinite = messages = 0
+    for raw in source.messages(topics=[topic]):
+        try:
+            found = decode_detections(raw)
+        except DecodeError:
+            continue
+        table[(found.frame_id, found.stamp_ns)] = found.detections
+        if found.nonfinite:
+            nonfinite += found.nonfinite
+            messages += 1
+    if nonfinite and notes is not None:
+        notes.append(
+            f'{topic}: left out {nonfinite} detection(s) with a NaN or infinite box or score '
+            f'in {messages} message(s)'
+        )
+    return table
+
+
+def _recorded_topic(path: Path, topics: Sequence[TopicInfo], options: InputOptions) -> str:
+    """The Detection2DArray topic the `recorded` backend replays: given, or the only candidate."""
+    candidates = [
+        t.name
+        for t in topics
+        if message_kind(t.msgtype) == 'detections' and t.name != options.ground_truth_topic
+    ]
+    if options.recorded_topic is not None:
+        if options.recorded_topic not in {t.name for t in topics}:
+            msg = f'{path}: --recorded-topic {options.recorded_topic} is not in this file'
+            raise UsageError(msg)
+        return options.recorded_topic
+    if len(candidates) == 1:
+        return candidates[0]
+    found = ', '.join(candidates) if candidates else 'none'
+    msg = (
+        f'{path}: the recorded backend needs --recorded-topic TOPIC '
+        f'(Detection2DArray topics besides the ground truth: {found})'
+    )
+    raise UsageError(msg)
+
+
+def expected_frames(topic: CameraTopic, max_frames: int | None) -> int:
+    """Frames of ``topic`` a pass replays (its count, at most ``max_frames``)."""
+    n = topic.count
+    if max_frames is not None:
+        n = min(n, max_frames)
+    return n
+
+
+def replayed(inp: OpenedInput) -> Iterator[RawMessage]:
+    """The image messages a pass replays: the window, at most --max-frames per topic."""
+    names = [t.name for t in inp.topics]
+    messages = inp.source.messages(topics=names, start_ns=inp.start_ns, end_ns=inp.end_ns)
+    if inp.max_frames is None:
+        return messages
+    return _at_most(messages, names, inp.max_frames)
+
+
+def _at_most(
+    messages: Iterator[RawMessage], names: Sequence[str], limit: int
+) -> Iterator[RawMessage]:
+    """The first ``limit`` messages of each topic in ``names``."""
+    counts: dict[str, int] = {}
+    for raw in messages:
+        n = counts.get(raw.topic, 0)
+        if n >= limit:
+            if all(counts.get(t, 0) >= limit for t in names):
+                return
+            continue
+        counts[raw.topic] = n + 1
+        yield raw
+
+
+def decoder(inp: OpenedInput) -> Callable[[RawMessage], Frame]:
+    """RawMessage -> the Frame a backend gets: ``decode_image``, plus camera info and the
+    input's index where there are any to add."""
+    number = inp.number
+    lookup = inp.camera_infos.lookup
+    if number == 0 and all(inp.camera_infos.topic_for(t.name) is None for t in inp.topics):
+        return decode_image
+
+    def decode(raw: RawMessage) -> Frame:
+        frame = decode_image(raw)
+        return frame._replace(camera_info=lookup(frame.topic, frame.stamp_ns), input_index=number)
+
+    return decode
+
+
+# -- the sha256 --------------------------------------------------------------------------------
+
+
+def start_hash(
+    inp: OpenedInput,
+    options: InputOptions,
+    hasher: Callable[[Sequence[Path]], InputHash] | None,
+    notice: Callable[[str], None] | None,
+) -> InputHash | None:
+    """The input's sha256, started now: in a thread for a large input, announced on the
+    terminal (``notice``) over ``ANNOUNCE_MIN_BYTES``; None when not computed here (--no-hash,
+    or known already)."""
+    if not options.hash_inputs or options.input_sha256 is not None:
+        return None
+    found = (hasher or InputHash)(list(inp.source.files))
+    if notice is not None and found.size_bytes > ANNOUNCE_MIN_BYTES:
+        size = describe_size(found.size_bytes)
+        notice(f'replaybench: hashing {inp.path.name} ({size}, sha256) in the background')
+    return found.start()
+
+
+class HashOutcome(NamedTuple):
+    """An input's sha256 as run.json records it, and what to warn about it."""
+
+    sha256: str | None
+    warnings: tuple[str, ...] = ()
+
+
+def settle_hash(
+    inp: OpenedInput,
+    options: InputOptions,
+    *,
+    passes_began: float,
+    interrupted: bool,
+    notice: Callable[[str], None] | None,
+) -> HashOutcome:
+    """The input's sha256 once the passes have ended; a hash that ran while frames were
+    measured, was cut short or failed is a warning of the input."""
+    if not options.hash_inputs:
+        return HashOutcome(
+            None,
+            (
+                (
+                    'not hashed (--no-hash): sha256 is null, so compare cannot check that other '
+                    'runs replayed the same input'
+                ),
+            ),
+        )
+    if options.input_sha256 is not None:
+        return HashOutcome(options.input_sha256[inp.number])
+    found = inp.sha256
+    if found is None:  # pragma: no cover - started for every input that is hashed
+        return HashOutcome(None)
+    if interrupted and not found.done:
+        found.cancel()
+        return HashOutcome(None, ('sha256 not computed: the run was interrupted before it ended',))
+    if not found.done and notice is not None:
+        notice(f'replaybench: waiting for the sha256 of {inp.path.name}')
+    sha256 = found.wait()
+    warnings: list[str] = []
+    if found.error is not None:
+        warnings.append(f'sha256 not computed: {found.error}')
+    overlap = found.overlap_s(passes_began)
+    if found.background and overlap > 0:
+        warnings.append(
+            f'its sha256 was computed during the first {overlap:.1f} s of the measured passes, '
+            'sharing the CPU and the disk with them (--no-hash leaves it out)'
+        )
+    return HashOutcome(sha256, tuple(warnings))

@@ -1,0 +1,200 @@
+"""The run folder's files as the engine writes them: detections.mcap (with the camera infos
+and, on request, the replayed images), frames.csv, summary.csv, run.json, and the sample
+frames read again for the renderer. In memory (no folder) the writers are ``Discard``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
+
+from replaybench.decode import decode_image, to_bgr8
+from replaybench.errors import DecodeError
+from replaybench.replay.inputs import replayed
+from replaybench.results.io import write_run_result
+from replaybench.results.records import FramesCsvWriter
+from replaybench.results.runfolder import with_filename
+from replaybench.results.summarycsv import write_summary_csv
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Iterator, Mapping, Sequence
+    from pathlib import Path
+
+    from replaybench.replay.config import OutputOptions
+    from replaybench.replay.inputs import OpenedInput
+    from replaybench.replay.recording import DetectionsSink, FrameSink, Sample
+    from replaybench.results.model import RunResult
+    from replaybench.results.stats import Summary
+    from replaybench.sources import Source
+    from replaybench.types import Detection
+
+__all__ = [
+    'Discard',
+    'Renderer',
+    'SampleImage',
+    'copy_camera_infos',
+    'copy_images',
+    'finish_files',
+    'sample_images',
+    'writers',
+]
+
+
+class SampleImage(NamedTuple):
+    """The sample frame of one topic, read again after the passes, with every backend's
+    detections on it (by backend label, in run order)."""
+
+    input: int
+    topic: str
+    image: Any  # BGR8 ndarray
+    detections: Mapping[str, tuple[Detection, ...]]
+    title: str
+
+
+class Renderer(Protocol):
+    """What the application draws into the run folder besides the engine's files: the sample
+    pictures and report.html (``replaybench.app.run.ReportRenderer``). The engine calls it in
+    the temporary folder, before run.json is written."""
+
+    def samples(self, out: Path, samples: Iterable[SampleImage]) -> list[str]:
+        """Draw each sample into ``out``; the files written, relative to ``out``."""
+        ...
+
+    def report(self, out: Path, run: RunResult) -> None:
+        """Write report.html into ``out`` from ``run`` (run.json to be), whose
+        ``frame_records`` are frames.csv's rows."""
+        ...
+
+
+class Discard:
+    """The frames.csv and detections.mcap writers of a run made in memory: nothing is kept."""
+
+    def __enter__(self) -> Discard:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def write(self, *args: object) -> None:
+        """A frames.csv row: dropped."""
+
+    def add(self, *args: object) -> None:
+        """A detections message: dropped."""
+
+    def add_camera_info(self, *args: object) -> None:
+        """A camera info message: dropped."""
+
+    def add_raw(self, *args: object) -> None:
+        """A copied image message: dropped."""
+
+
+@contextlib.contextmanager
+def writers(options: OutputOptions) -> Iterator[tuple[FrameSink, DetectionsSink]]:
+    """frames.csv's and detections.mcap's writers, open for the passes (``Discard`` in
+    memory). An ``OSError`` that names no file is detections.mcap's (frames.csv names its
+    own)."""
+    out = options.out
+    if out is None:
+        yield Discard(), Discard()
+        return
+    from replaybench.sinks.mcap_writer import DetectionsWriter
+
+    try:
+        with (
+            FramesCsvWriter(out / 'frames.csv') as frames_csv,
+            DetectionsWriter(
+                out / 'detections.mcap',
+                annotations=options.annotations,
+                backends=list(options.backend_labels),
+            ) as detections_out,
+        ):
+            yield frames_csv, detections_out
+    except OSError as err:
+        raise with_filename(err, out / 'detections.mcap') from None
+
+
+def copy_camera_infos(inputs: Sequence[OpenedInput], writer: DetectionsSink) -> None:
+    """Every input's camera infos into detections.mcap, once each (by topic and log time)."""
+    seen: set[tuple[str, int]] = set()
+    for inp in inputs:
+        for info in inp.camera_infos.all():
+            key = (info.topic, info.log_time_ns)
+            if key in seen:
+                continue
+            seen.add(key)
+            writer.add_camera_info(info.topic, info.log_time_ns, info)
+
+
+def copy_images(inputs: Sequence[OpenedInput], writer: DetectionsSink) -> dict[int, str]:
+    """--copy-images: the replayed image messages into detections.mcap, once each.
+
+    Returns a warning per input whose messages could not all be copied.
+    """
+    problems: dict[int, str] = {}
+    for inp in inputs:
+        failed, first = 0, ''
+        for raw in replayed(inp):
+            try:
+                writer.add_raw(raw)
+            except DecodeError as err:
+                failed, first = failed + 1, first or str(err)
+        if failed:
+            problems[inp.number] = f'{failed} image message(s) not copied: {first}'
+    return problems
+
+
+def sample_images(
+    samples: Mapping[tuple[int, str], Sample], inputs: Sequence[OpenedInput]
+) -> Iterator[SampleImage]:
+    """Each sample frame, read and decoded again, with every backend's detections."""
+    for (index, topic), sample in sorted(samples.items()):
+        image = _sample_image(inputs[index].source, topic, sample)
+        if image is not None:
+            yield SampleImage(index, topic, image, sample.detections, sample.title)
+
+
+def _sample_image(source: Source, topic: str, sample: Sample) -> Any:
+    """The sample's frame as BGR, or None if it cannot be read again."""
+    log_time = sample.log_time_ns
+    for raw in source.messages(topics=[topic], start_ns=log_time, end_ns=log_time + 1):
+        if raw.seq == sample.seq:
+            try:
+                frame = decode_image(raw)
+            except DecodeError:
+                return None
+            return to_bgr8(frame.image, frame.encoding)
+    return None
+
+
+def write_detections_metadata(options: OutputOptions) -> None:
+    """--format rosbag2: metadata.yaml beside detections.mcap, which makes the folder a bag."""
+    if options.detections_format == 'rosbag2' and options.out is not None:
+        from replaybench.sinks.rosbag2 import write_rosbag2_metadata
+
+        write_rosbag2_metadata(options.out / 'detections.mcap')
+
+
+def write_summary(options: OutputOptions, summaries: Sequence[Summary]) -> None:
+    """summary.csv."""
+    if options.out is not None:
+        write_summary_csv(options.out / 'summary.csv', summaries)
+
+
+def draw_samples(
+    options: OutputOptions, render: Renderer | None, samples: Iterable[SampleImage]
+) -> list[str]:
+    """The sample pictures the renderer draws into the folder; their paths in it."""
+    if options.out is None or render is None:
+        return []
+    return render.samples(options.out, samples)
+
+
+def finish_files(options: OutputOptions, render: Renderer | None, record: RunResult) -> None:
+    """report.html (drawn by ``render`` when the report is asked for), then run.json: last, so
+    that a run.json never points at a file that is not there yet."""
+    out = options.out
+    if out is None:
+        return
+    if render is not None and record.outputs is not None and record.outputs.report is not None:
+        render.report(out, record)
+    write_run_result(out / 'run.json', record)

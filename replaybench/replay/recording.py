@@ -1,0 +1,274 @@
+"""From a pass's log to records: frames.csv rows, detections messages, scores and samples.
+
+``Recorder.take`` runs after each pass (also one cut short) and turns every ``LogEntry`` into
+its ``FrameRecord`` (a frames.csv row) and, for a frame the backend processed, into what its
+``BackendResult`` leads to (``Recorder.task_outputs``): the detections message in
+detections.mcap, the detections kept for scoring against ground truth and for the agreement
+between backends, and the boxes drawn on the sample picture. A new task type (a result the
+backend returns beside its detections) plugs in there: its sink's writer call, what its
+metrics need kept, and its count in the record.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING, Any, Protocol
+
+from replaybench.replay.tags import TagScores
+from replaybench.results.records import FrameRecord
+from replaybench.types import BackendResult, StageTimes
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from replaybench.replay.inputs import OpenedInput
+    from replaybench.replay.passes import LogEntry, Pass, Warmups
+    from replaybench.types import CameraInfo, Detection, RawMessage
+
+__all__ = ['DetectionsSink', 'FrameSink', 'Recorder', 'Sample']
+
+#: (input, seq) -> detections of one (backend label, topic)
+FrameDetections = dict[tuple[int, int], tuple['Detection', ...]]
+#: a ground-truth frame: (input, frame_id, stamp_ns) for a topic, (input, topic, seq) for a file
+TruthKey = tuple[int, str, int]
+
+_NOT_TIMED = StageTimes()
+
+
+class FrameSink(Protocol):
+    """Where frames.csv rows go (``FramesCsvWriter``, or nothing in memory)."""
+
+    def write(self, record: FrameRecord, /) -> None: ...
+
+
+class DetectionsSink(Protocol):
+    """Where detections messages go (``replaybench.sinks.mcap_writer.DetectionsWriter``, or
+    nothing in memory)."""
+
+    def add(
+        self,
+        backend: str,
+        topic: str,
+        log_time_ns: int,
+        stamp_ns: int,
+        frame_id: str,
+        detections: Sequence[Detection],
+        /,
+    ) -> Any: ...
+
+    def add_camera_info(self, topic: str, log_time_ns: int, info: CameraInfo, /) -> Any: ...
+
+    def add_raw(self, raw: RawMessage, /) -> Any: ...
+
+
+class Sample:
+    """The frame drawn for a topic (by its seq and log time), with each backend's detections.
+
+    The replay keeps no image: the frame is read again after the passes
+    (``replaybench.replay.output.sample_images``).
+    """
+
+    def __init__(self, seq: int, log_time_ns: int, title: str) -> None:
+        self.seq = seq
+        self.log_time_ns = log_time_ns
+        self.title = title
+        self.detections: dict[str, tuple[Detection, ...]] = {}
+
+
+def _ms(ns: int | None) -> float | None:
+    return None if ns is None else ns / 1e6
+
+
+class Recorder:
+    """The records of a run, made pass by pass from the passes' logs."""
+
+    def __init__(
+        self,
+        inputs: Sequence[OpenedInput],
+        warmups: Warmups,
+        frames_csv: FrameSink,
+        detections_out: DetectionsSink,
+    ) -> None:
+        self.warmups = warmups
+        self.frames_csv = frames_csv
+        self.detections_out = detections_out
+        self.records: list[FrameRecord] = []
+        self.processed: dict[tuple[str, str], int] = {}
+        self.skipped: dict[str, int] = {}
+        #: ground truth of the frames scored: from the inputs' topics, and matched from a file
+        self.ground_truth: dict[TruthKey, tuple[Detection, ...]] = {
+            (inp.number, frame_id, stamp): dets
+            for inp in inputs
+            for (frame_id, stamp), dets in inp.ground_truth.items()
+        }
+        #: per (backend label, topic): the detections of each frame that has ground truth
+        self.scored: dict[tuple[str, str], dict[TruthKey, tuple[Detection, ...]]] = {}
+        #: every backend's detections per frame, for the agreement between backends
+        self.detections: dict[tuple[str, str], FrameDetections] = {}
+        self.samples: dict[tuple[int, str], Sample] = {}
+        #: the tag backends' tags scored against tag ground truth (replaybench.replay.tags)
+        self.tags = TagScores()
+        self._taken: dict[tuple[str, int, str], int] = {}
+
+    def take(self, done: Pass) -> float:
+        """Turn the pass's log into records and frames.csv rows, detections messages, scores
+        and the sample; the log is emptied. Returns the seconds it took (wall clock)."""
+        began = time.perf_counter()
+        entries, done.log = done.log, []
+        for entry in entries:
+            if isinstance(entry.outcome, BackendResult):
+                self._processed(done, entry, entry.outcome)
+            else:
+                self._unprocessed(done, entry, entry.outcome)
+        return time.perf_counter() - began
+
+    def _record(self, record: FrameRecord) -> None:
+        self.records.append(record)
+        self.frames_csv.write(record)
+
+    def _skip(self, reason: str) -> None:
+        short = reason.split(':', 1)[0] if len(reason) > 80 else reason
+        self.skipped[short] = self.skipped.get(short, 0) + 1
+
+    def _unprocessed(self, done: Pass, entry: LogEntry, error: Exception | None) -> None:
+        """A frame the backend never saw: pushed out of its queue (``error`` None) or skipped
+        because it did not decode (its times up to the failed decode are kept)."""
+        topic, seq, log_time_ns, _, _ = entry.key
+        t0 = done.t0
+        dropped = error is None
+        note = 'pushed out of the queue' if error is None else str(error)
+        if not dropped:
+            self._skip(note)
+        self._record(
+            FrameRecord(
+                input=done.inp.number,
+                backend=done.label,
+                topic=topic,
+                seq=seq,
+                log_time_ns=log_time_ns,
+                stamp_ns=None,
+                status='dropped' if dropped else 'skipped',
+                note=note,
+                warmup=False,
+                dropped=dropped,
+                release_s=entry.release - t0,
+                start_s=None if dropped else entry.start - t0,
+                done_s=None if dropped else entry.done - t0,
+                queue_wait_ms=None if dropped else entry.queue_wait_s * 1e3,
+                read_decode_ms=None if dropped else entry.read_decode_s * 1e3,
+            )
+        )
+
+    def _processed(self, done: Pass, entry: LogEntry, result: BackendResult) -> None:
+        """``latency = queue wait + read/decode + backend``: the backend part runs from the
+        detector's call to its detections; read/decode was measured where it ran."""
+        topic, seq, log_time_ns, stamp_ns, _ = entry.key
+        label_key = (done.label, topic)
+        n_done = self.processed.get(label_key, 0)
+        self.processed[label_key] = n_done + 1
+        task_columns = self.task_outputs(done, entry, result)
+        t0 = done.t0
+        timed = done.measures_latency
+        stages = result.stages if timed else _NOT_TIMED
+        queue_wait_s, read_decode_s = entry.queue_wait_s, entry.read_decode_s
+        latency_s = queue_wait_s + read_decode_s + entry.done - entry.t_detect
+        self._record(
+            FrameRecord(
+                input=done.inp.number,
+                backend=done.label,
+                topic=topic,
+                seq=seq,
+                log_time_ns=log_time_ns,
+                stamp_ns=stamp_ns,
+                status='ok',
+                note='' if timed else 'recorded detections: latency not measured',
+                warmup=timed and n_done < self.warmups(topic),
+                dropped=False,
+                release_s=entry.release - t0,
+                start_s=entry.start - t0,
+                done_s=entry.done - t0,
+                queue_wait_ms=queue_wait_s * 1e3,
+                read_decode_ms=read_decode_s * 1e3,
+                preprocess_ms=_ms(stages.preprocess_ns),
+                infer_ms=_ms(stages.infer_ns),
+                postprocess_ms=_ms(stages.postprocess_ns),
+                h2d_ms=_ms(stages.h2d_ns),
+                d2h_ms=_ms(stages.d2h_ns),
+                latency_ms=latency_s * 1e3 if timed else None,
+                detections=len(result.detections),
+                preprocess_device_ms=_ms(stages.preprocess_device_ns),
+                infer_device_ms=_ms(stages.infer_device_ns),
+                postprocess_device_ms=_ms(stages.postprocess_device_ns),
+                h2d_device_ms=_ms(stages.h2d_device_ns),
+                d2h_device_ms=_ms(stages.d2h_device_ns),
+                **task_columns,
+            )
+        )
+
+    def task_outputs(self, done: Pass, entry: LogEntry, result: BackendResult) -> dict[str, Any]:
+        """What a processed frame's result leads to besides its record: the task-type seam.
+
+        Detections: their message in detections.mcap (the sink), the detections kept for the
+        agreement between backends and, where the frame has ground truth, for scoring (the
+        metrics, ``replaybench.replay.record.summaries``), and the sample's boxes.
+        Tags (a ``TagResult``): their messages in detections.mcap and their score against the
+        frame's tag ground truth (``TagScores``). Returns the task's own ``FrameRecord`` fields
+        (the tag columns; none for a backend that finds no tags).
+        """
+        topic, seq, log_time_ns, stamp_ns, frame_id = entry.key
+        assert stamp_ns is not None  # a processed frame decoded
+        inp = done.inp
+        number = inp.number
+        label_key = (done.label, topic)
+        detections = result.detections
+        self.detections.setdefault(label_key, {})[(number, seq)] = detections
+        self.detections_out.add(done.label, topic, log_time_ns, stamp_ns, frame_id, detections)
+        if inp.external is not None:
+            truth = inp.external.lookup(topic, seq, stamp_ns)
+            if truth is not None:
+                frame_key = (number, topic, seq)
+                self.ground_truth[frame_key] = truth
+                self.scored.setdefault(label_key, {})[frame_key] = detections
+        elif (frame_id, stamp_ns) in inp.ground_truth:
+            self.scored.setdefault(label_key, {})[(number, frame_id, stamp_ns)] = detections
+        tag_columns = self.tags.frame(
+            done.label,
+            topic,
+            log_time_ns,
+            stamp_ns,
+            frame_id,
+            result,
+            inp.tag_truth.get((frame_id, stamp_ns)),
+            self.detections_out,
+        )
+        self._sample(done, topic, seq, log_time_ns, detections)
+        return tag_columns
+
+    def _sample(
+        self,
+        done: Pass,
+        topic: str,
+        seq: int,
+        log_time_ns: int,
+        detections: tuple[Detection, ...],
+    ) -> None:
+        """Choose the sample frame of this topic (the first backend does) and keep its boxes."""
+        inp = done.inp
+        key = (inp.number, topic)
+        counter = (done.label, inp.number, topic)
+        taken = self._taken.get(counter, 0)
+        self._taken[counter] = taken + 1
+        sample = self.samples.get(key)
+        if sample is None and taken == inp.sample_index.get(topic):
+            sample = self.samples[key] = Sample(seq, log_time_ns, f'{topic} #{seq}')
+        if sample is not None and sample.seq == seq:
+            sample.detections[done.label] = detections
+
+    def ground_truth_frames(self, number: int) -> int:
+        """Frames of input ``number`` matched to a ground-truth file."""
+        return sum(1 for key in self.ground_truth if key[0] == number)
+
+    def measured(self) -> bool:
+        """Whether any frame was measured: a processed frame past its warm-up, or a frame
+        pushed out of its queue (a measurement of drops)."""
+        return any((r.status == 'ok' and not r.warmup) or r.dropped for r in self.records)

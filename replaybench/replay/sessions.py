@@ -1,0 +1,237 @@
+"""The backends of a run: made, opened before anything is measured, driven over every input
+while their resource use is sampled, and closed once.
+
+``make_backends`` makes every backend (checking its declared traits), ``open_backends`` opens
+them (models loaded, recorded detections handed over) and ``run_backend`` runs one over every
+input, then closes it and says what it reported and cost (a ``BackendRun``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import TYPE_CHECKING, Any
+
+from replaybench.backends import get_backend
+from replaybench.backends.base import RecordedDetections, backend_traits
+from replaybench.errors import BackendError, ReplaybenchError, one_line
+from replaybench.replay.passes import DetectFailed, Pass
+from replaybench.replay.resources import ResourceSampler
+from replaybench.results.io import to_json
+from replaybench.results.model import (
+    BackendFailure,
+    BackendRun,
+    ReadAhead,
+    ResourcePoint,
+    Resources,
+    ResourceSummary,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator, Mapping, Sequence
+
+    from replaybench.backends.base import Backend, BackendOptions
+    from replaybench.replay.inputs import OpenedInput
+    from replaybench.replay.passes import Replay
+    from replaybench.replay.recording import Recorder
+
+__all__ = [
+    'SLOW_OPEN_S',
+    'OpenBackend',
+    'make_backend',
+    'make_backends',
+    'open_backends',
+    'run_backend',
+]
+
+#: A backend still opening after this many seconds is announced through ``notice``.
+SLOW_OPEN_S = 2.0
+
+
+class OpenBackend:
+    """A backend made and opened before the replay; closed once, after its pass."""
+
+    def __init__(self, name: str, backend: Backend) -> None:
+        self.name = name
+        self.backend = backend
+        self.closed = False
+
+    def close(self) -> str | None:
+        """Close it (the first call only); what ``close()`` raised, as one line, or None."""
+        if self.closed:
+            return None
+        self.closed = True
+        try:
+            self.backend.close()
+        except Exception as err:  # noqa: BLE001  a plugin's close() must not lose the run
+            return one_line(err)
+        return None
+
+
+def make_backend(name: str, options: BackendOptions) -> Backend:
+    """The registered backend ``name``, made with ``options`` (not opened)."""
+    cls = get_backend(name)
+    backend: Backend = cls(options)  # type: ignore[call-arg]
+    return backend
+
+
+def _could_not_open(name: str, err: Exception) -> BackendError:
+    return BackendError(f'backend {name!r} could not be opened: {one_line(err)}')
+
+
+def make_backends(
+    names: Sequence[str],
+    options: BackendOptions,
+    factory: Callable[[str, BackendOptions], Backend],
+) -> list[tuple[str, Backend]]:
+    """Every backend made (not opened yet), with its traits checked (``backend_traits``)."""
+    made: list[tuple[str, Backend]] = []
+    for name in names:
+        try:
+            backend = factory(name, options)
+            backend_traits(backend)
+        except ReplaybenchError:
+            raise
+        except Exception as err:  # a plugin's own error: one line
+            raise _could_not_open(name, err) from err
+        made.append((name, backend))
+    return made
+
+
+@contextlib.contextmanager
+def _announced_if_slow(notice: Callable[[str], None] | None, line: str) -> Iterator[None]:
+    """``notice(line)`` from a timer thread if the block is still running after
+    ``SLOW_OPEN_S``."""
+    from threading import Timer
+
+    if notice is None:
+        yield
+        return
+    timer = Timer(SLOW_OPEN_S, notice, (line,))
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+
+
+def _recorded_detections(inputs: Sequence[OpenedInput]) -> RecordedDetections:
+    return RecordedDetections(
+        ', '.join(sorted({i.recorded_topic or '' for i in inputs})),
+        {(inp.number, *key): dets for inp in inputs for key, dets in inp.recorded.items()},
+    )
+
+
+def open_backends(
+    made: list[tuple[str, Backend]],
+    inputs: Sequence[OpenedInput],
+    notice: Callable[[str], None] | None = None,
+) -> list[OpenBackend]:
+    """Every backend prepared and opened (models loaded) before anything is measured; one
+    still opening after ``SLOW_OPEN_S`` (a model conversion, an engine build) is announced
+    through ``notice``. On failure those already opened are closed again."""
+    opened: list[OpenBackend] = []
+    try:
+        for name, backend in made:
+            try:
+                if backend_traits(backend).uses_recorded_detections:
+                    prepare = getattr(backend, 'prepare', None)
+                    if not callable(prepare):
+                        msg = f'backend {name!r} uses recorded detections but has no prepare()'
+                        raise BackendError(msg)
+                    prepare(_recorded_detections(inputs))
+                slow = (
+                    f'replaybench: opening backend {name} (loading its model; a conversion or '
+                    'an engine build can take minutes)'
+                )
+                with _announced_if_slow(notice, slow):
+                    backend.open()
+            except ReplaybenchError:
+                raise
+            except Exception as err:  # a plugin's own error: one line
+                raise _could_not_open(name, err) from err
+            opened.append(OpenBackend(name, backend))
+    except BaseException:
+        for entry in opened:
+            entry.close()
+        raise
+    return opened
+
+
+def run_backend(
+    replay: Replay,
+    recorder: Recorder,
+    entry: OpenBackend,
+    label: str,
+    inputs: Sequence[OpenedInput],
+    *,
+    gpu_index: int | None,
+    warnings: list[str],
+    runs: list[BackendRun],
+) -> None:
+    """One opened backend over every input, sampled for resource use (``gpu_index``: the GPU
+    whose use is sampled), then closed; its ``BackendRun`` appended to ``runs`` even if cut
+    short. A ``detect`` that raises stops the backend: the frames before it are kept and the
+    error recorded (``status`` 'failed', ``error``); what ``close()`` raised goes to
+    ``warnings``."""
+    backend = entry.backend
+    passes: list[Pass] = []
+    error: BackendFailure | None = None
+    record_s = 0.0
+    with ResourceSampler(gpu_index=gpu_index) as sampler:
+        try:
+            for inp in inputs:
+                p = Pass(replay, label, backend, inp)
+                passes.append(p)
+                try:
+                    p.run()
+                finally:
+                    record_s += recorder.take(p)
+        except DetectFailed as failure:
+            error = BackendFailure(
+                input=failure.input, topic=failure.topic, seq=failure.seq, message=failure.message
+            )
+        finally:
+            # after the passes: what the backend actually used and counted
+            sampler.stop()
+            try:
+                info: Any = backend.info()
+            except Exception as err:  # noqa: BLE001  a plugin's info() must not lose the run
+                info = {'error': one_line(err)}
+            closing = entry.close()
+            if closing is not None:
+                warnings.append(f'backend {entry.name!r}: close() raised {closing}')
+            runs.append(
+                BackendRun(
+                    name=entry.name,
+                    label=label,
+                    status='ok' if error is None else 'failed',
+                    error=error,
+                    info=to_json(info),
+                    resources=Resources(
+                        summary=resource_summary(sampler.summary()),
+                        series=tuple(ResourcePoint(**_plain(p)) for p in sampler.series()),
+                    ),
+                    read_ahead=tuple(
+                        ReadAhead(input=p.inp.number, **_plain(p.read_ahead))
+                        for p in passes
+                        if p.read_ahead is not None
+                    ),
+                    # records, frames.csv rows, detections messages: made after each pass
+                    record_s=record_s,
+                )
+            )
+
+
+def _plain(values: Mapping[str, Any]) -> dict[str, Any]:
+    """``values`` with each value as run.json holds it (NaN and infinities None, numpy scalars
+    Python numbers, sequences tuples)."""
+    return {
+        key: tuple(to_json(value)) if isinstance(value, list | tuple) else to_json(value)
+        for key, value in values.items()
+    }
+
+
+def resource_summary(values: Mapping[str, Any]) -> ResourceSummary:
+    """A ``ResourceSampler.summary()`` as the typed ``ResourceSummary``."""
+    return ResourceSummary(**_plain(values))

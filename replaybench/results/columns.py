@@ -1,0 +1,119 @@
+"""summary.csv's columns and cells: what a summary row (``SummaryRow``) is written as.
+
+Kept apart from the statistics and the model, so that the pandas tables
+(``replaybench.results.tables``), which the model's DataFrame properties import, need neither.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from replaybench.textsafe import csv_text
+
+__all__ = [
+    'ACCURACY_COLUMNS',
+    'COUNT_COLUMNS',
+    'INTERVAL_COLUMNS',
+    'RESOURCE_COLUMNS',
+    'STATISTICS_COLUMNS',
+    'SUMMARY_CSV_COLUMNS',
+    'TAG_SUMMARY_COLUMNS',
+    'TEXT_COLUMNS',
+    'summary_cell',
+]
+
+#: The (backend, topic) a row is about, and its frame counts.
+COUNT_COLUMNS: tuple[str, ...] = (
+    'frames',
+    'processed',
+    'measured',
+    'warmup',
+    'dropped',
+    'skipped',
+)
+
+#: Throughput, latency and stage statistics over the measured frames.
+STATISTICS_COLUMNS: tuple[str, ...] = (
+    'throughput_fps',
+    'latency_ms_mean',
+    'latency_ms_std',
+    'latency_ms_min',
+    'latency_ms_p50',
+    'latency_ms_p90',
+    'latency_ms_p95',
+    'latency_ms_p99',
+    'latency_ms_max',
+    'jitter_ms',
+    'detections_per_frame',
+    'queue_wait_ms_mean',
+    'read_decode_ms_mean',
+    'preprocess_ms_mean',
+    'infer_ms_mean',
+    'postprocess_ms_mean',
+    'h2d_ms_mean',
+    'd2h_ms_mean',
+)
+
+#: Accuracy keys flattened into summary.csv columns.
+ACCURACY_COLUMNS: tuple[str, ...] = ('precision50', 'recall50', 'map50', 'map50_95')
+
+#: Resource-use columns of summary.csv (from the backend's ResourceSampler summary).
+RESOURCE_COLUMNS: tuple[str, ...] = (
+    'cpu_percent_mean',
+    'private_mb_peak',
+    'mapped_mb_peak',
+    'rss_mb_peak',
+    'gpu_util_mean',
+    'gpu_mem_mb_peak',
+    'gpu_power_w_mean',
+)
+
+#: Interval columns of summary.csv (after the resource columns, before ``warnings``).
+INTERVAL_COLUMNS: tuple[str, ...] = (
+    'latency_ms_p50_ci_low',
+    'latency_ms_p50_ci_high',
+    'latency_ms_p99_ci_low',
+    'latency_ms_p99_ci_high',
+    'throughput_fps_ci_low',
+    'throughput_fps_ci_high',
+)
+
+#: Tag accuracy of tag backends against tag ground truth (``replaybench.results.tags``), after
+#: ``warnings``; empty for other backends.
+TAG_SUMMARY_COLUMNS: tuple[str, ...] = (
+    'tag_recall',
+    'tag_wrong_ids',
+    'tag_phantoms',
+    'tag_corner_rmse_px',
+    'tag_trans_err_m',
+    'tag_trans_err_pct',
+    'tag_rot_err_deg',
+)
+
+#: Columns of summary.csv, in order (later additions at the end, so older readers keep working).
+SUMMARY_CSV_COLUMNS: tuple[str, ...] = (
+    'backend',
+    'topic',
+    *COUNT_COLUMNS,
+    *STATISTICS_COLUMNS,
+    *ACCURACY_COLUMNS,
+    *RESOURCE_COLUMNS,
+    *INTERVAL_COLUMNS,
+    'warnings',
+    *TAG_SUMMARY_COLUMNS,
+)
+
+#: The columns holding text; ``COUNT_COLUMNS`` hold integers, the others numbers.
+TEXT_COLUMNS: tuple[str, ...] = ('backend', 'topic', 'warnings')
+
+
+def summary_cell(value: Any) -> str:
+    """One summary.csv cell: floats to 4 decimals, non-finite and None empty, text escaped."""
+    if value is None:
+        return ''
+    if isinstance(value, bool):
+        return '1' if value else '0'
+    if isinstance(value, float):
+        return format(value, '.4f') if math.isfinite(value) else ''
+    return csv_text(value) if isinstance(value, str) else str(value)

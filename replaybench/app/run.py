@@ -93,6 +93,7 @@ def backend_options(
     device: int = 0,
     engine: str = 'auto',
     precision: str = 'fp32',
+    # the tag backends (apriltag, aruco): docs/fiducials.md
     tag_options: Mapping[str, str] | None = None,
 ) -> BackendOptions:
     """The options every backend is given, checked (``UsageError`` naming the option);
@@ -152,6 +153,7 @@ def run_config(
     report: bool = True,
     hash_inputs: bool = True,
     command: Sequence[str] = (),
+    # the tag backends (apriltag, aruco): docs/fiducials.md
     tag_options: Mapping[str, str] | None = None,
 ) -> RunConfig:
     """The ``RunConfig`` of ``replaybench run``'s options, checked: each keyword is the option

@@ -97,12 +97,32 @@ _NOT_TIMING = {'detections_per_frame'}
 
 
 #: frames.csv and summary.csv columns added since a reference may have been made: the pass of
-#: ``--repeat`` (0: the single pass) and the segmentation scores (empty for these detectors)
-ADDED_COLUMNS: tuple[str, ...] = ('repeat', 'miou', 'pixel_accuracy')
+#: ``--repeat`` (0: the single pass), the segmentation scores and the tag columns (empty: no
+#: segmentation or tag backend runs in these cases)
+ADDED_COLUMNS: tuple[str, ...] = (
+    'repeat',
+    'miou',
+    'pixel_accuracy',
+    'tags',
+    'tag_truth',
+    'tag_matched',
+    'tag_wrong_ids',
+    'tag_phantoms',
+    'tag_corner_rmse_px',
+    'tag_trans_err_m',
+    'tag_rot_err_deg',
+    'tag_recall',
+    'tag_trans_err_pct',
+)
 #: what an added column holds in outputs that stand for an older one's absence
 _OLDER_VALUES: dict[str, tuple[Any, ...]] = {'repeat': (0, '0')}
 #: run.json / result keys added likewise (null or empty in these cases)
-ADDED_KEYS: tuple[str, ...] = (*ADDED_COLUMNS, 'segmentation', 'segmentation_agreement')
+ADDED_KEYS: tuple[str, ...] = (
+    *ADDED_COLUMNS,
+    'segmentation',
+    'segmentation_agreement',
+    'tag_accuracy',
+)
 
 
 def _empty(value: Any, key: str = '') -> bool:

@@ -50,7 +50,7 @@ ITEMS = (
     'benchmarks.bench_memory',
 )
 #: Optional items, run when the module exists.
-OPTIONAL_ITEMS = ('benchmarks.bench_onnx',)
+OPTIONAL_ITEMS = ('benchmarks.bench_onnx', 'benchmarks.bench_tags')
 #: Items run only when --items names them (item g starts Ray clusters: docs/sweep.md).
 ON_REQUEST_ITEMS = ('benchmarks.bench_sweep',)
 

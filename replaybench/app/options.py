@@ -220,13 +220,50 @@ class RunOptions:
         '<stamp_ns>.png (default: /ground_truth/labels when present).',
         metavar='TOPIC|DIR',
     )
+    # the tag backends (apriltag, aruco; docs/fiducials.md): BackendOptions.tag_options
+    tag_family: str | None = _opt(
+        None,
+        '--tag-family',
+        'Tag family: tag36h11 (default), tag25h9, ...',
+        peak=True,
+        metavar='FAMILY',
+    )
+    tag_size: float | None = _opt(
+        None,
+        '--tag-size',
+        'Tag edge length in metres for every tag (0.22).',
+        low=0,
+        peak=True,
+        metavar='M',
+    )
+    tag_sizes: str | None = _opt(
+        None,
+        '--tag-sizes',
+        'Edge lengths per tag id, e.g. 14=0.2,3=0.1.',
+        peak=True,
+        metavar='ID=M,...',
+    )
+    tag_decimation: float | None = _opt(
+        None, '--tag-decimation', 'Quad decimation of the tag detectors (2).', low=1, peak=True
+    )
+    max_tags: int | None = _opt(
+        None, '--max-tags', 'At most N tags a frame (64).', low=1, peak=True
+    )
 
     def backend_options(self) -> BackendOptions:
         """The options every backend of the run is given (checked by ``run_options``)."""
         from replaybench.backends.base import BackendOptions
+        from replaybench.fiducials.detect import tag_extra
 
         return BackendOptions(
             **{name: getattr(self, name) for name in BACKEND_OPTION_NAMES},
+            tag_options=tag_extra(
+                family=self.tag_family,
+                tag_size=self.tag_size,
+                tag_sizes=self.tag_sizes,
+                decimation=self.tag_decimation,
+                max_tags=self.max_tags,
+            ),
         )
 
     def as_dict(self) -> dict[str, Any]:

@@ -45,6 +45,8 @@ BUILTIN_BACKENDS: dict[str, str] = {
     'hsv-cuda': 'replaybench.backends.gpu.hsv_cuda:HsvCudaBackend',
     'hsv-seg': 'replaybench.backends.hsv_seg:HsvSegBackend',
     'onnx-seg': 'replaybench.backends.onnx_seg:OnnxSegBackend',
+    'apriltag': 'replaybench.backends.apriltag:AprilTagBackend',
+    'aruco': 'replaybench.backends.aruco:ArucoBackend',
 }
 
 _NAME_RE = re.compile(r'[A-Za-z0-9][A-Za-z0-9_-]*\Z')

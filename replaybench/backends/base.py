@@ -40,7 +40,9 @@ class BackendOptions:
     """Options common to all backends; backend-specific ones go in ``extra``.
 
     ``model`` / ``model_family`` / ``labels`` / ``conf`` / ``iou`` configure ONNX detectors
-    (None: the backend's default); ``device`` / ``engine`` / ``precision`` the GPU ones.
+    (None: the backend's default); ``device`` / ``engine`` / ``precision`` the GPU ones;
+    ``tag_options`` the tag detectors (``--tag-family``, ``--tag-size``, ...; keys as
+    ``replaybench.fiducials.detect.TAG_OPTION_KEYS``), which other backends ignore.
     """
 
     threads: int | None = None
@@ -54,6 +56,7 @@ class BackendOptions:
     engine: str = 'auto'
     precision: str = 'fp32'
     extra: Mapping[str, str] = field(default_factory=dict)
+    tag_options: Mapping[str, str] = field(default_factory=dict)
 
 
 class RecordedDetections(NamedTuple):

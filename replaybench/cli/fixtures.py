@@ -19,7 +19,9 @@ __all__: list[str] = []
 def fixtures(
     out: Annotated[Path, typer.Option('--out', '-o', help='Folder to write the bags into.')],
     frames: Annotated[int, typer.Option('--frames', min=1, help='Frames per camera.')] = 30,
-    size: Annotated[str, typer.Option('--size', help='Image size WxH.')] = '320x240',
+    size: Annotated[
+        str | None, typer.Option('--size', help='Image size WxH (320x240; 640x480 with --tags).')
+    ] = None,
     ci: Annotated[
         bool,
         typer.Option(
@@ -33,6 +35,13 @@ def fixtures(
         typer.Option(
             '--masks',
             help='Also write ground-truth label masks (mono8 class ids) on /ground_truth/labels.',
+        ),
+    ] = False,
+    tags: Annotated[
+        bool,
+        typer.Option(
+            '--tags',
+            help='Write the AprilTag bags instead (tags.mcap, tags_fisheye.mcap).',
         ),
     ] = False,
 ) -> None:
@@ -49,18 +58,27 @@ def fixtures(
 
         typer.echo(str(write_ci_fixture(out)))
         return
+    if size is None:
+        size = '640x480' if tags else '320x240'
     try:
         w, _, h = size.lower().partition('x')
         if not (w.isdigit() and h.isdigit() and int(w) >= 32 and int(h) >= 32):
             msg = f'invalid --size {size!r}: use WxH with both at least 32, e.g. 640x480'
             raise UsageError(msg)
-        paths = generate_fixtures(
-            out,
-            frames=frames,
-            size=(int(w), int(h)),
-            progress=FixtureProgress(sys.stderr),
-            masks=masks,
-        )
+        if tags:
+            from replaybench.fixtures.tags import generate_tag_fixtures
+
+            paths = generate_tag_fixtures(
+                out, frames=frames, size=(int(w), int(h)), progress=FixtureProgress(sys.stderr)
+            )
+        else:
+            paths = generate_fixtures(
+                out,
+                frames=frames,
+                size=(int(w), int(h)),
+                progress=FixtureProgress(sys.stderr),
+                masks=masks,
+            )
     except ReplaybenchError as err:
         raise fail(err) from None
     for path in paths:

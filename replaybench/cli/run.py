@@ -152,6 +152,7 @@ def _show_run(outcome: RunOutcome) -> int:
     """Print a finished run (the table, its warnings, the folder); its exit status."""
     from replaybench.backends.gpu import engine_lines
     from replaybench.report.recorded import recorded_latency_lines
+    from replaybench.results.tags import tag_lines
 
     _print_summary(outcome.summaries)
     for line, is_warning in recorded_latency_lines(outcome.summaries):
@@ -176,6 +177,8 @@ def _show_run(outcome: RunOutcome) -> int:
                 err=True,
             )
     for line in engine_lines(outcome.run):
+        echo(line)
+    for line in tag_lines(outcome.run):
         echo(line)
     assert outcome.run_dir is not None  # the command line always writes a folder
     report = outcome.run_dir / 'report.html'

@@ -25,6 +25,7 @@ from replaybench.results.bootstrap import (
     percentile_interval,
     replicates,
 )
+from replaybench.results.columns import TAG_SUMMARY_COLUMNS
 from replaybench.results.intervals import interval_rng, measured_series
 from replaybench.results.stats import summarize
 
@@ -44,6 +45,7 @@ if TYPE_CHECKING:
 __all__ = [
     'ACCURACY_METRICS',
     'METRICS',
+    'TAG_METRICS',
     'TIMING_METRICS',
     'Comparison',
     'MetricComparison',
@@ -58,8 +60,12 @@ TIMING_METRICS: tuple[str, ...] = ('median_ms', 'p99_ms', 'mean_ms', 'fps')
 #: Accuracy metrics: compared as candidate - baseline differences of the run.json numbers.
 ACCURACY_METRICS: tuple[str, ...] = ('map50', 'recall50', 'precision50', 'miou', 'pixel_accuracy')
 
+#: Tag accuracy (tag backends against tag ground truth; the summary.csv names), compared as
+#: accuracy is: point estimates, no interval.
+TAG_METRICS: tuple[str, ...] = TAG_SUMMARY_COLUMNS
+
 #: Every metric, in table order.
-METRICS: tuple[str, ...] = TIMING_METRICS + ACCURACY_METRICS
+METRICS: tuple[str, ...] = TIMING_METRICS + ACCURACY_METRICS + TAG_METRICS
 
 _REPLICATE: dict[str, str] = {'median_ms': 'p50', 'p99_ms': 'p99', 'mean_ms': 'mean', 'fps': 'fps'}
 _SUMMARY: dict[str, str] = {
@@ -207,6 +213,10 @@ def _accuracy(run: RunResult) -> dict[tuple[str, str], dict[str, float]]:
             number = getattr(source, name, None)
             if number is None:
                 number = getattr(row, name, None)
+            if number is not None and np.isfinite(number):
+                values[name] = float(number)
+        for name in TAG_METRICS:
+            number = getattr(row, name)
             if number is not None and np.isfinite(number):
                 values[name] = float(number)
         table[(row.backend, row.topic)] = values
@@ -400,7 +410,7 @@ def compare_runs(
                 metrics[metric] = _timing(metric, value, own, base_value, change, confidence)
             acc = accuracy[run.index].get((backend, topic), {})
             base_acc = accuracy[baseline].get((ref, topic), {}) if ref is not None else {}
-            for metric in ACCURACY_METRICS:
+            for metric in (*ACCURACY_METRICS, *TAG_METRICS):
                 metrics[metric] = _accuracy_metric(
                     metric, acc.get(metric), base_acc.get(metric), paired
                 )

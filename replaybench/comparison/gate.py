@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench.comparison.core import ACCURACY_METRICS, METRICS, TIMING_METRICS
+from replaybench.comparison.core import ACCURACY_METRICS, METRICS, TAG_METRICS, TIMING_METRICS
 from replaybench.comparison.repeats import CAUTION_ADVICE
 from replaybench.comparison.verdict import Verdict, decide, overall, past
 from replaybench.errors import UsageError
@@ -60,6 +60,13 @@ _NAMES: dict[str, str] = {
     'precision50': 'precision@0.5',
     'miou': 'mIoU',
     'pixel_accuracy': 'pixel accuracy',
+    'tag_recall': 'tag recall',
+    'tag_wrong_ids': 'wrong tag ids',
+    'tag_phantoms': 'phantom tags',
+    'tag_corner_rmse_px': 'tag corner RMSE (px)',
+    'tag_trans_err_m': 'tag translation error (m)',
+    'tag_trans_err_pct': 'tag translation error (% of range)',
+    'tag_rot_err_deg': 'tag rotation error (deg)',
 }
 
 
@@ -159,7 +166,7 @@ def _typical(m: MetricComparison, condition: Condition) -> float | None:
 def _value(metric: str, value: float | None) -> str:
     if value is None:
         return 'n/a'
-    if metric in ACCURACY_METRICS:
+    if metric in ACCURACY_METRICS or metric in TAG_METRICS:
         return f'{value:.4f}'
     return f'{value:.4g}{_UNITS.get(metric, "")}'
 
@@ -245,7 +252,7 @@ def _judge(
             verdict,
             method,
         )
-    accuracy = condition.metric in ACCURACY_METRICS
+    accuracy = condition.metric in ACCURACY_METRICS or condition.metric in TAG_METRICS
     threshold = condition.describe()
     point_past = past(est, condition.op, condition.threshold)
     past_text = 'past' if point_past else 'not past'

@@ -6,7 +6,7 @@ import math
 from html import escape
 from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench.comparison.core import ACCURACY_METRICS, TIMING_METRICS
+from replaybench.comparison.core import ACCURACY_METRICS, TAG_METRICS, TIMING_METRICS
 from replaybench.comparison.gate import gate_verdict, method_text
 from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match
 from replaybench.report.svg import colour, nice_ticks, step_cdf
@@ -72,6 +72,13 @@ _NAMES: dict[str, str] = {
     'precision50': 'P@0.5',
     'miou': 'mIoU',
     'pixel_accuracy': 'pixel acc.',
+    'tag_recall': 'tag recall',
+    'tag_wrong_ids': 'wrong ids',
+    'tag_phantoms': 'phantoms',
+    'tag_corner_rmse_px': 'corner px',
+    'tag_trans_err_m': 'trans m',
+    'tag_trans_err_pct': 'trans %',
+    'tag_rot_err_deg': 'rot deg',
 }
 
 _FONT = 'system-ui, -apple-system, Segoe UI, Roboto, sans-serif'
@@ -279,7 +286,9 @@ def _accuracy_cell(m: MetricComparison, role: str) -> str:
 
 def _summary(comparison: Comparison) -> str:
     accuracy = [
-        m for m in ACCURACY_METRICS if any(r.metrics[m].value is not None for r in comparison.rows)
+        m
+        for m in (*ACCURACY_METRICS, *TAG_METRICS)
+        if any(r.metrics[m].value is not None for r in comparison.rows)
     ]
     head = ['run', 'backend', 'topic', 'role', 'n']
     head += [_NAMES[m] for m in (*TIMING_METRICS, *accuracy)]

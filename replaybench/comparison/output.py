@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from replaybench._version import __version__
-from replaybench.comparison.core import ACCURACY_METRICS, TIMING_METRICS
+from replaybench.comparison.core import ACCURACY_METRICS, TAG_METRICS, TIMING_METRICS
 from replaybench.comparison.gate import gate_verdict, method_text
 from replaybench.comparison.repeats import MIN_SINGLE_PASS_S
 from replaybench.comparison.runs import CV_LIMIT, engine_text
@@ -67,6 +67,8 @@ CSV_COLUMNS: tuple[str, ...] = (
     'gate',
     'gate_conditions',
     'flags',
+    # tag backends (appended, so that older readers keep their columns)
+    *(m + s for m in TAG_METRICS for s in _ACCURACY_SUFFIXES),
 )
 
 
@@ -118,7 +120,7 @@ def csv_rows(comparison: Comparison, gate: Sequence[GateResult] = ()) -> list[di
             record[f'{metric}_ci_low'] = ci[0] if ci else None
             record[f'{metric}_ci_high'] = ci[1] if ci else None
             record[f'{metric}_significant'] = _yes_no(m.significant)
-        for metric in ACCURACY_METRICS:
+        for metric in (*ACCURACY_METRICS, *TAG_METRICS):
             m = row.metrics[metric]
             record[metric] = m.value
             record[f'{metric}_baseline'] = m.baseline

@@ -1,4 +1,5 @@
-"""The inputs of a run, opened: their topics, time window, camera infos, ground truth, the
+"""The inputs of a run, opened: their topics, time window, camera infos, ground truth (boxes and
+tags), the
 recorded outputs a backend replays, the sample frame of each topic and their sha256.
 
 ``open_input`` opens and probes one BAG argument into an ``OpenedInput``; ``replayed`` is the
@@ -19,6 +20,7 @@ from replaybench.errors import DecodeError, SourceError, UsageError
 from replaybench.replay.hashing import ANNOUNCE_MIN_BYTES, InputHash, describe_size
 from replaybench.replay.recorded import read_recorded
 from replaybench.replay.segmentation import replayable
+from replaybench.replay.tags import TagTable, read_tag_truth
 from replaybench.sources import Source, open_source
 
 if TYPE_CHECKING:
@@ -63,6 +65,7 @@ class OpenedInput(NamedTuple):
     sample_index: dict[str, int]  # per topic: index among the replayed frames of the sample frame
     recorded: dict[tuple[str, int], RecordedOutput]  # for the `recorded` backend
     recorded_topic: str | None
+    tag_truth: TagTable  # tag ground truth (replaybench.replay.tags), by (frame_id, stamp)
     external: ExternalGroundTruth | None = None  # --ground-truth-file; replaces ground_truth
     notes: tuple[str, ...] = ()  # warnings found while opening (detections left out)
     sha256: InputHash | None = None  # made when the input opened (``deferred_hash``)
@@ -172,6 +175,7 @@ def open_input(
             recorded_topic, recorded = read_recorded(
                 path, source, all_topics, options.recorded_topic, options.ground_truth_topic, notes
             )
+        tag_truth = read_tag_truth(source, notes)
         # the frame drawn in samples/: the middle one of the replayed frames (the first one when
         # --start/--duration cut a window whose size is unknown before reading)
         sample_index = {
@@ -194,6 +198,7 @@ def open_input(
             notes=tuple(notes),
             max_frames=options.max_frames,
             size_bytes=sum(f.stat().st_size for f in source.files),
+            tag_truth=tag_truth,
         )
     except BaseException:
         source.close()

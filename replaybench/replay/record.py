@@ -2,7 +2,8 @@
 ``RunResult``, built typed from what the passes recorded.
 
 ``summaries`` is where a task type's metrics join the statistics of each (backend, topic)
-(``accuracy`` scores the detections, ``segmentation`` the label masks);
+(``accuracy`` scores the detections, ``segmentation`` the label masks, ``Recorder.tags``
+the tags);
 ``input_info`` and ``run_result`` construct the model classes of ``replaybench.results.model``
 directly, with values as run.json holds them (NaN and infinities None, tuples for arrays), so
 that the result kept in memory equals the one read back from the folder.
@@ -51,9 +52,10 @@ __all__ = ['accuracy', 'input_info', 'run_result', 'segmentation', 'summaries']
 
 def summaries(recorder: Recorder, resources: Mapping[str, Mapping[str, Any]]) -> list[Summary]:
     """The statistics of each (backend, topic) with its metrics: its accuracy against ground
-    truth (``accuracy``), its backend's resource use (``resources``, by label, as
-    ``ResourceSampler.summary()`` gives it), its intervals and warnings, and, for a backend
-    replaying recorded outputs, their latency from the recording (``with_recorded_latency``)."""
+    truth (``accuracy``), its tags' against tag ground truth (``TagScores.accuracy``), its
+    backend's resource use (``resources``, by label, as ``ResourceSampler.summary()`` gives
+    it), its intervals and warnings, and, for a backend replaying recorded outputs, their
+    latency from the recording (``with_recorded_latency``)."""
     out: list[Summary] = []
     for s in summarize(recorder.records):
         scored = recorder.scored.get((s.backend, s.topic))
@@ -66,6 +68,19 @@ def summaries(recorder: Recorder, resources: Mapping[str, Mapping[str, Any]]) ->
                 recall50=found.recall50,
                 map50=found.map50,
                 map50_95=found.map50_95,
+            )
+        tags = recorder.tags.accuracy(s.backend, s.topic)
+        if tags is not None:
+            s = dataclasses.replace(
+                s,
+                tag_accuracy=tags,
+                tag_recall=tags.recall,
+                tag_wrong_ids=tags.wrong_ids,
+                tag_phantoms=tags.phantoms,
+                tag_corner_rmse_px=tags.corner_rmse_px,
+                tag_trans_err_m=tags.trans_err_m,
+                tag_trans_err_pct=tags.trans_err_pct,
+                tag_rot_err_deg=tags.rot_err_deg,
             )
         used = resources.get(s.backend)
         if used is not None:

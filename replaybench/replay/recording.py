@@ -20,7 +20,8 @@ import time
 from typing import TYPE_CHECKING, Any, Protocol
 
 from replaybench.replay.recorded import NOT_RECORDED, frame_recorded_times, recorded_note
-from replaybench.replay.segmentation import NO_MASK, FrameScore, Segmentation
+from replaybench.replay.segmentation import NO_MASK, Segmentation
+from replaybench.replay.tags import TagScores
 from replaybench.results.records import FrameRecord
 from replaybench.types import BackendResult, StageTimes
 
@@ -118,6 +119,8 @@ class Recorder:
         self.samples: dict[tuple[int, str], Sample] = {}
         #: segmentation backends' masks: written, scored against ground-truth masks, compared
         self.segmentation = segmentation if segmentation is not None else Segmentation(None, 1)
+        #: the tag backends' tags scored against tag ground truth (replaybench.replay.tags)
+        self.tags = TagScores()
         self._taken: dict[tuple[str, int, str], int] = {}
 
     def take(self, done: Pass) -> float:
@@ -182,7 +185,7 @@ class Recorder:
         self.processed[counted] = n_done + 1
         # later passes of --repeat detect the same frames again: outputs and scores come from
         # the first pass only
-        score = self.task_outputs(done, entry, result) if done.repeat == 0 else NO_MASK
+        task_columns = self.task_outputs(done, entry, result) if done.repeat == 0 else {}
         t0 = done.t0
         timed = done.measures_latency
         stages = result.stages if timed else _NOT_TIMED
@@ -223,15 +226,14 @@ class Recorder:
                 h2d_device_ms=_ms(stages.h2d_device_ns),
                 d2h_device_ms=_ms(stages.d2h_device_ns),
                 repeat=done.repeat,
-                miou=score.miou,
-                pixel_accuracy=score.pixel_accuracy,
                 output_log_time_ns=recorded.output_log_time_ns,
                 capture_to_output_ms=recorded.capture_to_output_ms,
                 pipeline_ms=recorded.pipeline_ms,
+                **task_columns,
             )
         )
 
-    def task_outputs(self, done: Pass, entry: LogEntry, result: BackendResult) -> FrameScore:
+    def task_outputs(self, done: Pass, entry: LogEntry, result: BackendResult) -> dict[str, Any]:
         """What a processed frame's result leads to besides its record: the task-type seam.
 
         Detections: their message in detections.mcap (the sink), the detections kept for the
@@ -239,7 +241,10 @@ class Recorder:
         metrics, ``replaybench.replay.record.summaries``), and the sample's boxes.
         A label mask (a segmentation backend): written, scored against its ground-truth mask
         and kept for the agreement (``replaybench.replay.segmentation``), its detections not
-        scored; the frame's mIoU and pixel accuracy are returned for its record.
+        scored. Tags (a ``TagResult``): their messages in detections.mcap and their score
+        against the frame's tag ground truth (``TagScores``). Returns the task's own
+        ``FrameRecord`` fields: the frame's mIoU and pixel accuracy, and the tag columns (none
+        for a backend that finds no tags).
         """
         topic, seq, log_time_ns, stamp_ns, frame_id = entry.key
         assert stamp_ns is not None  # a processed frame decoded
@@ -272,8 +277,18 @@ class Recorder:
                 self.scored.setdefault(label_key, {})[frame_key] = detections
         elif (frame_id, stamp_ns) in inp.ground_truth:
             self.scored.setdefault(label_key, {})[(number, frame_id, stamp_ns)] = detections
+        tag_columns = self.tags.frame(
+            done.label,
+            topic,
+            log_time_ns,
+            stamp_ns,
+            frame_id,
+            result,
+            inp.tag_truth.get((frame_id, stamp_ns)),
+            self.detections_out,
+        )
         self._sample(done, topic, seq, log_time_ns, detections, mask)
-        return score
+        return {'miou': score.miou, 'pixel_accuracy': score.pixel_accuracy, **tag_columns}
 
     def _sample(
         self,

@@ -348,6 +348,7 @@ def _execute(
         for run in backend_runs
         if run.resources is not None and run.resources.summary is not None
     }
+    warnings.extend(recorder.tags.warnings())
     summary = summaries(recorder, resources)
     agreements = (
         agreement_table(recorder.detections, iou=AGREEMENT_IOU) if len(config.backends) > 1 else []

@@ -28,6 +28,7 @@ from replaybench.report.svg import (
     stacked_bar_chart,
     step_cdf,
 )
+from replaybench.report.tags import tag_accuracy_html
 from replaybench.results.atomic import write_text_atomic
 from replaybench.results.folder import load_run
 from replaybench.results.intervals import with_intervals
@@ -1037,6 +1038,7 @@ def render_html(data: RunData) -> str:
         _summary_table(rows, colours),
         _accuracy_details(rows),
         recorded_latency_html(rows, frames, colours),
+        tag_accuracy_html(rows),
         _plots(frames, rows, backends, topics, colours),
         _agreement(run, colours),
         _resources(run, colours),

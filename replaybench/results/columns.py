@@ -21,6 +21,7 @@ __all__ = [
     'SEGMENTATION_SUMMARY_COLUMNS',
     'STATISTICS_COLUMNS',
     'SUMMARY_CSV_COLUMNS',
+    'TAG_SUMMARY_COLUMNS',
     'TEXT_COLUMNS',
     'summary_cell',
 ]
@@ -109,6 +110,17 @@ RECORDED_COLUMNS: tuple[str, ...] = (
     'pipeline_ms_max',
     'recorded_latency_note',
 )
+#: Tag accuracy of tag backends against tag ground truth (``replaybench.results.tags``), after
+#: ``warnings``; empty for other backends.
+TAG_SUMMARY_COLUMNS: tuple[str, ...] = (
+    'tag_recall',
+    'tag_wrong_ids',
+    'tag_phantoms',
+    'tag_corner_rmse_px',
+    'tag_trans_err_m',
+    'tag_trans_err_pct',
+    'tag_rot_err_deg',
+)
 
 #: Columns of summary.csv, in order (later additions at the end, so older readers keep working).
 SUMMARY_CSV_COLUMNS: tuple[str, ...] = (
@@ -122,6 +134,7 @@ SUMMARY_CSV_COLUMNS: tuple[str, ...] = (
     'warnings',
     *SEGMENTATION_SUMMARY_COLUMNS,
     *RECORDED_COLUMNS,
+    *TAG_SUMMARY_COLUMNS,
 )
 
 #: The columns holding text; ``INTEGER_COLUMNS`` hold integers, the others numbers.

@@ -385,6 +385,31 @@ class SegmentationAgreementRow:
 
 
 @dataclass(frozen=True, slots=True)
+class TagAccuracy:
+    """Tag accuracy of one (backend, topic) against tag ground truth (replaybench.results.tags).
+
+    Counts over the frames with truth; errors over the matched tags (poses: where both have
+    one); None where nothing was matched.
+    """
+
+    frames: int = 0
+    n_truth: int = 0
+    n_found: int = 0
+    matched: int = 0
+    recall: float | None = None
+    wrong_ids: int = 0
+    phantoms: int = 0
+    corner_rmse_px: float | None = None
+    trans_err_m: float | None = None
+    trans_err_pct: float | None = None
+    rot_err_deg: float | None = None
+    rot_err_deg_p95: float | None = None
+    rot_err_deg_max: float | None = None
+    trans_err_m_max: float | None = None
+    poses: int = 0
+
+
+@dataclass(frozen=True, slots=True)
 class SummaryRow:
     """One (backend, topic): the summary.csv columns and the full ``accuracy``."""
 
@@ -462,6 +487,16 @@ class SummaryRow:
     pipeline_ms_p99_ci_high: float | None = None
     pipeline_ms_max: float | None = None
     recorded_latency_note: str | None = None
+
+    #: tag backends against tag ground truth (None otherwise)
+    tag_recall: float | None = None
+    tag_wrong_ids: int | None = None
+    tag_phantoms: int | None = None
+    tag_corner_rmse_px: float | None = None
+    tag_trans_err_m: float | None = None
+    tag_trans_err_pct: float | None = None
+    tag_rot_err_deg: float | None = None
+    tag_accuracy: TagAccuracy | None = None
 
 
 @dataclass(frozen=True, slots=True)

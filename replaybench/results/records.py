@@ -15,7 +15,7 @@ from replaybench.results.runfolder import with_filename
 from replaybench.textsafe import csv_text, from_csv
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterable
+    from collections.abc import Callable, Iterable, Sequence
     from types import TracebackType
     from typing import IO, Self
 
@@ -80,12 +80,26 @@ class FrameRecord(NamedTuple):
     output_log_time_ns: int | None = None
     capture_to_output_ms: float | None = None
     pipeline_ms: float | None = None
+    # tag backends (replaybench.results.tags.TAG_FRAME_COLUMNS); empty for the others
+    tags: int | None = None
+    tag_truth: int | None = None
+    tag_matched: int | None = None
+    tag_wrong_ids: int | None = None
+    tag_phantoms: int | None = None
+    tag_corner_rmse_px: float | None = None
+    tag_trans_err_m: float | None = None
+    tag_rot_err_deg: float | None = None
 
 
 FRAMES_CSV_COLUMNS: tuple[str, ...] = FrameRecord._fields
 
-_INT_FIELDS = frozenset(
-    {'input', 'seq', 'log_time_ns', 'stamp_ns', 'detections', 'repeat', 'output_log_time_ns'}
+_TAG_INT_FIELDS = frozenset({'tags', 'tag_truth', 'tag_matched', 'tag_wrong_ids', 'tag_phantoms'})
+_TAG_FIELDS = _TAG_INT_FIELDS | {'tag_corner_rmse_px', 'tag_trans_err_m', 'tag_rot_err_deg'}
+_INT_FIELDS = (
+    frozenset(
+        {'input', 'seq', 'log_time_ns', 'stamp_ns', 'detections', 'repeat', 'output_log_time_ns'}
+    )
+    | _TAG_INT_FIELDS
 )
 _BOOL_FIELDS = frozenset({'warmup', 'dropped'})
 _STR_FIELDS = frozenset({'backend', 'topic', 'status', 'note'})
@@ -115,11 +129,13 @@ _OPTIONAL_FIELDS = frozenset(
         'pipeline_ms',
     },
 )
+_OPTIONAL_FIELDS |= _TAG_FIELDS
 #: The columns of frames.csv files written before the ``*_device_ms`` columns were added.
 _COLUMNS_BEFORE_DEVICE_TIMES = FRAMES_CSV_COLUMNS[:22]
 #: The columns of frames.csv files written before the ``repeat``, segmentation and
 #: recorded-output columns.
 _COLUMNS_BEFORE_REPEAT = FRAMES_CSV_COLUMNS[:27]
+_KNOWN_HEADERS = (FRAMES_CSV_COLUMNS, _COLUMNS_BEFORE_DEVICE_TIMES, _COLUMNS_BEFORE_REPEAT)
 
 
 def _float_format(name: str) -> str:
@@ -209,6 +225,18 @@ def _scores(values: list[float | None]) -> str:
     )
 
 
+_TAG_CELLS = _CELLS[FRAMES_CSV_COLUMNS.index('tags') :]
+_NO_TAGS = ',' * len(_TAG_CELLS)
+
+
+def _tag_cells(values: Sequence[object]) -> str:
+    """The tag columns' cells, each after its comma."""
+    if all(v is None for v in values):
+        return _NO_TAGS
+    cells = ['' if v is None else cell(v) for cell, v in zip(_TAG_CELLS, values, strict=True)]
+    return ',' + ','.join(cells)
+
+
 def _line(record: FrameRecord) -> str:
     """One frames.csv line with its ``\\r\\n``: what ``csv_writer`` writes for ``_row(record)``.
 
@@ -240,7 +268,7 @@ def _line(record: FrameRecord) -> str:
         detections,
         *rest,
     ) = record
-    device, repeat, scores, recorded = rest[:5], rest[5], rest[6:8], rest[8:]
+    device, repeat, scores, recorded, tagged = rest[:5], rest[5], rest[6:8], rest[8:11], rest[11:]
     stages = [preprocess_ms, infer_ms, postprocess_ms, h2d_ms, d2h_ms]
     if (
         latency_ms is not None
@@ -276,7 +304,8 @@ def _line(record: FrameRecord) -> str:
                     f'{quoted.get(topic) or _quote(topic)},{seq:d},{log_time_ns:d},{stamp_ns:d},'
                     f'{quoted.get(status) or _quote(status)},{quoted.get(note) or _quote(note)},'
                     f'{"1" if warmup else "0"},{"1" if dropped else "0"},{times},{staged},'
-                    f'{latency},{detections:d},{on_device},{repeat:d},{_scores(scores)},,,\r\n'
+                    f'{latency},{detections:d},{on_device},{repeat:d},{_scores(scores)},,,'
+                    f'{_tag_cells(tagged)}\r\n'
                 )
             except ValueError:  # an int cell holding something else
                 pass
@@ -375,7 +404,10 @@ class FramesCsvWriter:
         self.path = Path(path)
         self.part_path = self.path.with_name(self.path.name + '.part')
         self._flush_every = max(1, flush_every)
-        self._file: IO[str] | None = self.part_path.open('w', newline='', encoding='utf-8')
+        # a buffer larger than flush_every rows: rows reach the file when flushed, not before
+        self._file: IO[str] | None = self.part_path.open(
+            'w', newline='', encoding='utf-8', buffering=1 << 20
+        )
         self._csv = csv_writer(self._file)
         self._csv.writerow(FRAMES_CSV_COLUMNS)
         self._pending = 0
@@ -459,11 +491,7 @@ def read_frames_csv(path: str | Path) -> list[FrameRecord]:
             reader = csv.reader(file)
             header = next(reader, None)
             columns = tuple(header) if header is not None else ()
-            if columns not in (
-                FRAMES_CSV_COLUMNS,
-                _COLUMNS_BEFORE_REPEAT,
-                _COLUMNS_BEFORE_DEVICE_TIMES,
-            ):
+            if columns not in _KNOWN_HEADERS:
                 msg = f'{path}: not a frames.csv (header does not match the expected columns)'
                 raise SourceError(msg) from None
             # an older file's absent columns: pass 0 of one, the rest empty

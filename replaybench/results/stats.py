@@ -208,11 +208,13 @@ def summary_row(summary: SummaryRow) -> dict[str, Any]:
 
 def summary_json(summary: SummaryRow) -> dict[str, Any]:
     """One run.json ``summary`` entry: the summary.csv columns with ``warnings`` as a list, and
-    the full ``accuracy`` and ``segmentation`` dicts."""
+    the full ``accuracy``, ``segmentation`` and ``tag_accuracy`` dicts."""
     row = {name: getattr(summary, name) for name in SUMMARY_CSV_COLUMNS}
     row['warnings'] = list(summary.warnings)
     accuracy = summary.accuracy
     row['accuracy'] = dataclasses.asdict(accuracy) if accuracy is not None else None
     segmentation = summary.segmentation
     row['segmentation'] = dataclasses.asdict(segmentation) if segmentation is not None else None
+    tags = summary.tag_accuracy
+    row['tag_accuracy'] = dataclasses.asdict(tags) if tags is not None else None
     return row

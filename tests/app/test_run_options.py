@@ -51,6 +51,11 @@ CHANGED: dict[str, Any] = {
     'hash_inputs': False,
     'repeat': 3,
     'ground_truth_masks': '/labels',
+    'tag_family': 'tag25h9',
+    'tag_size': 0.16,
+    'tag_sizes': '14=0.2,3=0.1',
+    'tag_decimation': 1.0,
+    'max_tags': 8,
 }
 
 

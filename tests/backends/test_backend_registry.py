@@ -106,6 +106,8 @@ BUILTINS = [
     'hsv-cuda',
     'hsv-seg',
     'onnx-seg',
+    'apriltag',
+    'aruco',
 ]
 
 
@@ -122,7 +124,7 @@ def test_unknown_backend_is_a_usage_error_listing_the_names(
 ) -> None:
     entry_points(monkeypatch, toy=f'{plugin_module}:ToyBackend')
     with pytest.raises(
-        UsageError, match=r"unknown backend 'yolo'; known backends: null, hsv, .*onnx-seg, toy"
+        UsageError, match=r"unknown backend 'yolo'; known backends: null, hsv, .*aruco, toy"
     ):
         get_backend('yolo')
 

@@ -17,8 +17,8 @@ REPO = Path(__file__).resolve().parents[2]
 OUTPUTS_MD = REPO / 'docs' / 'outputs.md'
 SCHEMA = load_schema('run.schema.json')
 
-#: Summary rows are documented by the summary.csv table (and these two run.json-only keys).
-SUMMARY_JSON_ONLY = {'warnings', 'accuracy', 'segmentation'}
+#: Summary rows are documented by the summary.csv table (and these run.json-only keys).
+SUMMARY_JSON_ONLY = {'warnings', 'accuracy', 'segmentation', 'tag_accuracy'}
 
 
 def _section(text: str, heading: str) -> str:

@@ -62,6 +62,8 @@ def test_columns_are_in_the_documented_order() -> None:
         'latency_ms', 'detections', 'preprocess_device_ms', 'infer_device_ms',
         'postprocess_device_ms', 'h2d_device_ms', 'd2h_device_ms', 'repeat', 'miou',
         'pixel_accuracy', 'output_log_time_ns', 'capture_to_output_ms', 'pipeline_ms',
+        'tags', 'tag_truth', 'tag_matched', 'tag_wrong_ids', 'tag_phantoms', 'tag_corner_rmse_px',
+        'tag_trans_err_m', 'tag_rot_err_deg',
     )  # fmt: skip
 
 
@@ -253,5 +255,5 @@ def test_a_plain_ok_row_takes_the_one_format_path() -> None:
     )
     assert _line(record) == (
         '0,hsv,/cam/image_raw,3,10,10,ok,,0,0,0.500000,0.500000,0.510000,0.0000,1.2500,'
-        ',2.5000,,,,3.7500,2,,,,,,0,,,,,\r\n'
+        ',2.5000,,,,3.7500,2,,,,,,0,,,,,,,,,,,,,\r\n'
     )

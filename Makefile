@@ -50,8 +50,10 @@ lint: install
 typecheck: install
 	$(BIN)/mypy
 
+# the tests that gate on timings (marker quiet) run alone, after the parallel suite
 pytest: install
-	$(BIN)/pytest -n 2 -q
+	$(BIN)/pytest -n 2 -q -m 'not quiet'
+	$(BIN)/pytest -q -p no:xdist -m quiet
 
 test: lint typecheck pytest
 

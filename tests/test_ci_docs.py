@@ -99,6 +99,7 @@ def test_ci_md_holds_a_github_workflow_and_a_gitlab_job() -> None:
     assert 'summary.md' in job['artifacts']['paths']
 
 
+@pytest.mark.quiet
 def test_the_github_workflow_keeps_a_baseline_then_gates_a_pull_request(tmp_path) -> None:
     github, _ = _yaml_blocks()
     work = _workspace(tmp_path)
@@ -116,6 +117,7 @@ def test_the_github_workflow_keeps_a_baseline_then_gates_a_pull_request(tmp_path
     _check_outputs(work, summary)
 
 
+@pytest.mark.quiet
 def test_the_gitlab_job_keeps_a_baseline_then_gates_a_merge_request(tmp_path) -> None:
     _, gitlab = _yaml_blocks()
     job = gitlab['replaybench']

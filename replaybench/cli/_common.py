@@ -277,6 +277,8 @@ def _parameter(name: str, spec: RunOption, default: Any, tp: Any) -> inspect.Par
         extra['min'] = spec.low
     if spec.high is not None:
         extra['max'] = spec.high
+    if spec.metavar is not None:
+        extra['metavar'] = spec.metavar
     if spec.cli_flag is not None:
         tp, default = bool, False
     else:

@@ -15,6 +15,9 @@ Per frame, all on one GPU (``options.device``):
 * ``d2h``: only the kept boxes (x0, y0, x1, y1, score, class) come back, with the count of
   candidates left out for NaN or inf model outputs (``info()``: ``nonfinite_dropped``).
 
+A segmentation model (read as ``onnx-seg`` reads it) runs through ``_seg.SegPipeline``: the
+argmax on the device, the model-sized label map downloaded, mapped to the frame on the host.
+
 Each stage records a CUDA event on the backend's stream just before its first GPU call and one
 after its last, then synchronises the stream before the host clock is read (``StageClock``):
 host time per stage from the previous stage's end, device time from start to end event.
@@ -431,7 +434,8 @@ def torch_events(torch: Any, stream: Any, slots: int = STAGE_EVENTS) -> EventTim
 
 
 class CudaBackend:
-    """ONNX detection models on an NVIDIA GPU; ``options.engine`` picks onnxruntime or torch.
+    """ONNX detection (or segmentation) models on an NVIDIA GPU; ``options.engine`` picks
+    onnxruntime or torch.
 
     Options as ``onnx-cpu`` (model, family, labels, conf, iou, preprocessing keys in ``extra``)
     plus ``device`` (GPU index), ``engine`` (``auto`` | ``ort`` | ``torch``; auto picks one

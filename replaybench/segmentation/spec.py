@@ -68,6 +68,11 @@ class SegModelSpec:
     output_shape: tuple[int | str | None, ...] = ()
     metadata: Mapping[str, str] = field(default_factory=dict)
 
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        """The output an engine binds (the segmentation output), as ``ModelSpec``'s."""
+        return (self.output_name,)
+
 
 def _dim(value: object) -> int | None:
     return value if isinstance(value, int) and not isinstance(value, bool) and value > 0 else None

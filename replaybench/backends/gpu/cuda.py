@@ -15,6 +15,9 @@ Per frame, all on one GPU (``options.device``):
 * ``d2h``: only the kept boxes (x0, y0, x1, y1, score, class) come back, with the count of
   candidates left out for NaN or inf model outputs (``info()``: ``nonfinite_dropped``).
 
+A segmentation model (read as ``onnx-seg`` reads it) runs through ``_seg.SegPipeline``: the
+argmax on the device, the model-sized label map downloaded, mapped to the frame on the host.
+
 Each stage records a CUDA event on the backend's stream just before its first GPU call and one
 after its last, then synchronises the stream before the host clock is read (``StageClock``):
 host time per stage from the previous stage's end, device time from start to end event.
@@ -48,6 +51,7 @@ from replaybench.backends.gpu._cuda import (
 from replaybench.backends.gpu._fold import fold_shapes, pin_host_arguments
 from replaybench.backends.gpu._libs import ORT_CUDA_LIBRARIES, load_libraries
 from replaybench.backends.gpu._tf32 import Tf32Hold, set_tf32
+from replaybench.backends.gpu._upload import DeviceInput
 from replaybench.backends.gpu.availability import (
     GPU_EXTRA,
     check_placement,
@@ -69,7 +73,9 @@ from replaybench.detector.spec import (
     SPEC_KEYS,
 )
 from replaybench.errors import BackendError, BackendUnavailableError
-from replaybench.types import BackendResult, Detection, StageTimes
+from replaybench.segmentation.decoder import LAYOUTS
+from replaybench.segmentation.spec import SegModelSpec
+from replaybench.types import BackendResult, Detection, LabelMask, StageTimes
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
@@ -77,6 +83,7 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
+    from replaybench.backends.gpu._seg import SegPipeline
     from replaybench.detector.preprocess import Transform
     from replaybench.detector.spec import ModelSpec
     from replaybench.types import Frame
@@ -189,7 +196,9 @@ def ortvalue_to_torch(torch: Any, value: Any, device: Any) -> Tensor:
 class OrtEngine:
     """onnxruntime session run with IO binding: input and outputs stay on the device."""
 
-    def __init__(self, session: Any, spec: ModelSpec, input_tensor: Tensor, torch: Any) -> None:
+    def __init__(
+        self, session: Any, spec: ModelSpec | SegModelSpec, input_tensor: Tensor, torch: Any
+    ) -> None:
         self.torch = torch
         self.session = session
         self.names = list(spec.output_names)
@@ -349,12 +358,9 @@ class TorchEngine:
         return dict(zip(self.names, outputs, strict=False))
 
 
-class DnnPipeline:
-    """Upload, preprocessing and postprocessing of one model on one torch device.
-
-    ``input`` is the model's input tensor ``[1, 3, H, W]`` that engines bind; the device may be
-    the CPU for tests (no pinned memory there).
-    """
+class DnnPipeline(DeviceInput):
+    """Upload, preprocessing (``DeviceInput``) and postprocessing of one detection model on
+    one torch device."""
 
     def __init__(
         self,
@@ -366,69 +372,16 @@ class DnnPipeline:
         iou: float,
         max_det: int,
     ) -> None:
-        self.torch = torch
+        super().__init__(torch, spec.preprocess, device, half)
         self.spec = spec
-        self.device = device
         self.conf = conf
         self.iou = iou
         self.max_det = max_det
-        width, height = spec.preprocess.size
-        dtype = torch.float16 if half else torch.float32
-        self.input = torch.empty((1, 3, height, width), dtype=dtype, device=device)
-        self._work = self.input if not half else torch.empty_like(self.input, dtype=torch.float32)
-        self._norm = ops.normaliser(torch, spec.preprocess, device)
         self._grid = None
         if spec.family == 'yolox':
             self._grid = ops.yolox_grid(torch, spec.preprocess.size, device)
-        self._pinned: Tensor = None
         #: Candidates left out for NaN or inf model outputs.
         self.nonfinite = NonfiniteTally()
-
-    def upload(self, pixels: npt.NDArray[np.uint8]) -> Tensor:
-        """The pixels on the device; through one reused pinned buffer on CUDA."""
-        return self.transfer(self.stage(pixels))
-
-    def stage(self, pixels: npt.NDArray[np.uint8]) -> Tensor:
-        """The host side of the upload: the pixels copied into the reused pinned buffer (CUDA),
-        or a CPU tensor of their own; no GPU call."""
-        torch = self.torch
-        if self.device.type != 'cuda':
-            return torch.from_numpy(np.array(pixels))
-        pinned = self._pinned
-        if pinned is None or tuple(pinned.shape) != pixels.shape:
-            pinned = self._pinned = torch.empty(pixels.shape, dtype=torch.uint8, pin_memory=True)
-        np.copyto(pinned.numpy(), pixels)
-        return pinned
-
-    def transfer(self, host: Tensor) -> Tensor:
-        """The staged pixels copied to the device, queued on the current stream."""
-        if self.device.type != 'cuda':
-            return host
-        return host.to(self.device, non_blocking=True)
-
-    def preprocess(
-        self, image: Tensor, layout: str, begin: Callable[[], object] | None = None
-    ) -> Transform:
-        """Write the model input for ``image`` (on the device) into ``input``; ``begin`` is
-        called just before the first GPU call (after the letterbox geometry on the host)."""
-        from replaybench.detector.preprocess import geometry
-
-        height, width = int(image.shape[0]), int(image.shape[1])
-        new_w, new_h, left, top, transform = geometry(width, height, self.spec.preprocess)
-        if begin is not None:
-            begin()
-        ops.letterbox_into(
-            self.torch,
-            self._work,
-            image,
-            layout,
-            self.spec.preprocess,
-            (new_w, new_h, left, top),
-            self._norm,
-        )
-        if self._work is not self.input:
-            self.input.copy_(self._work)
-        return transform
 
     def postprocess(self, outputs: Mapping[str, Tensor], transform: Transform) -> list[Tensor]:
         """What to download: ``[rows K x 6]`` and the count of candidates left out for NaN or
@@ -446,9 +399,6 @@ class DnnPipeline:
         rows = torch.cat((src, scores[keep, None], classes[keep, None].to(torch.float32)), dim=1)
         return [rows, nonfinite]
 
-    def download(self, tensors: Sequence[Tensor]) -> list[npt.NDArray[Any]]:
-        return [t.detach().to('cpu').numpy() for t in tensors]
-
     def detections(
         self, arrays: Sequence[npt.NDArray[Any]], transform: Transform
     ) -> tuple[Detection, ...]:
@@ -464,6 +414,12 @@ class DnnPipeline:
         self.nonfinite.add(int(arrays[1]))
         return to_detections(arrays[0], spec.class_names)
 
+    def answer(
+        self, arrays: Sequence[npt.NDArray[Any]], transform: Transform
+    ) -> tuple[tuple[Detection, ...], LabelMask | None]:
+        """The frame's detections and label mask (``_seg.SegPipeline``: a mask)."""
+        return self.detections(arrays, transform), None
+
 
 def _unit(backend: str, name: str, value: float | None) -> None:
     if value is not None and not 0.0 <= value <= 1.0:
@@ -478,7 +434,8 @@ def torch_events(torch: Any, stream: Any, slots: int = STAGE_EVENTS) -> EventTim
 
 
 class CudaBackend:
-    """ONNX detection models on an NVIDIA GPU; ``options.engine`` picks onnxruntime or torch.
+    """ONNX detection (or segmentation) models on an NVIDIA GPU; ``options.engine`` picks
+    onnxruntime or torch.
 
     Options as ``onnx-cpu`` (model, family, labels, conf, iou, preprocessing keys in ``extra``)
     plus ``device`` (GPU index), ``engine`` (``auto`` | ``ort`` | ``torch``; auto picks one
@@ -504,8 +461,8 @@ class CudaBackend:
         opts = self.options
         _unit(self.name, 'conf', opts.conf)
         _unit(self.name, 'iou', opts.iou)
-        if opts.model_family is not None and opts.model_family not in FAMILIES:
-            known = ', '.join(FAMILIES)
+        if opts.model_family is not None and opts.model_family not in (*FAMILIES, *LAYOUTS):
+            known = ', '.join((*FAMILIES, *LAYOUTS))
             msg = f'{self.name}: unknown --model-family {opts.model_family!r}; known: {known}'
             raise BackendError(msg)
         if opts.engine not in ENGINES:
@@ -541,7 +498,7 @@ class CudaBackend:
         self.cuda_graph = graph in ('on', '1', 'true')
         self.model_path: Path = opts.model if opts.model is not None else DEFAULT_MODEL
         self.iou = opts.iou if opts.iou is not None else DEFAULT_IOU
-        self.spec: ModelSpec | None = None
+        self.spec: ModelSpec | SegModelSpec | None = None
         self.engine_name = ''
         self.engine_choice = ''
         self.precision = ''
@@ -549,7 +506,7 @@ class CudaBackend:
         self._device: Any = None
         self._stream: Any = None
         self._events: EventTimer | None = None
-        self._pipeline: DnnPipeline | None = None
+        self._pipeline: DnnPipeline | SegPipeline | None = None
         self._engine: OrtEngine | TorchEngine | None = None
         self._tf32: Tf32Hold | None = None
         self._facts: dict[str, Any] = {}
@@ -667,7 +624,7 @@ class CudaBackend:
         check_placement(placement, self.provider)
         return providers, placement
 
-    def _open_ort(self, stream: Any) -> tuple[ModelSpec, Any, dict[str, Any]]:
+    def _open_ort(self, stream: Any) -> tuple[ModelSpec | SegModelSpec, Any, dict[str, Any]]:
         """The session on the GPU provider (checked), the model's spec and the facts."""
         problem = ort_provider_problem(self.provider)
         if problem is not None:
@@ -697,7 +654,7 @@ class CudaBackend:
         }
         return spec, session, facts
 
-    def _open_torch(self, torch: Any) -> tuple[ModelSpec, Any, dict[str, Any]]:
+    def _open_torch(self, torch: Any) -> tuple[ModelSpec | SegModelSpec, Any, dict[str, Any]]:
         missing = [m for m in ('onnx2torch', 'onnx') if module_missing(m)]
         if missing:
             msg = f'{" and ".join(missing)} not installed: {GPU_EXTRA}'
@@ -744,9 +701,16 @@ class CudaBackend:
         torch = importlib.import_module('torch')
         return torch, torch.device('cuda', self.options.device)
 
-    def _load_spec(self, session: Any) -> ModelSpec:
+    def _load_spec(self, session: Any) -> ModelSpec | SegModelSpec:
+        from replaybench.backends.gpu import _seg
         from replaybench.detector.spec import load_model_spec
 
+        session = session if session is not None else _seg.cpu_session(self.model_path)
+        opts = self.options
+        if _seg.is_segmentation(session, opts.model_family):
+            return _seg.load_gpu_seg_spec(
+                self.model_path, session, opts.model_family, opts.labels, opts.extra
+            )
         overrides = {k: v for k, v in self.options.extra.items() if k in _SPEC_KEYS}
         return load_model_spec(
             self.model_path,
@@ -802,9 +766,8 @@ class CudaBackend:
         else:
             spec, runner, facts = self._open_torch(torch)
         half = spec.precision == 'fp16' or (engine == 'torch' and self.options.precision == 'fp16')
-        conf = self.options.conf if self.options.conf is not None else DEFAULT_CONF[spec.family]
         with torch.cuda.device(device), torch.cuda.stream(self._stream):
-            pipeline = DnnPipeline(torch, spec, device, half, conf, self.iou, self.max_det)
+            pipeline = self._pipeline_for(torch, spec, device, half)
             if engine == 'ort':
                 self._engine = OrtEngine(runner, spec, pipeline.input, torch)
             else:
@@ -840,6 +803,16 @@ class CudaBackend:
         if engine == 'ort':
             # what the session runs on, once more after a real inference
             self._facts['providers'] = check_session_providers(runner, self.provider)
+
+    def _pipeline_for(
+        self, torch: Any, spec: ModelSpec | SegModelSpec, device: Any, half: bool
+    ) -> DnnPipeline | SegPipeline:
+        if isinstance(spec, SegModelSpec):
+            from replaybench.backends.gpu._seg import SegPipeline
+
+            return SegPipeline(torch, spec, device, half)
+        conf = self.options.conf if self.options.conf is not None else DEFAULT_CONF[spec.family]
+        return DnnPipeline(torch, spec, device, half, conf, self.iou, self.max_det)
 
     def _precision_facts(self, gpu: DeviceFacts) -> dict[str, Any]:  # noqa: ARG002  tensorrt.py's override uses gpu
         return {'precision_requested': self.options.precision, 'tf32': self.precision == 'tf32'}
@@ -898,7 +871,11 @@ class CudaBackend:
             **(self._pipeline.nonfinite if self._pipeline else NonfiniteTally()).info(),
         }
         spec = self.spec
-        if spec is not None:
+        if isinstance(spec, SegModelSpec):
+            from replaybench.backends.gpu._seg import seg_facts
+
+            facts.update(seg_facts(spec))
+        elif spec is not None:
             facts.update(
                 {
                     'model_sha256': spec.sha256,
@@ -950,7 +927,7 @@ class CudaBackend:
             d2h = clock.lap()
         on_device = clock.device_laps()
         t0 = time.perf_counter_ns()
-        detections = pipeline.detections(arrays, transform)
+        detections, mask = pipeline.answer(arrays, transform)
         post_host = time.perf_counter_ns() - t0
         stages = StageTimes(
             preprocess_ns=pre,
@@ -964,10 +941,10 @@ class CudaBackend:
             h2d_device_ns=on_device[0],
             d2h_device_ns=on_device[4],
         )
-        return BackendResult(detections, stages)
+        return BackendResult(detections, stages, mask)
 
 
-def _graph_output_names(spec: ModelSpec) -> list[str]:
+def _graph_output_names(spec: ModelSpec | SegModelSpec) -> list[str]:
     """Names of all graph outputs in graph order (onnx2torch returns them in this order)."""
     onnx = importlib.import_module('onnx')
     model = onnx.load(str(spec.path), load_external_data=False)

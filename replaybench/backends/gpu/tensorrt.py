@@ -37,6 +37,7 @@ if TYPE_CHECKING:
     from replaybench.backends.base import Availability, BackendOptions
     from replaybench.backends.gpu._cuda import DeviceFacts
     from replaybench.detector.spec import ModelSpec
+    from replaybench.segmentation.spec import SegModelSpec
 
 __all__ = ['EngineKey', 'TensorrtBackend', 'engine_folder', 'trt_cache_dir', 'trt_precision']
 
@@ -131,7 +132,7 @@ class TensorrtBackend(CudaBackend):
             trt['user_compute_stream'] = cuda['user_compute_stream']
         return [('TensorrtExecutionProvider', trt), ('CUDAExecutionProvider', cuda)]
 
-    def _open_ort(self, stream: Any) -> tuple[ModelSpec, Any, dict[str, Any]]:
+    def _open_ort(self, stream: Any) -> tuple[ModelSpec | SegModelSpec, Any, dict[str, Any]]:
         problem = tensorrt_problem()
         if problem is not None:
             raise BackendUnavailableError(problem)

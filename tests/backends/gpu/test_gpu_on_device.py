@@ -20,6 +20,7 @@ from backends.gpu.gpuhelpers import ASTRONAUT, FIXTURE_BAGS, has
 from replaybench.backends import get_backend
 from replaybench.backends.base import BackendOptions
 from replaybench.errors import BackendUnavailableError
+from replaybench.segmentation.spec import DEFAULT_SEG_MODEL
 from replaybench.types import Detection, Frame
 
 if TYPE_CHECKING:
@@ -257,3 +258,54 @@ def test_each_gpu_backend_of_a_run_gets_its_own_pass_peak(yolox_nano, tmp_path):
         assert summary['gpu_mem_mb_start'] is not None, backend['name']
         assert 0 <= summary['gpu_mem_mb_pass_peak'] <= summary['gpu_mem_mb_peak']
         assert summary['gpu_mem_basis']
+
+
+def _seg_frames(tmp_path: Path) -> list[Frame]:
+    """Frames of a fixture bag written with ground-truth masks (``fixtures --masks``)."""
+    from replaybench.decode import decode_image, message_kind
+    from replaybench.fixtures.writer import write_mcap
+    from replaybench.sources import open_source
+
+    frames = []
+    with open_source(write_mcap(tmp_path / 'seg.mcap', 6, masks=True)) as source:
+        for raw in source.messages():
+            if raw.topic == '/camera/image_raw' and message_kind(raw.msgtype) == 'image':
+                img = decode_image(raw)
+                frames.append(Frame(raw.topic, raw.seq, 0, 0, '', img.image, img.encoding, ''))
+    return frames
+
+
+@_needs('cuda')
+@pytest.mark.parametrize(
+    ('name', 'engine'),
+    [
+        ('cuda', 'ort'),
+        pytest.param(
+            'cuda',
+            'torch',
+            marks=pytest.mark.skipif(not has('onnx2torch'), reason='onnx2torch is not installed'),
+        ),
+        pytest.param('tensorrt', 'auto', marks=_needs('tensorrt')),
+    ],
+)
+def test_the_gpu_engines_label_the_bundled_segmentation_model_as_onnx_seg_does(
+    name, engine, tmp_path
+):
+    # fp32 convolutions on the GPU sum in another order than on the CPU: a pixel whose two best
+    # class scores are nearly equal may flip, so >= 99.9 % of the pixels must agree
+    # (TensorRT builds fp32 layers with TF32 on Ampere and newer: >= 99.5 %)
+    frames = _seg_frames(tmp_path)
+    cpu, _ = _detect_all('onnx-seg', BackendOptions(threads=1), frames)
+    extra = {'trt_cache': str(tmp_path / 'trt')} if name == 'tensorrt' else {}
+    options = BackendOptions(model=DEFAULT_SEG_MODEL, engine=engine, extra=extra)
+    gpu, info = _detect_all(name, options, frames)
+    floor = 0.995 if name == 'tensorrt' else 0.999
+    for ours, theirs in zip(gpu, cpu, strict=True):
+        assert ours.mask is not None
+        assert theirs.mask is not None
+        assert ours.mask.labels.shape == theirs.mask.labels.shape
+        assert (ours.mask.labels == theirs.mask.labels).mean() >= floor
+        assert ours.stages.d2h_ns is not None
+        assert ours.stages.postprocess_device_ns is not None
+    assert (info['task'], info['layout']) == ('segmentation', 'logits-nchw')
+    assert info['device_name']

@@ -315,7 +315,50 @@ class _Buffers:
         self.part = np.empty(shape, dtype=np.uint8)
 
 
-class HsvBackend:
+class ColourMorphology:
+    """What the colour backends (``hsv``, ``hsv-seg``) share: OpenCV's availability, the
+    elliptic kernel of their configuration's open / close, made when they open, and
+    ``cv2.setNumThreads(options.threads)`` while they are open. A subclass sets ``config``,
+    ``options``, ``_kernel`` and ``_saved_threads`` (None) and ``_buffers`` in ``__init__``."""
+
+    name: ClassVar[str]
+    config: HsvConfig
+    options: BackendOptions
+    _kernel: npt.NDArray[np.uint8] | None
+    _saved_threads: int | None
+    _buffers: object | None
+
+    @classmethod
+    def available(cls) -> Availability:
+        if importlib.util.find_spec('cv2') is None:
+            return Availability(ok=False, reason='OpenCV (cv2) is not installed')
+        return Availability(ok=True)
+
+    def open(self) -> None:
+        try:
+            import cv2
+        except ImportError as exc:
+            msg = f'{self.name}: cannot import OpenCV: {exc}'
+            raise BackendUnavailableError(msg) from exc
+        params = self.config.detector
+        self._kernel = np.asarray(
+            cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (params.kernel, params.kernel)),
+            dtype=np.uint8,
+        )
+        if self.options.threads is not None and self._saved_threads is None:
+            self._saved_threads = cv2.getNumThreads()
+            cv2.setNumThreads(self.options.threads)
+
+    def close(self) -> None:
+        self._buffers = None
+        if self._saved_threads is not None:
+            import cv2
+
+            cv2.setNumThreads(self._saved_threads)
+            self._saved_threads = None
+
+
+class HsvBackend(ColourMorphology):
     """OpenCV colour-blob detector; classes and thresholds from ``options.config`` (TOML).
 
     ``options.extra`` may override ``[detector]`` keys (``min_area``, ``kernel``,
@@ -357,35 +400,6 @@ class HsvBackend:
         self._kernel: npt.NDArray[np.uint8] | None = None
         self._saved_threads: int | None = None
         self._buffers: _Buffers | None = None
-
-    @classmethod
-    def available(cls) -> Availability:
-        if importlib.util.find_spec('cv2') is None:
-            return Availability(ok=False, reason='OpenCV (cv2) is not installed')
-        return Availability(ok=True)
-
-    def open(self) -> None:
-        try:
-            import cv2
-        except ImportError as exc:
-            msg = f'hsv: cannot import OpenCV: {exc}'
-            raise BackendUnavailableError(msg) from exc
-        params = self.config.detector
-        self._kernel = np.asarray(
-            cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (params.kernel, params.kernel)),
-            dtype=np.uint8,
-        )
-        if self.options.threads is not None and self._saved_threads is None:
-            self._saved_threads = cv2.getNumThreads()
-            cv2.setNumThreads(self.options.threads)
-
-    def close(self) -> None:
-        self._buffers = None
-        if self._saved_threads is not None:
-            import cv2
-
-            cv2.setNumThreads(self._saved_threads)
-            self._saved_threads = None
 
     def info(self) -> dict[str, Any]:
         params = self.config.detector

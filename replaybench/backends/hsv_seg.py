@@ -21,16 +21,15 @@ range, full-frame morphology, boolean indexing); both give the same mask
 
 from __future__ import annotations
 
-import importlib.util
 import time
 from typing import TYPE_CHECKING, Any, ClassVar, cast
 
 import numpy as np
 
-from replaybench.backends.base import Availability, BackendOptions
-from replaybench.backends.hsv import HsvConfig, _apply_extra, load_config
+from replaybench.backends.base import BackendOptions
+from replaybench.backends.hsv import ColourMorphology, HsvConfig, _apply_extra, load_config
 from replaybench.decode import to_bgr8
-from replaybench.errors import BackendError, BackendUnavailableError
+from replaybench.errors import BackendError
 from replaybench.types import BackendResult, LabelMask, StageTimes
 
 if TYPE_CHECKING:
@@ -154,7 +153,7 @@ class _Buffers:
         self.bits = [np.empty((height, width), dtype=np.uint8) for _ in range(groups)]
 
 
-class HsvSegBackend:
+class HsvSegBackend(ColourMorphology):
     """Per-pixel colour classes with OpenCV; configured exactly as the ``hsv`` backend.
 
     ``options.extra`` may override ``[detector]`` keys (``kernel``, ``open_iterations``,
@@ -189,35 +188,6 @@ class HsvSegBackend:
         self._kernel: npt.NDArray[np.uint8] | None = None
         self._saved_threads: int | None = None
         self._buffers: _Buffers | None = None
-
-    @classmethod
-    def available(cls) -> Availability:
-        if importlib.util.find_spec('cv2') is None:
-            return Availability(ok=False, reason='OpenCV (cv2) is not installed')
-        return Availability(ok=True)
-
-    def open(self) -> None:
-        try:
-            import cv2
-        except ImportError as exc:
-            msg = f'hsv-seg: cannot import OpenCV: {exc}'
-            raise BackendUnavailableError(msg) from exc
-        params = self.config.detector
-        self._kernel = np.asarray(
-            cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (params.kernel, params.kernel)),
-            dtype=np.uint8,
-        )
-        if self.options.threads is not None and self._saved_threads is None:
-            self._saved_threads = cv2.getNumThreads()
-            cv2.setNumThreads(self.options.threads)
-
-    def close(self) -> None:
-        self._buffers = None
-        if self._saved_threads is not None:
-            import cv2
-
-            cv2.setNumThreads(self._saved_threads)
-            self._saved_threads = None
 
     def info(self) -> dict[str, Any]:
         params = self.config.detector

@@ -11,7 +11,7 @@ reported apart as ``mapped``, and their sum as ``rss``. Where there is no ``/pro
 ``resource.getrusage`` gives the peak RSS so far instead, and no private figure. GPU numbers
 come from NVML when ``pynvml`` (the ``nvidia-ml-py`` or ``pynvml`` distribution) imports and
 reports a device; they describe the whole device (every process on it), not only this one. The NVML
-device is matched to the CUDA device the backend uses by UUID / PCI bus id (see ``_Nvml``).
+device is matched to the CUDA device the backend uses by UUID / PCI bus id (see ``NvmlDevice``).
 Without NVML the GPU fields are None.
 
 GPU memory per backend: the runner starts one sampler at the start of each backend's pass, when
@@ -37,7 +37,6 @@ sample, and the CPU time of its thread as a percentage of one core.
 from __future__ import annotations
 
 import contextlib
-import importlib
 import math
 import os
 import sys
@@ -46,13 +45,12 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from replaybench.backends.gpu import _cuda
+from replaybench.replay.nvml import NvmlDevice
 
 if TYPE_CHECKING:
     from types import TracebackType
     from typing import Self
 
-    from replaybench.backends.gpu._cuda import DeviceIdentity
 
 __all__ = [
     'BUSY_CPU_PERCENT',
@@ -159,117 +157,6 @@ def _reduce(points: list[_Point], limit: int) -> list[_Point]:
         return list(points)
     size = math.ceil(len(points) / limit)
     return [_merge(points[i : i + size]) for i in range(0, len(points), size)]
-
-
-class _Nvml:
-    """One NVML device; every query returns None when it fails.
-
-    The device is the one CUDA calls ``index`` in this process: NVML numbers devices by PCI
-    order and ignores ``CUDA_VISIBLE_DEVICES`` / ``CUDA_DEVICE_ORDER``, so the CUDA device's
-    UUID (else its PCI bus id), read from the CUDA driver, picks the NVML device (``match``).
-    Only where no CUDA driver library loads at all is ``index`` taken as NVML's own
-    (``match`` = ``index``); with no index given, NVML's device 0.
-    """
-
-    def __init__(
-        self, module: Any, handle: Any, index: int, name: str, match: str, identity: Any
-    ) -> None:
-        self.module = module
-        self.handle = handle
-        self.index = index
-        self.name = name
-        self.match = match
-        self.uuid = identity.uuid if identity is not None else None
-        self.pci_bus_id = identity.pci_bus_id if identity is not None else None
-        self.power_ok = True
-        self.reasons_ok = True
-
-    @classmethod
-    def open(cls, index: int | None) -> _Nvml | None:
-        try:
-            module = importlib.import_module('pynvml')
-        except ImportError:
-            return None
-        try:
-            module.nvmlInit()
-        except Exception:  # noqa: BLE001  NVML fails in its own error types: no GPU figures then
-            return None
-        try:
-            wanted = 0 if index is None else index
-            count = int(module.nvmlDeviceGetCount())
-            identity = None
-            handle, match = None, ''
-            if index is not None and _cuda.load_libcuda() is not None:
-                identity = _cuda.device_identity(index)
-                found = None if identity is None else _by_identity(module, count, identity)
-                if found is not None:
-                    handle, match = found
-            elif 0 <= wanted < count:
-                handle, match = module.nvmlDeviceGetHandleByIndex(wanted), 'index'
-            if handle is None:
-                module.nvmlShutdown()
-                return None
-            name = module.nvmlDeviceGetName(handle)
-        except Exception:  # noqa: BLE001  NVML fails in its own error types: no GPU figures then
-            _quiet(module.nvmlShutdown)
-            return None
-        if isinstance(name, bytes):
-            name = name.decode('utf-8', 'replace')
-        return cls(module, handle, wanted, str(name), match, identity)
-
-    def read(self) -> tuple[float | None, float | None, float | None]:
-        nvml, handle = self.module, self.handle
-        util = _quiet(lambda: float(nvml.nvmlDeviceGetUtilizationRates(handle).gpu))
-        mem = _quiet(lambda: float(nvml.nvmlDeviceGetMemoryInfo(handle).used) / _MIB)
-        power = None
-        if self.power_ok:
-            power = _quiet(lambda: float(nvml.nvmlDeviceGetPowerUsage(handle)) / 1000.0)
-            self.power_ok = power is not None
-        return util, mem, power
-
-    def reasons(self) -> int | None:
-        """The clock event (throttle) reason bits now, None where NVML cannot say."""
-        if not self.reasons_ok:
-            return None
-        nvml, handle = self.module, self.handle
-        getter = getattr(nvml, 'nvmlDeviceGetCurrentClocksEventReasons', None) or getattr(
-            nvml, 'nvmlDeviceGetCurrentClocksThrottleReasons', None
-        )
-        found = None if getter is None else _quiet(lambda: int(getter(handle)))
-        self.reasons_ok = found is not None
-        return found
-
-    def close(self) -> None:
-        _quiet(self.module.nvmlShutdown)
-
-
-def _text(value: Any) -> str:
-    return value.decode('utf-8', 'replace') if isinstance(value, bytes) else str(value)
-
-
-def _by_identity(module: Any, count: int, identity: DeviceIdentity) -> tuple[Any, str] | None:
-    """The NVML device with the CUDA device's UUID, else its PCI bus id; (handle, how)."""
-    found = None
-    for nvml_index in range(count):
-        handle = module.nvmlDeviceGetHandleByIndex(nvml_index)
-        uuid = _quiet(lambda h=handle: _text(module.nvmlDeviceGetUUID(h)))
-        if uuid is not None and uuid.lower() == identity.uuid.lower():
-            return handle, 'uuid'
-        bus = _quiet(lambda h=handle: _text(module.nvmlDeviceGetPciInfo(h).busId))
-        if (
-            found is None
-            and bus is not None
-            and _cuda.normalise_pci_bus_id(bus) == identity.pci_bus_id
-        ):
-            found = (handle, 'pci_bus_id')
-    return found
-
-
-def _quiet(call: Any) -> Any:
-    try:
-        return call()
-    except Exception:  # noqa: BLE001  a reading NVML refuses is left out
-        return None
 
 
 class _Rss:
@@ -405,7 +292,7 @@ class ResourceSampler:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._rss: _Rss | None = None
-        self._gpu: _Nvml | None = None
+        self._gpu: NvmlDevice | None = None
         self._freq: _CpuFreq | None = None
         self._points: list[_Point] = []  # each merges ``_stride`` samples
         self._pending: list[_Point] = []  # samples not yet merged into a point
@@ -447,7 +334,7 @@ class ResourceSampler:
             msg = 'a ResourceSampler can be started once'
             raise RuntimeError(msg)
         self._rss = _Rss()
-        self._gpu = _Nvml.open(self.gpu_index)
+        self._gpu = NvmlDevice.open(self.gpu_index)
         self._freq = _CpuFreq()
         self._t0 = time.perf_counter()
         self._cpu0 = time.process_time_ns()

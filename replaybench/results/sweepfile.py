@@ -150,6 +150,11 @@ class CellMetrics:
     p99_ci: tuple[float, float] | None = None
     map50: float | None = None
     topics: int = 0
+    #: segmentation backends: mean mIoU over the cell's topics; tag backends: mean tag recall
+    #: and rotation error (deg); None for other backends
+    miou: float | None = None
+    tag_recall: float | None = None
+    tag_rot_err_deg: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -157,3 +157,26 @@ def test_the_run_options_the_sweep_lacked_reach_each_cell(
     assert result.record['settings']['ground_truth_image_topic'] == topic
     assert run['summary'][0]['accuracy'] is not None  # scored against the file
     assert cell['metrics']['map50'] is not None
+
+
+def test_a_cell_of_a_segmentation_or_tag_backend_carries_its_accuracy(tmp_path: Path) -> None:
+    """sweep.csv's miou / tag_recall / tag_rot_err_deg: the cell's mean over its topics, from
+    the run's own summary rows; empty for a detector."""
+    import dataclasses
+
+    import replaybench as rb
+    from replaybench.app.sweep.record import CSV_COLUMNS, cell_metrics
+    from replaybench.fixtures.writer import write_mcap
+
+    bag = write_mcap(tmp_path / 'seg.mcap', 6, (160, 120), masks=True)
+    run = rb.run(bag, backends=['hsv-seg', 'hsv'], warmup=0)
+    seg, det = run.summary_rows  # in the order of the backends
+    assert seg.miou is not None
+    assert det.miou is None
+    for row in (seg, det):
+        records = [r for r in run.frame_records or () if r.backend == row.backend]
+        metrics = cell_metrics(dataclasses.replace(run, summary_rows=(row,)), records, '0' * 16)
+        assert metrics.miou == row.miou
+        assert metrics.tag_recall is None
+        assert metrics.tag_rot_err_deg is None
+    assert {'miou', 'tag_recall', 'tag_rot_err_deg'} <= set(CSV_COLUMNS)

@@ -57,6 +57,9 @@ CSV_COLUMNS: tuple[str, ...] = (
     'p99_low',
     'p99_high',
     'map50',
+    'miou',
+    'tag_recall',
+    'tag_rot_err_deg',
     'node',
     'gpu',
     'concurrency',
@@ -141,6 +144,12 @@ def cell_metrics(run: RunResult, records: Sequence[FrameRecord], key: str) -> Ce
         for row in rows
         if row.accuracy is not None and row.accuracy.map50 is not None
     ]
+
+    def mean_of(name: str) -> float | None:
+        # a task's accuracy over the cell's topics (segmentation: mIoU; tags: recall, rotation)
+        values = [v for row in rows if (v := getattr(row, name)) is not None]
+        return float(np.mean(values)) if values else None
+
     return CellMetrics(
         frames=frames,
         fps=fps,
@@ -150,6 +159,9 @@ def cell_metrics(run: RunResult, records: Sequence[FrameRecord], key: str) -> Ce
         p99_ms=p99,
         p99_ci=_interval(reps.p99) if reps is not None else None,
         map50=float(np.mean(maps)) if maps else None,
+        miou=mean_of('miou'),
+        tag_recall=mean_of('tag_recall'),
+        tag_rot_err_deg=mean_of('tag_rot_err_deg'),
         topics=len({r.topic for r in records}),
     )
 
@@ -263,6 +275,9 @@ def csv_row(cell: SweepCell) -> dict[str, Any]:
         'p99_low': ci(m.p99_ci, 0) if m else None,
         'p99_high': ci(m.p99_ci, 1) if m else None,
         'map50': m.map50 if m else None,
+        'miou': m.miou if m else None,
+        'tag_recall': m.tag_recall if m else None,
+        'tag_rot_err_deg': m.tag_rot_err_deg if m else None,
         'node': cell.hostname or cell.node_id,
         'gpu': ','.join(cell.gpu_ids),
         'concurrency': cell.concurrency.max_cells_on_node if cell.concurrency else None,

@@ -357,6 +357,28 @@ class ColourMorphology:
             cv2.setNumThreads(self._saved_threads)
             self._saved_threads = None
 
+    def _colour_source(self, frame: Frame) -> tuple[npt.NDArray[np.uint8], int]:
+        """The frame as an HxWx3 uint8 image and the cv2 code that turns it into HSV (rgb8 and
+        bgr8 as they are, other encodings through BGR); BackendError for any other shape."""
+        import cv2
+
+        image = frame.image
+        encoding = frame.encoding
+        if encoding == 'rgb8':
+            code = cv2.COLOR_RGB2HSV
+        elif encoding == 'bgr8':
+            code = cv2.COLOR_BGR2HSV
+        else:
+            image = to_bgr8(image, encoding)
+            code = cv2.COLOR_BGR2HSV
+        if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+            msg = (
+                f'{self.name}: frame {frame.topic}#{frame.seq}: expected HxWx3 uint8 for '
+                f'{encoding}, got shape {image.shape} {image.dtype}'
+            )
+            raise BackendError(msg)
+        return cast('npt.NDArray[np.uint8]', image), code
+
 
 class HsvBackend(ColourMorphology):
     """OpenCV colour-blob detector; classes and thresholds from ``options.config`` (TOML).
@@ -433,23 +455,9 @@ class HsvBackend(ColourMorphology):
     def _hsv(self, frame: Frame) -> npt.NDArray[np.uint8]:
         import cv2
 
-        image = frame.image
-        encoding = frame.encoding
-        if encoding == 'rgb8':
-            code = cv2.COLOR_RGB2HSV
-        elif encoding == 'bgr8':
-            code = cv2.COLOR_BGR2HSV
-        else:
-            image = to_bgr8(image, encoding)
-            code = cv2.COLOR_BGR2HSV
-        if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
-            msg = (
-                f'hsv: frame {frame.topic}#{frame.seq}: expected HxWx3 uint8 for {encoding}, '
-                f'got shape {image.shape} {image.dtype}'
-            )
-            raise BackendError(msg)
+        image, code = self._colour_source(frame)
         buffers = self._buffers_for(image.shape[0], image.shape[1])
-        cv2.cvtColor(cast('npt.NDArray[np.uint8]', image), code, dst=buffers.hsv)
+        cv2.cvtColor(image, code, dst=buffers.hsv)
         return buffers.hsv
 
     def detect(self, frame: Frame) -> BackendResult:

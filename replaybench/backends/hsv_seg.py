@@ -28,7 +28,6 @@ import numpy as np
 
 from replaybench.backends.base import BackendOptions
 from replaybench.backends.hsv import ColourMorphology, HsvConfig, _apply_extra, load_config
-from replaybench.decode import to_bgr8
 from replaybench.errors import BackendError
 from replaybench.types import BackendResult, LabelMask, StageTimes
 
@@ -220,28 +219,14 @@ class HsvSegBackend(ColourMorphology):
     def _hsv(self, frame: Frame) -> npt.NDArray[np.uint8]:
         import cv2
 
-        image = frame.image
-        encoding = frame.encoding
-        if encoding == 'rgb8':
-            code = cv2.COLOR_RGB2HSV
-        elif encoding == 'bgr8':
-            code = cv2.COLOR_BGR2HSV
-        else:
-            image = to_bgr8(image, encoding)
-            code = cv2.COLOR_BGR2HSV
-        if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
-            msg = (
-                f'hsv-seg: frame {frame.topic}#{frame.seq}: expected HxWx3 uint8 for '
-                f'{encoding}, got shape {image.shape} {image.dtype}'
-            )
-            raise BackendError(msg)
+        image, code = self._colour_source(frame)
         height, width = int(image.shape[0]), int(image.shape[1])
         buffers = self._buffers
         if buffers is None or buffers.shape != (height, width):
             groups = len(self._plan.channel_luts)
             buffers = _Buffers(height, width, groups)
             self._buffers = buffers
-        cv2.cvtColor(cast('npt.NDArray[np.uint8]', image), code, dst=buffers.hsv)
+        cv2.cvtColor(image, code, dst=buffers.hsv)
         return buffers.hsv
 
     def detect(self, frame: Frame) -> BackendResult:

@@ -36,11 +36,20 @@ if TYPE_CHECKING:
     from replaybench.detector.spec import ModelSpec
     from replaybench.types import Detection, Frame
 
-__all__ = ['EXTRA_KEYS', 'OnnxCpuBackend', 'session_options']
+__all__ = ['EXTRA_KEYS', 'OnnxCpuBackend', 'onnx_cpu_available', 'session_options']
 
 #: Keys ``BackendOptions.extra`` may hold for this backend.
 EXTRA_KEYS = (*SPEC_KEYS, 'max_det', 'allow_spinning')
 _META_VALUE_CHARS = 200
+
+
+def onnx_cpu_available() -> Availability:
+    """Whether the ONNX Runtime CPU backends (``onnx-cpu``, ``onnx-seg``) can run here."""
+    if importlib.util.find_spec('onnxruntime') is None:
+        return Availability(ok=False, reason='onnxruntime is not installed')
+    if importlib.util.find_spec('cv2') is None:
+        return Availability(ok=False, reason='OpenCV (cv2) is not installed')
+    return Availability(ok=True)
 
 
 def session_options(threads: int | None, *, spinning: bool = False) -> Any:
@@ -137,11 +146,7 @@ class OnnxCpuBackend:
 
     @classmethod
     def available(cls) -> Availability:
-        if importlib.util.find_spec('onnxruntime') is None:
-            return Availability(ok=False, reason='onnxruntime is not installed')
-        if importlib.util.find_spec('cv2') is None:
-            return Availability(ok=False, reason='OpenCV (cv2) is not installed')
-        return Availability(ok=True)
+        return onnx_cpu_available()
 
     def open(self) -> None:
         if self._session is not None:

@@ -16,13 +16,12 @@ detectors (``letterbox``, ``channel_order``, ``scale``, ``mean``, ``std``, ``pad
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import time
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from replaybench.backends.base import Availability, BackendOptions
-from replaybench.backends.onnx_cpu import session_options
+from replaybench.backends.onnx_cpu import onnx_cpu_available, session_options
 from replaybench.detector.spec import SPEC_KEYS
 from replaybench.errors import BackendError, BackendUnavailableError
 from replaybench.segmentation.decoder import LAYOUTS, decode_labels, parse_layout
@@ -93,11 +92,7 @@ class OnnxSegBackend:
 
     @classmethod
     def available(cls) -> Availability:
-        if importlib.util.find_spec('onnxruntime') is None:
-            return Availability(ok=False, reason='onnxruntime is not installed')
-        if importlib.util.find_spec('cv2') is None:
-            return Availability(ok=False, reason='OpenCV (cv2) is not installed')
-        return Availability(ok=True)
+        return onnx_cpu_available()
 
     def open(self) -> None:
         if self._session is not None:

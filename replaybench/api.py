@@ -116,15 +116,17 @@ def compare(
     baseline_backend: str | None = None,
     seed: int = 0,
     out: str | os.PathLike[str] | None = None,
+    markdown: str | os.PathLike[str] | None = None,
 ) -> Comparison:
     """Compare runs (run folders, or ``RunResult``s of ``rb.run``; the first is the baseline),
     as ``replaybench compare`` does.
 
     ``fail_if``: gate conditions such as ``'p99_ms > +10%'``; ``strict`` judges them on the
     point estimate; ``allow_inconclusive`` makes an undecided gate pass. ``out``: also write
-    comparison.csv/.json/.html there. Returns the ``Comparison`` (comparison.json's contents)
-    with ``table``, the comparison.csv rows as a pandas DataFrame, and ``verdict``
-    (``passed``, ``failed``, ``inconclusive``; None without conditions).
+    comparison.csv/.json/.html there. ``markdown``: also write the comparison as
+    GitHub-flavoured Markdown to that file (as ``--markdown FILE``). Returns the ``Comparison``
+    (comparison.json's contents) with ``table``, the comparison.csv rows as a pandas DataFrame,
+    and ``verdict`` (``passed``, ``failed``, ``inconclusive``; None without conditions).
     """
     from replaybench.app.compare import compare_config, run_compare
     from replaybench.comparison.output import CSV_COLUMNS, comparison_json, csv_rows
@@ -151,6 +153,7 @@ def compare(
         baseline_backend=baseline_backend,
         seed=seed,
         out=out,
+        markdown=markdown,
     )
     outcome = run_compare(settings)
     comparison, gate = outcome.comparison, list(outcome.gate)

@@ -13,6 +13,7 @@ from typing import Any
 import pandas as pd
 import pytest
 from pandas.testing import assert_frame_equal
+from typer.testing import CliRunner
 
 import replaybench as rb
 from replaybench.errors import UsageError
@@ -243,6 +244,26 @@ def test_compare_takes_runs_in_memory_or_folders_and_gives_the_table_and_verdict
     csv_rows = pd.read_csv(tmp_path / 'cmp' / 'comparison.csv')
     assert list(csv_rows['role']) == list(written.table['role'])
     assert (tmp_path / 'cmp' / 'comparison.json').is_file()
+
+
+def test_compare_writes_the_same_markdown_as_the_command_line(tmp_path):
+    from replaybench.cli import app
+
+    rb.run(BAG, backends=['hsv'], out=tmp_path / 'base')
+    rb.run(BAG, backends=['hsv'], out=tmp_path / 'cand')
+    cmp = rb.compare(
+        tmp_path / 'base', tmp_path / 'cand', fail_if=['map50 < -0.02'], markdown=tmp_path / 'a.md'
+    )
+    args = [
+        'compare', str(tmp_path / 'base'), str(tmp_path / 'cand'),
+        '--fail-if', 'map50 < -0.02', '--markdown', str(tmp_path / 'b.md'),
+    ]  # fmt: skip
+    assert CliRunner().invoke(app, args).exit_code == 0
+    text = (tmp_path / 'a.md').read_text(encoding='utf-8')
+    assert text == (tmp_path / 'b.md').read_text(encoding='utf-8')
+    assert cmp.verdict == 'passed'
+    assert 'passed' in text.lower()
+    assert '| hsv' in text or '| `hsv`' in text
 
 
 def test_peak_in_memory_gives_the_trials_and_the_peak_and_writes_nothing(tmp_path, monkeypatch):

@@ -3,7 +3,7 @@ timing reads the first frame of a fresh process (the figures themselves are the 
 
 from __future__ import annotations
 
-from benchmarks.first_frame import time_to_first_frame, write_sparse_bag
+from benchmarks.first_frame import child_environment, time_to_first_frame, write_sparse_bag
 from replaybench.sources import open_source
 
 
@@ -15,8 +15,9 @@ def test_a_sparse_bag_is_a_readable_mcap_whose_zeros_take_no_disk(tmp_path):
     assert size > frames * 1920 * 1080 * 3
     assert bag.stat().st_blocks * 512 < size // 4  # holes, not written zeros
     with open_source(bag) as source:
-        (topic,) = [t for t in source.topics() if t.count]
-        assert topic.count == frames
+        counts = {t.name: t.count for t in source.topics()}
+        assert counts == {'/camera/image_raw': frames, '/camera/camera_info': frames}
+        (topic,) = [t for t in source.topics() if t.name == '/camera/image_raw']
         first = next(iter(source.messages(topics=[topic.name])))
         assert first.topic == '/camera/image_raw'
 
@@ -27,3 +28,13 @@ def test_the_first_frame_is_timed_from_a_fresh_process(tmp_path):
     first, total = time_to_first_frame(bag, tmp_path / 'run', hash_inputs=True)
     assert 0 < first < total
     assert (tmp_path / 'run' / 'run.json').is_file()
+
+
+def test_the_timed_runs_keep_their_bytecode_in_a_folder_of_their_own(tmp_path):
+    bag = tmp_path / 'bag.mcap'
+    write_sparse_bag(bag, 20_000_000)
+    env = child_environment(tmp_path / 'pycache')
+    assert 'PYTHONDONTWRITEBYTECODE' not in env
+    time_to_first_frame(bag, tmp_path / 'run', hash_inputs=False, env=env)
+    cached = {p.name.split('.')[0] for p in (tmp_path / 'pycache').rglob('*.pyc')}
+    assert {'runner', 'null', 'camera_info'} <= cached

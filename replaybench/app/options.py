@@ -304,7 +304,7 @@ def option_specs() -> Iterator[tuple[str, RunOption, Any]]:
 def check_gpu_options(engine: str, precision: str) -> None:
     """Refuse an ``engine`` or ``precision`` no backend knows, whichever backends run: a typo
     must not pass silently because this run happens to use only CPU backends."""
-    from replaybench.backends.gpu.cuda import ENGINES, PRECISIONS
+    from replaybench.backends.gpu.choices import ENGINES, PRECISIONS
 
     for option, value, known in (
         ('--engine', engine, ENGINES),

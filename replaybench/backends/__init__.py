@@ -9,7 +9,6 @@ group; the entry point's name is the backend name. A broken entry point is liste
 from __future__ import annotations
 
 import importlib
-import importlib.metadata
 import re
 from typing import TYPE_CHECKING, NamedTuple, cast
 
@@ -64,6 +63,8 @@ class BackendStatus(NamedTuple):
 
 def _entry_points() -> list[EntryPoint]:
     """Entry points of the backend group, in a stable order (name, then target)."""
+    import importlib.metadata  # only third-party backends need it: not on a built-in's path
+
     eps = importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
     return sorted(eps, key=lambda ep: (ep.name, ep.value))
 

@@ -1,9 +1,14 @@
-"""Hand-written readers for the fixed layouts of sensor_msgs Image and CompressedImage.
+"""Hand-written readers for the fixed layouts of sensor_msgs Image, CompressedImage and
+CameraInfo.
 
-They read the few header fields and return where the payload lies in the buffer, so the
-payload is never copied. CDR: a 4-byte encapsulation header, then fields aligned to their size
-relative to the byte after it (every field here aligns to at most 4, and the header is 4 bytes,
-so absolute offsets align the same way); strings carry a trailing NUL in their length.
+For the images they read the few header fields and return where the payload lies in the
+buffer, so the payload is never copied. CameraInfo is read whole: reading it needs no type
+store, whose import would cost more than the rest of a run's start.
+
+CDR: a 4-byte encapsulation header, then fields aligned to their size
+relative to the byte after it (the header is 4 bytes, so absolute offsets align the same way
+for fields of up to 4 bytes; a float64 aligns to 8 relative to the byte after the header);
+strings carry a trailing NUL in their length.
 ROS 1: little endian, no alignment, no NUL.
 """
 
@@ -14,7 +19,15 @@ from typing import NamedTuple
 
 from replaybench.errors import DecodeError
 
-__all__ = ['CompressedFields', 'ImageFields', 'as_bytes_view', 'parse_compressed', 'parse_image']
+__all__ = [
+    'CameraInfoFields',
+    'CompressedFields',
+    'ImageFields',
+    'as_bytes_view',
+    'parse_camera_info',
+    'parse_compressed',
+    'parse_image',
+]
 
 
 class ImageFields(NamedTuple):
@@ -39,6 +52,24 @@ class CompressedFields(NamedTuple):
     format: str
     offset: int
     size: int
+
+
+class CameraInfoFields(NamedTuple):
+    """The fields of a sensor_msgs/CameraInfo (``roi``: x_offset, y_offset, height, width,
+    do_rectify)."""
+
+    stamp_ns: int
+    frame_id: str
+    height: int
+    width: int
+    distortion_model: str
+    d: tuple[float, ...]
+    k: tuple[float, ...]
+    r: tuple[float, ...]
+    p: tuple[float, ...]
+    binning_x: int
+    binning_y: int
+    roi: tuple[int, int, int, int, bool]
 
 
 class _Layout(NamedTuple):
@@ -134,3 +165,41 @@ def parse_compressed(buf: memoryview, serialization: str) -> CompressedFields:
         msg = f'truncated sensor_msgs/CompressedImage message ({len(buf)} bytes)'
         raise DecodeError(msg) from err
     return CompressedFields(stamp_ns, frame_id, fmt, offset, size)
+
+
+def _floats(buf: memoryview, pos: int, count: int, lay: _Layout) -> tuple[tuple[float, ...], int]:
+    """``count`` float64s at ``pos`` (aligned to 8 after the CDR header), and the end."""
+    if lay.align:
+        pos = ((pos - lay.start + 7) & ~7) + lay.start
+    order = lay.u32.format[0]
+    values = struct.unpack_from(f'{order}{count}d', buf, pos)
+    return tuple(float(v) for v in values), pos + 8 * count
+
+
+def parse_camera_info(buf: memoryview, serialization: str) -> CameraInfoFields:
+    """Read a sensor_msgs/CameraInfo (``'cdr'`` or ``'ros1'``)."""
+    lay = _layout(buf, serialization)
+    try:
+        stamp_ns, frame_id, pos = _header(buf, lay)
+        pos = (pos + lay.align) & ~lay.align
+        height, width = lay.u32x2.unpack_from(buf, pos)
+        distortion_model, pos = _string(buf, pos + 8, lay)
+        pos = (pos + lay.align) & ~lay.align
+        (n_d,) = lay.u32.unpack_from(buf, pos)
+        if n_d > (len(buf) - pos) // 8:
+            raise IndexError
+        d, pos = _floats(buf, pos + 4, n_d, lay)
+        k, pos = _floats(buf, pos, 9, lay)
+        r, pos = _floats(buf, pos, 9, lay)
+        p, pos = _floats(buf, pos, 12, lay)
+        binning_x, binning_y = lay.u32x2.unpack_from(buf, pos)
+        x_offset, y_offset = lay.u32x2.unpack_from(buf, pos + 8)
+        roi_height, roi_width = lay.u32x2.unpack_from(buf, pos + 16)
+        do_rectify = buf[pos + 24]
+    except (struct.error, IndexError) as err:
+        msg = f'truncated sensor_msgs/CameraInfo message ({len(buf)} bytes)'
+        raise DecodeError(msg) from err
+    roi = (x_offset, y_offset, roi_height, roi_width, bool(do_rectify))
+    return CameraInfoFields(
+        stamp_ns, frame_id, height, width, distortion_model, d, k, r, p, binning_x, binning_y, roi
+    )

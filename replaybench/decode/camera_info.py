@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import bisect
-import functools
 from typing import TYPE_CHECKING, Any
 
+from replaybench.decode._wire import as_bytes_view, parse_camera_info
 from replaybench.decode.kinds import message_kind
 from replaybench.errors import DecodeError
 from replaybench.types import CameraInfo
@@ -32,51 +32,29 @@ TRANSPORT_SUFFIXES = frozenset(
 )
 
 
-@functools.cache
-def _rosbags_store(ros1: bool) -> Any:
-    from rosbags.typesys import Stores, get_typestore
-
-    return get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
-
-
 def _floats(values: Any) -> tuple[float, ...]:
     return tuple(float(v) for v in values)
 
 
 def _from_ros(msg: RawMessage) -> CameraInfo:
-    ros1 = msg.serialization == 'ros1'
-    store = _rosbags_store(ros1)
     try:
-        if ros1:
-            m = store.deserialize_ros1(msg.data, CAMERA_INFO)
-            d, k, r, p = m.D, m.K, m.R, m.P
-        else:
-            m = store.deserialize_cdr(msg.data, CAMERA_INFO)
-            d, k, r, p = m.d, m.k, m.r, m.p
-    except Exception as err:
+        m = parse_camera_info(as_bytes_view(msg.data), msg.serialization)
+    except DecodeError as err:
         text = f'invalid sensor_msgs/CameraInfo ({msg.serialization}) on {msg.topic}: {err}'
         raise DecodeError(text) from err
-    stamp = m.header.stamp
-    roi = m.roi
     return CameraInfo(
-        stamp_ns=int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec),
-        frame_id=m.header.frame_id,
-        width=int(m.width),
-        height=int(m.height),
+        stamp_ns=m.stamp_ns,
+        frame_id=m.frame_id,
+        width=m.width,
+        height=m.height,
         distortion_model=m.distortion_model,
-        d=_floats(d),
-        k=_floats(k),
-        r=_floats(r),
-        p=_floats(p),
-        binning_x=int(m.binning_x),
-        binning_y=int(m.binning_y),
-        roi=(
-            int(roi.x_offset),
-            int(roi.y_offset),
-            int(roi.height),
-            int(roi.width),
-            bool(roi.do_rectify),
-        ),
+        d=m.d,
+        k=m.k,
+        r=m.r,
+        p=m.p,
+        binning_x=m.binning_x,
+        binning_y=m.binning_y,
+        roi=m.roi,
         log_time_ns=msg.log_time_ns,
         topic=msg.topic,
     )

@@ -11,10 +11,8 @@ from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 from replaybench.decode import decode_image, to_bgr8
 from replaybench.errors import DecodeError
 from replaybench.replay.inputs import replayed
-from replaybench.results.io import write_run_result
 from replaybench.results.records import FramesCsvWriter
 from replaybench.results.runfolder import with_filename
-from replaybench.results.summarycsv import write_summary_csv
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -180,6 +178,8 @@ def write_detections_metadata(options: OutputOptions) -> None:
 
 def write_summary(options: OutputOptions, summaries: Sequence[Summary]) -> None:
     """summary.csv."""
+    from replaybench.results.summarycsv import write_summary_csv  # with the record, after passes
+
     if options.out is not None:
         write_summary_csv(options.out / 'summary.csv', summaries)
 
@@ -196,6 +196,8 @@ def draw_samples(
 def finish_files(options: OutputOptions, render: Renderer | None, record: RunResult) -> None:
     """report.html (drawn by ``render`` when the report is asked for), then run.json: last, so
     that a run.json never points at a file that is not there yet."""
+    from replaybench.results.io import write_run_result  # with the record, after passes
+
     out = options.out
     if out is None:
         return

@@ -13,7 +13,8 @@ in the order ``run_benchmark`` runs them:
 * ``replaybench.replay.passes``: the timed passes, which only read, decode, detect and log;
 * ``replaybench.replay.recording``: each pass's log turned into records, detections messages,
   scores and samples;
-* ``replaybench.replay.record``: the summaries and the typed ``RunResult``;
+* ``replaybench.replay.record``: the summaries and the typed ``RunResult`` (imported once the
+  passes have ended, with the record's types: they do not delay the first frame);
 * ``replaybench.replay.output``: the files of the run folder.
 
 The sample pictures and report.html are drawn by the application's ``Renderer``
@@ -66,7 +67,6 @@ from replaybench.replay.output import (
     writers,
 )
 from replaybench.replay.passes import Replay, Stopped, Warmups
-from replaybench.replay.record import input_info, run_result, summaries
 from replaybench.replay.recording import Recorder
 from replaybench.replay.segmentation import Segmentation
 from replaybench.replay.sessions import (
@@ -77,9 +77,7 @@ from replaybench.replay.sessions import (
     run_repeated,
 )
 from replaybench.replay.threads import thread_limits
-from replaybench.results.agreement import AGREEMENT_IOU, agreement_table
-from replaybench.results.io import to_json
-from replaybench.results.machine import describe_machine
+from replaybench.results.machine import describe_machine, load_snapshot
 from replaybench.results.runfolder import RunFolder, check_out_dir
 
 if TYPE_CHECKING:
@@ -275,8 +273,9 @@ def _execute(
         stop=calls.stop,
         total=sum(topic_frames.values()) * len(config.backends) * config.repeat,
     )
-    # taken before the replay, so that load average and the like describe the machine, not us
-    machine = describe_machine()
+    # the load average before the replay describes the machine, not us; the rest of the
+    # machine is described after the passes, so that it does not delay the first frame
+    load = load_snapshot()
     output = config.output_options(out)
     warnings = list(warmups.warnings)
     backend_runs: list[BackendRun] = []
@@ -316,6 +315,11 @@ def _execute(
         except (KeyboardInterrupt, Stopped):
             status = 'interrupted'
     write_detections_metadata(output)
+    from replaybench.replay.record import input_info, run_result, summaries
+    from replaybench.results.agreement import AGREEMENT_IOU, agreement_table
+    from replaybench.results.io import to_json
+
+    machine = describe_machine(load)
     input_options = config.input_options()
     infos = [
         input_info(

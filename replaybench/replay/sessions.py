@@ -5,6 +5,9 @@ while their resource use is sampled, and closed once.
 them (models loaded, recorded detections handed over) and ``run_backend`` runs one over every
 input, then closes it and says what it reported and cost (a ``BackendRun``); ``run_repeated``
 does the same for ``--repeat N``, the backends' passes interleaved.
+
+The run record's types (``replaybench.results.model``) are imported where a pass has ended, not
+with this module: nothing that only the record needs may delay the first frame.
 """
 
 from __future__ import annotations
@@ -18,15 +21,6 @@ from replaybench.errors import BackendError, ReplaybenchError, one_line
 from replaybench.replay.config import backend_label
 from replaybench.replay.passes import DetectFailed, Pass
 from replaybench.replay.resources import ResourceSampler
-from replaybench.results.io import to_json
-from replaybench.results.model import (
-    BackendFailure,
-    BackendRun,
-    ReadAhead,
-    ResourcePoint,
-    Resources,
-    ResourceSummary,
-)
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -35,6 +29,7 @@ if TYPE_CHECKING:
     from replaybench.replay.inputs import OpenedInput
     from replaybench.replay.passes import Replay
     from replaybench.replay.recording import Recorder
+    from replaybench.results.model import BackendFailure, BackendRun, Resources, ResourceSummary
 
 __all__ = [
     'SLOW_OPEN_S',
@@ -259,6 +254,8 @@ class _BackendPasses:
                 finally:
                     self.record_s += recorder.take(p)
         except DetectFailed as failure:
+            from replaybench.results.model import BackendFailure
+
             self.error = BackendFailure(
                 input=failure.input, topic=failure.topic, seq=failure.seq, message=failure.message
             )
@@ -273,6 +270,9 @@ class _BackendPasses:
         closing = entry.close()
         if closing is not None:
             warnings.append(f'backend {entry.name!r}: close() raised {closing}')
+        from replaybench.results.io import to_json
+        from replaybench.results.model import BackendRun, ReadAhead
+
         return BackendRun(
             name=entry.name,
             label=label,
@@ -292,6 +292,8 @@ class _BackendPasses:
 
 def _resources(sampler: ResourceSampler) -> Resources:
     """What the sampler measured, stopped, as run.json holds it."""
+    from replaybench.results.model import ResourcePoint, Resources
+
     return Resources(
         summary=resource_summary(sampler.summary()),
         series=tuple(ResourcePoint(**_plain(p)) for p in sampler.series()),
@@ -301,6 +303,8 @@ def _resources(sampler: ResourceSampler) -> Resources:
 def _plain(values: Mapping[str, Any]) -> dict[str, Any]:
     """``values`` with each value as run.json holds it (NaN and infinities None, numpy scalars
     Python numbers, sequences tuples)."""
+    from replaybench.results.io import to_json
+
     return {
         key: tuple(to_json(value)) if isinstance(value, list | tuple) else to_json(value)
         for key, value in values.items()
@@ -309,4 +313,6 @@ def _plain(values: Mapping[str, Any]) -> dict[str, Any]:
 
 def resource_summary(values: Mapping[str, Any]) -> ResourceSummary:
     """A ``ResourceSampler.summary()`` as the typed ``ResourceSummary``."""
+    from replaybench.results.model import ResourceSummary
+
     return ResourceSummary(**_plain(values))

@@ -5,7 +5,8 @@ written into detections.mcap and scored per frame.
 ``TagScores`` is kept by the ``Recorder`` (``Recorder.task_outputs`` calls ``frame`` after the
 pass, outside any timed region) and gives each (backend, topic) its ``TagAccuracy``
 (``replaybench.replay.record.summaries``). Backends that return no ``TagResult`` pass through
-untouched (their tag columns stay empty).
+untouched (their tag columns stay empty): the scorer and the sink are imported at the first
+tag result, so that a run without tags does not load them.
 """
 
 from __future__ import annotations
@@ -15,8 +16,6 @@ from typing import TYPE_CHECKING, Any
 from replaybench.errors import DecodeError
 from replaybench.fiducials.msgs import APRILTAG_DETECTION_ARRAY, decode_tag_array
 from replaybench.fiducials.types import TagResult
-from replaybench.results.tags import score_frame, tag_accuracy
-from replaybench.sinks.tags import write_tags
 
 if TYPE_CHECKING:
     from replaybench.fiducials.types import TagDetection
@@ -82,6 +81,9 @@ class TagScores:
         none), scored; its frames.csv tag columns (none for a backend that finds no tags)."""
         if not isinstance(result, TagResult):
             return {}
+        from replaybench.results.tags import score_frame
+        from replaybench.sinks.tags import write_tags
+
         if result.note and (label, topic) not in self.notes:
             self.notes[(label, topic)] = f'{label}: {result.note}'
         write_tags(writer, label, topic, log_time_ns, stamp_ns, frame_id, result)
@@ -93,6 +95,8 @@ class TagScores:
 
     def accuracy(self, backend: str, topic: str) -> TagAccuracy | None:
         """The tag accuracy of a (backend label, topic), None where no frame was scored."""
+        from replaybench.results.tags import tag_accuracy
+
         scores = self.scores.get((backend, topic))
         return tag_accuracy(scores) if scores else None
 

@@ -1,7 +1,9 @@
 """The machine a run is measured on, as run.json's ``environment`` records it: CPU, memory,
 operating system, Python, the library versions that shape the measurements, the load and the
-GPUs ``nvidia-smi`` lists. Described before the replay, so that the load average describes the
-machine, not the run."""
+GPUs ``nvidia-smi`` lists. The load average is taken before the replay (``load_snapshot``), so
+that it describes the machine, not the run; the rest is described after the replay
+(``describe_machine(load)``), so that nothing it costs (importing OpenCV for its version, running
+``nvidia-smi``) delays the first frame."""
 
 from __future__ import annotations
 
@@ -10,25 +12,18 @@ import platform
 import shutil
 import subprocess
 import sys
-from importlib import metadata
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from replaybench._version import __version__
-from replaybench.results.model import (
-    CpuInfo,
-    Environment,
-    GpuInfo,
-    OpenCvInfo,
-    OsInfo,
-    Packages,
-    PythonInfo,
-)
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
-__all__ = ['describe_machine', 'environment']
+    from replaybench.results.model import Environment
+
+__all__ = ['LoadSnapshot', 'describe_machine', 'environment', 'load_snapshot']
 
 _DISTRIBUTIONS: dict[str, tuple[str, ...]] = {
     'numpy': ('numpy',),
@@ -44,6 +39,8 @@ _DISTRIBUTIONS: dict[str, tuple[str, ...]] = {
 
 
 def _version(names: Iterable[str]) -> str | None:
+    from importlib import metadata  # imported on use: it costs more than the rest of this module
+
     for name in names:
         try:
             return metadata.version(name)
@@ -119,13 +116,26 @@ def _gpus() -> list[dict[str, str]]:
     return gpus
 
 
+@dataclass(frozen=True, slots=True)
+class LoadSnapshot:
+    """The load average at one moment (1, 5 and 15 minutes); None where the system has none."""
+
+    values: tuple[float, ...] | None
+
+
+def load_snapshot() -> LoadSnapshot:
+    """The load average now (cheap: taken before the replay, described after it)."""
+    try:
+        return LoadSnapshot(tuple(round(v, 2) for v in os.getloadavg()))
+    except OSError:
+        return LoadSnapshot(None)
+
+
 def environment() -> dict[str, Any]:
     """Describe this machine and the library versions that shape the measurements."""
     governor = _read_text('/sys/devices/system/cpu/cpu0/cpufreq/scaling_governor')
-    try:
-        load: list[float] | None = [round(v, 2) for v in os.getloadavg()]
-    except OSError:
-        load = None
+    snapshot = load_snapshot().values
+    load = list(snapshot) if snapshot is not None else None
     return {
         'hostname': platform.node() or None,
         'cpu': {
@@ -157,16 +167,29 @@ def environment() -> dict[str, Any]:
     }
 
 
-def describe_machine() -> Environment:
-    """``environment()`` as the typed ``Environment`` run.json holds."""
+def describe_machine(load: LoadSnapshot | None = None) -> Environment:
+    """``environment()`` as the typed ``Environment`` run.json holds; with ``load``, its load
+    average is that snapshot's (taken earlier) instead of the load now."""
+    from replaybench.results.model import (
+        CpuInfo,
+        Environment,
+        GpuInfo,
+        OpenCvInfo,
+        OsInfo,
+        Packages,
+        PythonInfo,
+    )
+
     found = environment()
+    if load is not None:
+        found['load_average'] = list(load.values) if load.values is not None else None
     cpu, os_info, python, packages = (
         found['cpu'],
         found['os'],
         found['python'],
         found['packages'],
     )
-    load = found['load_average']
+    averages = found['load_average']
     return Environment(
         hostname=found['hostname'],
         cpu=CpuInfo(**cpu),
@@ -177,6 +200,6 @@ def describe_machine() -> Environment:
             **{key: value for key, value in packages.items() if key != 'opencv'},
             opencv=OpenCvInfo(**packages['opencv']),
         ),
-        load_average=tuple(float(v) for v in load) if load is not None else None,
+        load_average=tuple(float(v) for v in averages) if averages is not None else None,
         gpus=tuple(GpuInfo(**gpu) for gpu in found['gpus']),
     )

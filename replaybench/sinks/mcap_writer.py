@@ -196,7 +196,8 @@ def protobuf_to_ros2_cdr(
 class _Channel(NamedTuple):
     topic: str
     msgtype: str
-    schema: bytes
+    #: the ros2msg text; None: the type's own, generated when the file is written
+    schema: bytes | None
     rank: int
 
 
@@ -236,6 +237,9 @@ class DetectionsWriter:
             self._colour(backend)
         # MCAP metadata records written after the rosbag2 one, by name
         self._metadata: dict[str, dict[str, str]] = {}
+        # CameraInfo copied before the passes, serialised when the file is written (the ROS 2
+        # type store it needs is not loaded before the first frame): channel id, time, info
+        self._infos: list[tuple[int, int, CameraInfo]] = []
         self._finished = False
         self._stage: BinaryIO = self.stage_path.open('w+b')
 
@@ -251,7 +255,7 @@ class DetectionsWriter:
             if len(self._specs) >= 0xFFFF:
                 msg = f'{self.path}: too many channels'
                 raise ValueError(msg)
-            self._specs.append(_Channel(topic, msgtype, schema or _ros2msg_bytes(msgtype), rank))
+            self._specs.append(_Channel(topic, msgtype, schema or None, rank))
             channel_id = self._channels[key] = len(self._specs)
         return channel_id
 
@@ -268,7 +272,15 @@ class DetectionsWriter:
         if self._finished:
             msg = f'{self.path} is already finished'
             raise ValueError(msg)
-        self._stage_message(self._channel(topic, msgtype, schema, rank), log_time_ns, data)
+        channel_id = self._channel(topic, msgtype, schema, rank)
+        if self._infos and any(channel_id == info[0] for info in self._infos):
+            self._stage_infos()  # a channel's messages keep their order of arrival
+        self._stage_message(channel_id, log_time_ns, data)
+
+    def _stage_infos(self) -> None:
+        infos, self._infos = self._infos, []
+        for channel_id, log_time_ns, ci in infos:
+            self._stage_message(channel_id, log_time_ns, serialize_camera_info(ci))
 
     def _stage_message(self, channel_id: int, log_time_ns: int, data: bytes | memoryview) -> None:
         offset, size = self._staged_bytes, len(data)
@@ -309,8 +321,13 @@ class DetectionsWriter:
         self._metadata[name] = dict(data)
 
     def add_camera_info(self, topic: str, log_time_ns: int, ci: CameraInfo) -> None:
-        """Copy a CameraInfo message through on its original topic."""
-        self._write(topic, CAMERA_INFO, log_time_ns, serialize_camera_info(ci))
+        """Copy a CameraInfo message through on its original topic. Its channel is made now;
+        the message is serialised when the file is written (in log time order like the rest,
+        so the bytes are the same), since serialising needs the ROS 2 type store."""
+        if self._finished:
+            msg = f'{self.path} is already finished'
+            raise ValueError(msg)
+        self._infos.append((self._channel(topic, CAMERA_INFO, None, _SOURCE), log_time_ns, ci))
 
     def add(
         self,
@@ -421,6 +438,7 @@ class DetectionsWriter:
 
         from replaybench.sinks.rosbag2 import bag_information, serialized_metadata
 
+        self._stage_infos()
         n = len(self._sizes)
         counts, start, end = self._summary()
         topics = [
@@ -436,10 +454,11 @@ class DetectionsWriter:
             writer.add_metadata(name, data)
         schemas: dict[tuple[str, bytes], int] = {}
         for spec in self._specs:
-            key = (spec.msgtype, spec.schema)
+            text = spec.schema or _ros2msg_bytes(spec.msgtype)
+            key = (spec.msgtype, text)
             if (schema_id := schemas.get(key)) is None:
                 schema_id = schemas[key] = writer.register_schema(
-                    name=spec.msgtype, encoding='ros2msg', data=spec.schema
+                    name=spec.msgtype, encoding='ros2msg', data=text
                 )
             writer.register_channel(
                 topic=spec.topic,

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from replaybench.decode import CameraInfoIndex, camera_info_topic_for, decode_camera_info
 from replaybench.errors import DecodeError
@@ -248,3 +250,70 @@ def test_index_from_real_sources_pairs_the_raspicam_image_with_its_info(real_dir
     assert found is not None
     assert found.stamp_ns == nearest
     assert (found.width, found.height) == (1280, 960)
+
+
+_FLOATS = st.floats(allow_nan=False, width=64)
+
+
+@pytest.mark.parametrize(
+    ('serialization', 'little_endian'), [('cdr', True), ('cdr', False), ('ros1', True)]
+)
+@settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    frame_id=st.text(max_size=9),
+    model=st.sampled_from(['', 'plumb_bob', 'rational_polynomial', 'equidistant']),
+    d=st.lists(_FLOATS, max_size=14),
+    kr=st.lists(_FLOATS, min_size=30, max_size=30),
+    sizes=st.lists(st.integers(0, 2**32 - 1), min_size=8, max_size=8),
+    do_rectify=st.booleans(),
+    stamp=st.integers(0, 2**31 * 1_000_000_000 - 1),
+)
+def test_camera_info_reads_as_the_rosbags_deserialiser_reads_it(
+    mk, serialization, little_endian, frame_id, model, d, kr, sizes, do_rectify, stamp
+):
+    store = mk.stores[serialization]
+    roi = store.types['sensor_msgs/msg/RegionOfInterest'](
+        x_offset=sizes[4], y_offset=sizes[5], height=sizes[6], width=sizes[7], do_rectify=do_rectify
+    )
+    arrays = {'d': np.array(d), 'k': np.array(kr[:9]), 'r': np.array(kr[9:18])}
+    arrays['p'] = np.array(kr[18:30])
+    if serialization == 'ros1':
+        arrays = {name.upper(): value for name, value in arrays.items()}
+    msg = store.types['sensor_msgs/msg/CameraInfo'](
+        header=mk.header(serialization, stamp, frame_id),
+        height=sizes[0],
+        width=sizes[1],
+        distortion_model=model,
+        binning_x=sizes[2],
+        binning_y=sizes[3],
+        roi=roi,
+        **arrays,
+    )
+    raw = mk.serialize(serialization, msg, 'sensor_msgs/msg/CameraInfo', little_endian)
+    info = decode_camera_info(
+        RawMessage('/c/camera_info', 'sensor_msgs/msg/CameraInfo', serialization, 5, 0, raw)
+    )
+    if serialization == 'ros1':
+        back = store.deserialize_ros1(raw, 'sensor_msgs/msg/CameraInfo')
+        dd, k, r, p = back.D, back.K, back.R, back.P
+    else:
+        back = store.deserialize_cdr(raw, 'sensor_msgs/msg/CameraInfo')
+        dd, k, r, p = back.d, back.k, back.r, back.p
+    assert (info.frame_id, info.height, info.width) == (
+        back.header.frame_id,
+        back.height,
+        back.width,
+    )
+    assert info.stamp_ns == back.header.stamp.sec * 1_000_000_000 + back.header.stamp.nanosec
+    assert info.distortion_model == back.distortion_model
+    assert (info.d, info.k, info.r, info.p) == tuple(tuple(map(float, a)) for a in (dd, k, r, p))
+    assert (info.binning_x, info.binning_y) == (back.binning_x, back.binning_y)
+    assert info.roi == (
+        back.roi.x_offset,
+        back.roi.y_offset,
+        back.roi.height,
+        back.roi.width,
+        back.roi.do_rectify,
+    )

@@ -64,6 +64,7 @@ from replaybench.backends.gpu.availability import (
     ort_provider_problem,
     torch_problem,
 )
+from replaybench.backends.gpu.choices import ENGINES, PRECISIONS
 from replaybench.detector.decoders import NonfiniteTally
 from replaybench.detector.spec import (
     DEFAULT_CONF,
@@ -104,9 +105,6 @@ __all__ = [
     'torch_events',
 ]
 
-ENGINES = ('auto', 'ort', 'torch')
-#: ``fp32``: TF32 off; ``tf32``: TF32 allowed (Ampere and newer); ``fp16``.
-PRECISIONS = ('fp32', 'tf32', 'fp16')
 #: Preprocessing overrides (as ``onnx-cpu``), ``size``, ``max_det``, and ``cuda_graph``
 #: (``on`` / ``off``; engine torch only) for ``options.extra``.
 EXTRA_KEYS = (*SPEC_KEYS, 'max_det', 'cuda_graph')

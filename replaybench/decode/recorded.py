@@ -2,16 +2,33 @@
 
 The ``recorded`` backend replays a recorded output topic as if a backend had produced it. Which
 message types it reads, and how, is one table: ``RECORDED_READERS`` maps a message type (ROS 2
-spelling, ``vision_msgs/msg/Detection2DArray``) to an ``OutputReader``. An entry provides:
+spelling, ``vision_msgs/msg/Detection2DArray``) to an ``OutputReader``. Three types are read:
 
-* ``task``: the task type the output belongs to (``'detections'``), named in notes and errors;
+* ``vision_msgs/msg/Detection2DArray`` (task ``detections``): the boxes, as a detector returns
+  them;
+* ``isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray`` (task ``tags``): the tags as a
+  ``TagResult``, as the ``apriltag`` and ``aruco`` backends return them (one box per tag, the
+  corners' bounding box labelled ``family:id``; the tags with their recorded corners, centre and
+  pose);
+* ``sensor_msgs/msg/Image`` label masks (task ``segmentation``): a ``mono8`` (or ``mono16``
+  with ids up to 255) image of class ids, as the ``BackendResult.mask`` of a segmentation
+  backend. Camera topics are Images too, so a mask topic is never picked alone: it is named
+  with ``--recorded-topic``, and an Image topic that is not a label mask (``rgb8``, a ``16UC1``
+  depth image) is refused with a ``UsageError``.
+
+An entry provides:
+
+* ``task``: the task type the output belongs to (``'detections'``); ``outputs``: what its
+  messages hold, in notes and errors (``'detections'``, ``'tags'``, ``'masks'``);
 * ``read(raw) -> RecordedMessage``: the message's header (frame_id, stamp) and the task's result
   for it, as the ``BackendResult`` a replayed backend of that task would return for the frame
   (``left_out``: values dropped as unusable, e.g. non-finite boxes); raises ``DecodeError`` for a
   message it cannot read (the message is skipped);
 * ``candidate``: True when a topic of this type is picked without ``--recorded-topic`` if it is
   the only such topic besides the ground truth (False for types also used for other data, such
-  as ``sensor_msgs/msg/Image``, which camera topics use too).
+  as ``sensor_msgs/msg/Image``, which camera topics use too);
+* ``missing``: what a frame without a recorded output gets (no detections, an empty
+  ``TagResult`` so the frame counts against tag recall; no mask, so the frame is not scored).
 
 ``read_recorded_outputs`` reads a topic through its entry into a table keyed by (frame_id,
 stamp_ns), keeping each output's log time: the time the recorder logged it, from which
@@ -24,8 +41,9 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from replaybench.decode.detections import decode_detections
-from replaybench.errors import DecodeError
-from replaybench.types import BackendResult
+from replaybench.errors import DecodeError, UsageError
+from replaybench.fiducials.types import TagResult
+from replaybench.types import BackendResult, Detection, LabelMask
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping
@@ -40,8 +58,11 @@ __all__ = [
     'RecordedOutput',
     'output_reader',
     'read_recorded_outputs',
+    'readable_types',
     'recorded_candidates',
 ]
+
+_NOTHING = BackendResult(())
 
 
 @dataclass(frozen=True, slots=True)
@@ -71,6 +92,15 @@ class OutputReader:
     task: str
     read: Callable[[RawMessage], RecordedMessage]
     candidate: bool = True
+    #: what its messages hold, plural (notes, errors, info keys); the task's name when empty
+    outputs: str = ''
+    #: the result of a frame without a recorded output
+    missing: BackendResult = _NOTHING
+
+    @property
+    def noun(self) -> str:
+        """What the outputs are called: ``outputs``, else the task's name."""
+        return self.outputs or self.task
 
 
 def _read_detection2d_array(raw: RawMessage) -> RecordedMessage:
@@ -80,10 +110,80 @@ def _read_detection2d_array(raw: RawMessage) -> RecordedMessage:
     )
 
 
+def _read_tag_array(raw: RawMessage) -> RecordedMessage:
+    """The tags as a tag backend returns them (``replaybench.fiducials.detect.TagAssembler``):
+    sorted by id, each with its box (the corners' bounding box, pixel centres at +0.5);
+    tags with a non-finite corner are left out."""
+    import math
+
+    from replaybench.fiducials.msgs import decode_tag_array
+
+    found = decode_tag_array(raw)
+    usable = [t for t in found.tags if all(math.isfinite(v) for c in t.corners for v in c)]
+    usable.sort(key=lambda t: (t.tag_id, t.corners))
+    boxes = []
+    for tag in usable:
+        xs = [x for x, _ in tag.corners]
+        ys = [y for _, y in tag.corners]
+        x0, y0, x1, y1 = min(xs) + 0.5, min(ys) + 0.5, max(xs) + 0.5, max(ys) + 0.5
+        boxes.append(Detection(tag.tag_id, tag.label, tag.score, x0, y0, x1, y1))
+    posed = any(t.pose is not None for t in usable)
+    note = ''
+    if usable and not all(t.pose is not None for t in usable):
+        note = f'{raw.topic}: tags recorded without a pose: corners and ids only'
+    result = TagResult(
+        tuple(boxes), tags=tuple(usable), camera_frame=found.frame_id if posed else '', note=note
+    )
+    return RecordedMessage(found.frame_id, found.stamp_ns, result, len(found.tags) - len(usable))
+
+
+#: Image encodings read as label masks (as ``decode_image`` names them).
+MASK_ENCODINGS = ('mono8', 'mono16')
+
+
+def _read_label_mask(raw: RawMessage) -> RecordedMessage:
+    """A mono8 / mono16 Image of class ids as a segmentation backend's mask (class names are
+    not recorded: ids stand for them). ``UsageError`` for an image that is not a label mask,
+    ``DecodeError`` for a mono16 mask with an id above 255."""
+    import numpy as np
+
+    from replaybench.decode.image import decode_image
+
+    frame = decode_image(raw)
+    if frame.encoding not in MASK_ENCODINGS or frame.is_depth:
+        msg = (
+            f'{raw.topic} holds {frame.source_encoding} images, not label masks (mono8 or mono16 '
+            'class ids): the recorded backend reads an Image topic as label masks'
+        )
+        raise UsageError(msg)
+    image = frame.image.reshape(frame.height, frame.width)
+    if frame.encoding == 'mono16' and image.size and int(image.max()) > 255:
+        msg = f'{raw.topic}: mask with class id {int(image.max())}: ids above 255 are not read'
+        raise DecodeError(msg)
+    labels = np.array(image, dtype=np.uint8, order='C')
+    mask = LabelMask(labels, ())
+    return RecordedMessage(frame.frame_id, frame.stamp_ns, BackendResult((), mask=mask))
+
+
 #: message type (ROS 2 spelling) -> its reader. Adding a task's recorded output is one entry.
 RECORDED_READERS: Mapping[str, OutputReader] = {
     'vision_msgs/msg/Detection2DArray': OutputReader('detections', _read_detection2d_array),
+    'isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray': OutputReader(
+        'tags', _read_tag_array, missing=TagResult(())
+    ),
+    'sensor_msgs/msg/Image': OutputReader(
+        'segmentation', _read_label_mask, candidate=False, outputs='masks'
+    ),
 }
+
+
+def readable_types() -> str:
+    """The message types read, with their outputs, for errors: ``T (detections), ...``; a type
+    that is never picked alone says it is named with --recorded-topic."""
+    return ', '.join(
+        f'{msgtype} ({reader.noun}{"" if reader.candidate else ", named with --recorded-topic"})'
+        for msgtype, reader in RECORDED_READERS.items()
+    )
 
 
 def _ros2_name(msgtype: str) -> str:
@@ -117,8 +217,7 @@ def read_recorded_outputs(
     """
     reader = output_reader(msgtype)
     if reader is None:
-        types = ', '.join(sorted(RECORDED_READERS))
-        msg = f'{topic} is a {msgtype} topic; recorded outputs are read from: {types}'
+        msg = f'{topic} is a {msgtype} topic; recorded outputs are read from: {readable_types()}'
         raise DecodeError(msg)
     table: dict[tuple[str, int], RecordedOutput] = {}
     left_out = with_left_out = skipped = 0
@@ -137,6 +236,8 @@ def read_recorded_outputs(
     if notes is not None and left_out:
         if reader.task == 'detections':
             what = f'{left_out} detection(s) with a NaN or infinite box or score'
+        elif reader.task == 'tags':
+            what = f'{left_out} tag(s) with a NaN or infinite corner'
         else:
             what = f'{left_out} unusable value(s)'
         notes.append(f'{topic}: left out {what} in {with_left_out} message(s)')

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Sequence
     from pathlib import Path
 
-    from replaybench.decode.recorded import RecordedOutput
+    from replaybench.decode.recorded import OutputReader, RecordedOutput
     from replaybench.replay.config import InputOptions, RunConfig
     from replaybench.results.groundtruth import ExternalGroundTruth, MatchMode
     from replaybench.types import Detection, Frame, RawMessage, SkippedTopic
@@ -72,6 +72,7 @@ class OpenedInput(NamedTuple):
     max_frames: int | None = None  # at most this many frames of each topic are replayed
     size_bytes: int = 0  # of its files, when it was opened
     files_state: tuple[tuple[int, int], ...] = ()  # (size, mtime_ns) per file when hashed
+    recorded_reader: OutputReader | None = None  # how the recorded topic's type is read
 
 
 def load_external(config: RunConfig) -> ExternalGroundTruth | None:
@@ -170,9 +171,9 @@ def open_input(
         if gt_topic and gt_present and external is None:
             ground_truth = _read_detections(source, gt_topic, notes)
         recorded: dict[tuple[str, int], RecordedOutput] = {}
-        recorded_topic = None
+        recorded_topic = recorded_reader = None
         if recorded_detections:
-            recorded_topic, recorded = read_recorded(
+            recorded_topic, recorded_reader, recorded = read_recorded(
                 path, source, all_topics, options.recorded_topic, options.ground_truth_topic, notes
             )
         tag_truth = read_tag_truth(source, notes)
@@ -199,6 +200,7 @@ def open_input(
             max_frames=options.max_frames,
             size_bytes=sum(f.stat().st_size for f in source.files),
             tag_truth=tag_truth,
+            recorded_reader=recorded_reader,
         )
     except BaseException:
         source.close()

@@ -4,12 +4,12 @@ outputs read by type (``replaybench.decode.recorded``), and each frame's recorde
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from replaybench.decode.recorded import (
-    RECORDED_READERS,
     output_reader,
     read_recorded_outputs,
+    readable_types,
     recorded_candidates,
 )
 from replaybench.errors import UsageError
@@ -19,14 +19,29 @@ if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
     from pathlib import Path
 
-    from replaybench.decode.recorded import RecordedOutput
+    from replaybench.decode.recorded import OutputReader, RecordedOutput
     from replaybench.sources import Source
     from replaybench.types import TopicInfo
 
-__all__ = ['NOT_RECORDED', 'frame_recorded_times', 'read_recorded', 'recorded_note']
+__all__ = [
+    'NOT_RECORDED',
+    'RecordedTopic',
+    'frame_recorded_times',
+    'read_recorded',
+    'recorded_note',
+]
 
 #: The recorded-output columns of a frame of a replayed (timed) backend: all empty.
 NOT_RECORDED = RecordedTimes(None, None, None)
+
+
+class RecordedTopic(NamedTuple):
+    """The recorded output topic of an input: its name, its reader, its outputs keyed by
+    (frame_id, stamp_ns)."""
+
+    topic: str
+    reader: OutputReader
+    outputs: dict[tuple[str, int], RecordedOutput]
 
 
 def read_recorded(
@@ -36,22 +51,21 @@ def read_recorded(
     wanted: str | None,
     ground_truth_topic: str | None,
     notes: list[str],
-) -> tuple[str, dict[tuple[str, int], RecordedOutput]]:
+) -> RecordedTopic:
     """The topic the ``recorded`` backend replays (``wanted``, i.e. --recorded-topic, or the
-    only candidate besides the ground truth) and its outputs keyed by (frame_id, stamp_ns).
+    only candidate besides the ground truth), read by its type.
 
-    ``UsageError`` when the topic is not in the file, is of a type without a reader, or cannot
-    be picked alone."""
+    ``UsageError`` when the topic is not in the file, is of a type without a reader, cannot
+    be picked alone, or is an Image topic that does not hold label masks."""
     types = {t.name: t.msgtype for t in topics}
     if wanted is not None:
         if wanted not in types:
             msg = f'{path}: --recorded-topic {wanted} is not in this file'
             raise UsageError(msg)
         if output_reader(types[wanted]) is None:
-            readable = ', '.join(sorted(RECORDED_READERS))
             msg = (
                 f'{path}: --recorded-topic {wanted} is a {types[wanted]} topic; the recorded '
-                f'backend reads {readable}'
+                f'backend reads {readable_types()}'
             )
             raise UsageError(msg)
         topic = wanted
@@ -59,14 +73,20 @@ def read_recorded(
         candidates = recorded_candidates(types, ground_truth_topic)
         if len(candidates) != 1:
             found = ', '.join(candidates) if candidates else 'none'
-            types_read = ', '.join(sorted(RECORDED_READERS))
             msg = (
                 f'{path}: the recorded backend needs --recorded-topic TOPIC (topics it can pick '
-                f'alone besides the ground truth: {found}; it reads {types_read})'
+                f'alone besides the ground truth: {found}; it reads {readable_types()})'
             )
             raise UsageError(msg)
         topic = candidates[0]
-    return topic, read_recorded_outputs(source, topic, types[topic], notes)
+    reader = output_reader(types[topic])
+    assert reader is not None  # checked above, or a candidate
+    try:
+        outputs = read_recorded_outputs(source, topic, types[topic], notes)
+    except UsageError as err:  # an Image topic that holds no label masks
+        msg = f'{path}: --recorded-topic {err}'
+        raise UsageError(msg) from err
+    return RecordedTopic(topic, reader, outputs)
 
 
 def frame_recorded_times(
@@ -81,8 +101,9 @@ def frame_recorded_times(
     return recorded_times(log_time_ns, stamp_ns, None if found is None else found.log_time_ns)
 
 
-def recorded_note(times: RecordedTimes) -> str:
-    """frames.csv's note of a frame of a backend that replays recorded outputs."""
-    base = 'recorded detections: latency not measured'
+def recorded_note(times: RecordedTimes, reader: OutputReader | None = None) -> str:
+    """frames.csv's note of a frame of a backend that replays recorded outputs (of
+    ``reader``'s type: ``recorded tags: ...``; detections without one)."""
+    base = f'recorded {reader.noun if reader is not None else "detections"}: latency not measured'
     extra = times.note
     return f'{base}; {extra}' if extra else base

@@ -205,7 +205,7 @@ class Recorder:
                 log_time_ns=log_time_ns,
                 stamp_ns=stamp_ns,
                 status='ok',
-                note='' if timed else recorded_note(recorded),
+                note='' if timed else recorded_note(recorded, done.inp.recorded_reader),
                 warmup=timed and n_done < self.warmups(topic),
                 dropped=False,
                 release_s=entry.release - t0,

@@ -291,14 +291,26 @@ def test_a_row_without_replay_latency_has_no_too_few_measured_frames_warning(tmp
 def test_a_recorded_topic_of_a_type_without_a_reader_is_refused(tmp_path):
     from replaybench.errors import UsageError
 
-    bag = _write_mcap(tmp_path / 'robot.mcap', _messages())
-    with pytest.raises(UsageError, match='is a sensor_msgs/msg/Image topic; the recorded backend'):
+    from replaybench.fixtures.writer import camera_info
+    from replaybench.msgs import CAMERA_INFO, serialize_camera_info
+
+    info = serialize_camera_info(camera_info((96, 72), T0, 'cam'))
+    bag = _write_mcap(
+        tmp_path / 'robot.mcap', [('/camera/camera_info', CAMERA_INFO, T0, info), *_messages()]
+    )
+    with pytest.raises(
+        UsageError,
+        match=r'is a sensor_msgs/msg/CameraInfo topic; the recorded backend reads '
+        r'vision_msgs/msg/Detection2DArray \(detections\), '
+        r'isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray \(tags\), '
+        r'sensor_msgs/msg/Image \(masks, named with --recorded-topic\)$',
+    ):
         run_benchmark(
             RunConfig(
                 inputs=[bag],
                 backends=['recorded'],
                 out_dir=None,
-                recorded_topic=IMAGE_TOPIC,
+                recorded_topic='/camera/camera_info',
                 report=False,
             )
         )
@@ -383,6 +395,8 @@ def test_without_a_recorded_topic_to_pick_alone_the_error_names_what_it_reads(tm
     with pytest.raises(
         UsageError,
         match=r'needs --recorded-topic TOPIC \(topics it can pick alone '
-        r'besides the ground truth: none; it reads vision_msgs/msg/Detection2DArray',
+        r'besides the ground truth: none; it reads vision_msgs/msg/Detection2DArray '
+        r'\(detections\), isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray \(tags\), '
+        r'sensor_msgs/msg/Image \(masks, named with --recorded-topic\)\)$',
     ):
         run_benchmark(RunConfig(inputs=[bag], backends=['recorded'], out_dir=None, report=False))

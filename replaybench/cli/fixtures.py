@@ -34,14 +34,16 @@ def fixtures(
         bool,
         typer.Option(
             '--masks',
-            help='Also write ground-truth label masks (mono8 class ids) on /ground_truth/labels.',
+            help='Also write ground-truth label masks (mono8 class ids) on /ground_truth/labels, '
+            "and live_masks.mcap (a segmentation node's masks recorded live).",
         ),
     ] = False,
     tags: Annotated[
         bool,
         typer.Option(
             '--tags',
-            help='Write the AprilTag bags instead (tags.mcap, tags_fisheye.mcap).',
+            help='Write the AprilTag bags instead (tags.mcap, tags_fisheye.mcap, and '
+            "live_tags.mcap: a tag node's outputs recorded live).",
         ),
     ] = False,
 ) -> None:

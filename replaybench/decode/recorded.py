@@ -158,7 +158,7 @@ def _read_label_mask(raw: RawMessage) -> RecordedMessage:
         raise UsageError(msg)
     image = frame.image.reshape(frame.height, frame.width)
     if frame.encoding == 'mono16' and image.size and int(image.max()) > 255:
-        msg = f'{raw.topic}: mask with class id {int(image.max())}: ids above 255 are not read'
+        msg = f'a mask with class id {int(image.max())}: ids above 255 are not read'
         raise DecodeError(msg)
     labels = np.array(image, dtype=np.uint8, order='C')
     mask = LabelMask(labels, ())

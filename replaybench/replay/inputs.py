@@ -18,7 +18,7 @@ from replaybench.decode.camera_info import CameraInfoIndex
 from replaybench.decode.probe import CameraTopic, probe_topics, unreadable_image_topics
 from replaybench.errors import DecodeError, SourceError, UsageError
 from replaybench.replay.hashing import ANNOUNCE_MIN_BYTES, InputHash, describe_size
-from replaybench.replay.recorded import read_recorded
+from replaybench.replay.recorded import read_recorded, without_recorded
 from replaybench.replay.segmentation import replayable
 from replaybench.replay.tags import TagTable, read_tag_truth
 from replaybench.sources import Source, open_source
@@ -176,6 +176,7 @@ def open_input(
             recorded_topic, recorded_reader, recorded = read_recorded(
                 path, source, all_topics, options.recorded_topic, options.ground_truth_topic, notes
             )
+            topics = without_recorded(path, topics, recorded_topic)
         tag_truth = read_tag_truth(source, notes)
         # the frame drawn in samples/: the middle one of the replayed frames (the first one when
         # --start/--duration cut a window whose size is unknown before reading)

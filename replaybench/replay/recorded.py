@@ -4,7 +4,7 @@ outputs read by type (``replaybench.decode.recorded``), and each frame's recorde
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple, TypeVar
 
 from replaybench.decode.recorded import (
     output_reader,
@@ -13,6 +13,7 @@ from replaybench.decode.recorded import (
     recorded_candidates,
 )
 from replaybench.errors import UsageError
+from replaybench.replay.tags import TAG_GROUND_TRUTH_TOPIC
 from replaybench.results.recorded_latency import RecordedTimes, recorded_times
 
 if TYPE_CHECKING:
@@ -26,10 +27,14 @@ if TYPE_CHECKING:
 __all__ = [
     'NOT_RECORDED',
     'RecordedTopic',
+    'boxes_scored',
     'frame_recorded_times',
     'read_recorded',
     'recorded_note',
+    'without_recorded',
 ]
+
+T = TypeVar('T')
 
 #: The recorded-output columns of a frame of a replayed (timed) backend: all empty.
 NOT_RECORDED = RecordedTimes(None, None, None)
@@ -70,7 +75,10 @@ def read_recorded(
             raise UsageError(msg)
         topic = wanted
     else:
-        candidates = recorded_candidates(types, ground_truth_topic)
+        # the ground truth of boxes and of tags is never the recorded output
+        candidates = [
+            c for c in recorded_candidates(types, ground_truth_topic) if c != TAG_GROUND_TRUTH_TOPIC
+        ]
         if len(candidates) != 1:
             found = ', '.join(candidates) if candidates else 'none'
             msg = (
@@ -87,6 +95,26 @@ def read_recorded(
         msg = f'{path}: --recorded-topic {err}'
         raise UsageError(msg) from err
     return RecordedTopic(topic, reader, outputs)
+
+
+def without_recorded(path: Path, topics: list[T], recorded_topic: str) -> list[T]:
+    """The camera topics to replay without the recorded output topic (a label-mask Image topic
+    is probed as a camera too); ``UsageError`` when no other is left."""
+    kept = [t for t in topics if getattr(t, 'name', None) != recorded_topic]
+    if not kept:
+        msg = (
+            f'{path}: {recorded_topic} is the recorded output topic, not a camera: no image '
+            'topic is left to replay'
+        )
+        raise UsageError(msg)
+    return kept
+
+
+def boxes_scored(reader: OutputReader | None, timed: bool) -> bool:
+    """Whether a frame's boxes are scored against box ground truth: not for a backend replaying
+    recorded masks (a frame without its mask has no boxes either: it is left unscored, as a
+    segmentation backend's frames are)."""
+    return timed or reader is None or reader.task != 'segmentation'
 
 
 def frame_recorded_times(

@@ -2,7 +2,7 @@
 
 It runs nothing: for each replayed image it returns the output recorded on the chosen topic with
 the same frame_id and header stamp, read by the topic's type
-(``replaybench.decode.recorded.RECORDED_READERS``): a Detection2DArray's boxes, an
+(``replaybench.replay.recorded.RECORDED_READERS``): a Detection2DArray's boxes, an
 AprilTagDetectionArray's tags (a ``TagResult``, as the tag backends return it) or a label-mask
 Image's mask (as a segmentation backend returns it). A frame without such a message gets its
 reader's ``missing`` result: no detections, no tags (both scored as misses), no mask (not

@@ -68,10 +68,17 @@ def fixtures(
             msg = f'invalid --size {size!r}: use WxH with both at least 32, e.g. 640x480'
             raise UsageError(msg)
         if tags:
+            from replaybench.fixtures.live_tasks import write_live_tag_fixture
             from replaybench.fixtures.tags import generate_tag_fixtures
 
             paths = generate_tag_fixtures(
                 out, frames=frames, size=(int(w), int(h)), progress=FixtureProgress(sys.stderr)
+            )
+            # a tag node's outputs recorded live beside the tag bags
+            paths.append(
+                write_live_tag_fixture(
+                    out, frames=frames, size=(int(w), int(h)), progress=FixtureProgress(sys.stderr)
+                )
             )
         else:
             paths = generate_fixtures(

@@ -1,22 +1,18 @@
-"""Perception outputs recorded in a bag (what the robot's own nodes published), read per type.
+"""Perception outputs recorded in a bag (what the robot's own nodes published): how one is read.
 
 The ``recorded`` backend replays a recorded output topic as if a backend had produced it. Which
-message types it reads, and how, is one table: ``RECORDED_READERS`` maps a message type (ROS 2
-spelling, ``vision_msgs/msg/Detection2DArray``) to an ``OutputReader``. Three types are read:
+message types it reads is one table, ``replaybench.replay.recorded.RECORDED_READERS``: a message
+type (ROS 2 spelling, ``vision_msgs/msg/Detection2DArray``) -> an ``OutputReader``. This module
+holds the reader's parts and two of the readers:
 
-* ``vision_msgs/msg/Detection2DArray`` (task ``detections``): the boxes, as a detector returns
-  them;
-* ``isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray`` (task ``tags``): the tags as a
-  ``TagResult``, as the ``apriltag`` and ``aruco`` backends return them (one box per tag, the
-  corners' bounding box labelled ``family:id``; the tags with their recorded corners, centre and
-  pose);
-* ``sensor_msgs/msg/Image`` label masks (task ``segmentation``): a ``mono8`` (or ``mono16``
-  with ids up to 255) image of class ids, as the ``BackendResult.mask`` of a segmentation
-  backend. Camera topics are Images too, so a mask topic is never picked alone: it is named
-  with ``--recorded-topic``, and an Image topic that is not a label mask (``rgb8``, a ``16UC1``
-  depth image) is refused with a ``UsageError``.
+* ``read_detection2d_array`` (task ``detections``): a Detection2DArray's boxes, as a detector
+  returns them;
+* ``read_label_mask`` (task ``segmentation``): a ``mono8`` (or ``mono16`` with ids up to 255)
+  Image of class ids, as the ``BackendResult.mask`` of a segmentation backend; an Image that is
+  not a label mask (``rgb8``, a ``16UC1`` depth image) is refused with a ``UsageError``.
 
-An entry provides:
+The tags' reader (AprilTagDetectionArray -> ``TagResult``) is
+``replaybench.fiducials.recorded.read_tag_array_output``. An ``OutputReader`` provides:
 
 * ``task``: the task type the output belongs to (``'detections'``); ``outputs``: what its
   messages hold, in notes and errors (``'detections'``, ``'tags'``, ``'masks'``);
@@ -30,7 +26,7 @@ An entry provides:
 * ``missing``: what a frame without a recorded output gets (no detections, an empty
   ``TagResult`` so the frame counts against tag recall; no mask, so the frame is not scored).
 
-``read_recorded_outputs`` reads a topic through its entry into a table keyed by (frame_id,
+``read_recorded_outputs`` reads a topic through its reader into a table keyed by (frame_id,
 stamp_ns), keeping each output's log time: the time the recorder logged it, from which
 ``replaybench.results.recorded_latency`` derives the recorded latency.
 """
@@ -42,24 +38,22 @@ from typing import TYPE_CHECKING
 
 from replaybench.decode.detections import decode_detections
 from replaybench.errors import DecodeError, UsageError
-from replaybench.fiducials.types import TagResult
-from replaybench.types import BackendResult, Detection, LabelMask
+from replaybench.types import BackendResult, LabelMask
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Mapping
+    from collections.abc import Callable
 
     from replaybench.decode.kinds import MessageSource
     from replaybench.types import RawMessage
 
 __all__ = [
-    'RECORDED_READERS',
+    'MASK_ENCODINGS',
     'OutputReader',
     'RecordedMessage',
     'RecordedOutput',
-    'output_reader',
+    'read_detection2d_array',
+    'read_label_mask',
     'read_recorded_outputs',
-    'readable_types',
-    'recorded_candidates',
 ]
 
 _NOTHING = BackendResult(())
@@ -103,45 +97,18 @@ class OutputReader:
         return self.outputs or self.task
 
 
-def _read_detection2d_array(raw: RawMessage) -> RecordedMessage:
+def read_detection2d_array(raw: RawMessage) -> RecordedMessage:
     found = decode_detections(raw)
     return RecordedMessage(
         found.frame_id, found.stamp_ns, BackendResult(found.detections), found.nonfinite
     )
 
 
-def _read_tag_array(raw: RawMessage) -> RecordedMessage:
-    """The tags as a tag backend returns them (``replaybench.fiducials.detect.TagAssembler``):
-    sorted by id, each with its box (the corners' bounding box, pixel centres at +0.5);
-    tags with a non-finite corner are left out."""
-    import math
-
-    from replaybench.fiducials.msgs import decode_tag_array
-
-    found = decode_tag_array(raw)
-    usable = [t for t in found.tags if all(math.isfinite(v) for c in t.corners for v in c)]
-    usable.sort(key=lambda t: (t.tag_id, t.corners))
-    boxes = []
-    for tag in usable:
-        xs = [x for x, _ in tag.corners]
-        ys = [y for _, y in tag.corners]
-        x0, y0, x1, y1 = min(xs) + 0.5, min(ys) + 0.5, max(xs) + 0.5, max(ys) + 0.5
-        boxes.append(Detection(tag.tag_id, tag.label, tag.score, x0, y0, x1, y1))
-    posed = any(t.pose is not None for t in usable)
-    note = ''
-    if usable and not all(t.pose is not None for t in usable):
-        note = f'{raw.topic}: tags recorded without a pose: corners and ids only'
-    result = TagResult(
-        tuple(boxes), tags=tuple(usable), camera_frame=found.frame_id if posed else '', note=note
-    )
-    return RecordedMessage(found.frame_id, found.stamp_ns, result, len(found.tags) - len(usable))
-
-
 #: Image encodings read as label masks (as ``decode_image`` names them).
 MASK_ENCODINGS = ('mono8', 'mono16')
 
 
-def _read_label_mask(raw: RawMessage) -> RecordedMessage:
+def read_label_mask(raw: RawMessage) -> RecordedMessage:
     """A mono8 / mono16 Image of class ids as a segmentation backend's mask (class names are
     not recorded: ids stand for them). ``UsageError`` for an image that is not a label mask,
     ``DecodeError`` for a mono16 mask with an id above 255."""
@@ -165,60 +132,16 @@ def _read_label_mask(raw: RawMessage) -> RecordedMessage:
     return RecordedMessage(frame.frame_id, frame.stamp_ns, BackendResult((), mask=mask))
 
 
-#: message type (ROS 2 spelling) -> its reader. Adding a task's recorded output is one entry.
-RECORDED_READERS: Mapping[str, OutputReader] = {
-    'vision_msgs/msg/Detection2DArray': OutputReader('detections', _read_detection2d_array),
-    'isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray': OutputReader(
-        'tags', _read_tag_array, missing=TagResult(())
-    ),
-    'sensor_msgs/msg/Image': OutputReader(
-        'segmentation', _read_label_mask, candidate=False, outputs='masks'
-    ),
-}
-
-
-def readable_types() -> str:
-    """The message types read, with their outputs, for errors: ``T (detections), ...``; a type
-    that is never picked alone says it is named with --recorded-topic."""
-    return ', '.join(
-        f'{msgtype} ({reader.noun}{"" if reader.candidate else ", named with --recorded-topic"})'
-        for msgtype, reader in RECORDED_READERS.items()
-    )
-
-
-def _ros2_name(msgtype: str) -> str:
-    package, _, name = msgtype.partition('/')
-    return msgtype if '/msg/' in msgtype or not name else f'{package}/msg/{name}'
-
-
-def output_reader(msgtype: str) -> OutputReader | None:
-    """The reader of recorded outputs of ``msgtype`` (ROS 1 or ROS 2 spelling); None if none."""
-    return RECORDED_READERS.get(_ros2_name(msgtype))
-
-
-def recorded_candidates(topics: Mapping[str, str], exclude: str | None) -> list[str]:
-    """The topics (name -> msgtype) that may be picked without ``--recorded-topic``: of a
-    ``candidate`` type, other than ``exclude`` (the ground-truth topic)."""
-    return [
-        name
-        for name, msgtype in topics.items()
-        if name != exclude and (reader := output_reader(msgtype)) is not None and reader.candidate
-    ]
-
-
 def read_recorded_outputs(
-    source: MessageSource, topic: str, msgtype: str, notes: list[str] | None = None
+    source: MessageSource, topic: str, reader: OutputReader, notes: list[str] | None = None
 ) -> dict[tuple[str, int], RecordedOutput]:
-    """The outputs recorded on ``topic`` keyed by (frame_id, stamp_ns), each with its log time.
+    """The outputs recorded on ``topic`` (read by ``reader``) keyed by (frame_id, stamp_ns),
+    each with its log time.
 
     Messages the reader cannot decode are skipped; when two share a key the later one is kept.
     ``notes`` gets a line for values left out (``RecordedMessage.left_out``) and one for messages
-    skipped. ``DecodeError`` when ``msgtype`` has no reader.
+    skipped. The reader's ``UsageError`` (a topic not of its task at all) goes through.
     """
-    reader = output_reader(msgtype)
-    if reader is None:
-        msg = f'{topic} is a {msgtype} topic; recorded outputs are read from: {readable_types()}'
-        raise DecodeError(msg)
     table: dict[tuple[str, int], RecordedOutput] = {}
     left_out = with_left_out = skipped = 0
     first_error = ''

@@ -20,7 +20,7 @@ from replaybench.errors import DecodeError, SourceError, UsageError
 from replaybench.replay.hashing import ANNOUNCE_MIN_BYTES, InputHash, describe_size
 from replaybench.replay.recorded import read_recorded, without_recorded
 from replaybench.replay.segmentation import replayable
-from replaybench.replay.tags import TagTable, read_tag_truth
+from replaybench.replay.tags import TAG_GROUND_TRUTH_TOPIC, TagTable, read_tag_truth
 from replaybench.sources import Source, open_source
 
 if TYPE_CHECKING:
@@ -173,8 +173,10 @@ def open_input(
         recorded: dict[tuple[str, int], RecordedOutput] = {}
         recorded_topic = recorded_reader = None
         if recorded_detections:
+            # the ground truth of boxes and of tags is never the recorded output
+            truths = (options.ground_truth_topic, TAG_GROUND_TRUTH_TOPIC)
             recorded_topic, recorded_reader, recorded = read_recorded(
-                path, source, all_topics, options.recorded_topic, options.ground_truth_topic, notes
+                path, source, all_topics, options.recorded_topic, truths, notes
             )
             topics = without_recorded(path, topics, recorded_topic)
         tag_truth = read_tag_truth(source, notes)

@@ -290,7 +290,6 @@ def test_a_row_without_replay_latency_has_no_too_few_measured_frames_warning(tmp
 
 def test_a_recorded_topic_of_a_type_without_a_reader_is_refused(tmp_path):
     from replaybench.errors import UsageError
-
     from replaybench.fixtures.writer import camera_info
     from replaybench.msgs import CAMERA_INFO, serialize_camera_info
 
@@ -354,6 +353,7 @@ def test_one_reader_entry_is_all_another_recorded_output_type_needs(tmp_path, mo
     from replaybench.decode import recorded as recorded_outputs
     from replaybench.fixtures.writer import camera_info
     from replaybench.msgs import CAMERA_INFO, serialize_camera_info
+    from replaybench.replay import recorded as recorded_table
     from replaybench.types import BackendResult, Detection
 
     def read_camera_info(raw):
@@ -362,7 +362,7 @@ def test_one_reader_entry_is_all_another_recorded_output_type_needs(tmp_path, mo
         return recorded_outputs.RecordedMessage(info.frame_id, info.stamp_ns, BackendResult((box,)))
 
     entry = recorded_outputs.OutputReader('frames', read_camera_info, candidate=False)
-    monkeypatch.setitem(recorded_outputs.RECORDED_READERS, CAMERA_INFO, entry)
+    monkeypatch.setitem(recorded_table.RECORDED_READERS, CAMERA_INFO, entry)
     messages = [m for m in _messages() if m[0] == IMAGE_TOPIC]
     for _, _, image_log, _ in list(messages):
         stamp = T0 + (image_log - T0) // PERIOD * PERIOD

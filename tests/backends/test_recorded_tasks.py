@@ -290,3 +290,50 @@ def test_a_mono16_mask_is_read_and_a_mask_with_ids_above_255_is_left_out_with_a_
     assert info['frames_matched'] == 3
     assert info['frames_without_recorded_masks'] == 1
     assert [r.pipeline_ms for r in outcome.records] == [5, 5, 5, None]
+
+
+def test_a_recorded_mask_of_another_size_than_its_image_stops_the_backend_with_one_line(
+    tmp_path: Path,
+) -> None:
+    from mcap.writer import Writer
+
+    from replaybench.fixtures.scene import Scene
+    from replaybench.msgs import IMAGE, ros2msg_schema, serialize_image
+
+    scene = Scene((64, 48), 0, 3)
+    bag = tmp_path / 'small_masks.mcap'
+    with bag.open('wb') as f:
+        writer = Writer(f)
+        writer.start(profile='ros2', library='tests')
+        schema = writer.register_schema(IMAGE, 'ros2msg', ros2msg_schema(IMAGE).encode())
+        camera = writer.register_channel('/camera/image_raw', 'cdr', schema)
+        masks = writer.register_channel('/seg/mask', 'cdr', schema)
+        for i in range(2):
+            stamp = 1_700_000_000 * 10**9 + i * 10**8
+            bgr, _ = scene.render(i)
+            writer.add_message(camera, stamp, serialize_image(stamp, 'cam', bgr, 'bgr8'), stamp)
+            half = serialize_image(stamp, 'cam', np.ones((24, 32), np.uint8), 'mono8')
+            writer.add_message(masks, stamp + 5_000_000, half, stamp + 5_000_000)
+        writer.finish()
+    proc = subprocess.run(
+        [
+            sys.executable,
+            '-m',
+            'replaybench',
+            'run',
+            str(bag),
+            '--backend',
+            'recorded',
+            '--recorded-topic',
+            '/seg/mask',
+            '--out',
+            str(tmp_path / 'run'),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+        env={'PYTHONPATH': str(REPO), 'PATH': '/usr/bin:/bin'},
+    )
+    assert proc.returncode == 1
+    [line] = proc.stderr.strip().splitlines()
+    assert 'the recorded mask of /camera/image_raw #0 is 32x24, its image 64x48' in line

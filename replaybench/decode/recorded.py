@@ -111,7 +111,8 @@ MASK_ENCODINGS = ('mono8', 'mono16')
 def read_label_mask(raw: RawMessage) -> RecordedMessage:
     """A mono8 / mono16 Image of class ids as a segmentation backend's mask (class names are
     not recorded: ids stand for them). ``UsageError`` for an image that is not a label mask,
-    ``DecodeError`` for a mono16 mask with an id above 255."""
+    ``DecodeError`` for a mono16 mask with an id above 255. The masks of the topic are held for
+    the run, one ``H x W`` byte array each, as a pass holds its backends' masks."""
     import numpy as np
 
     from replaybench.decode.image import decode_image

@@ -11,6 +11,7 @@ import csv
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -29,6 +30,9 @@ from replaybench.replay.runner import RunConfig, run_benchmark
 from replaybench.results.segmentation import confusion, scores
 from replaybench.results.tags import score_frame, tag_accuracy
 from replaybench.sources import open_source
+
+if TYPE_CHECKING:
+    from replaybench.fixtures.live import LiveTiming
 
 REPO = Path(__file__).resolve().parents[2]
 TAG_FRAMES = 8
@@ -71,7 +75,7 @@ def _rows(run: Path, backend: str = 'recorded') -> list[dict[str, str]]:
         return [r for r in csv.DictReader(f) if r['backend'] == backend]
 
 
-def _exact_latencies(rows: list[dict[str, str]], timings: list, note: str) -> None:
+def _exact_latencies(rows: list[dict[str, str]], timings: list[LiveTiming], note: str) -> None:
     assert len(rows) == len(timings)
     for row, timing in zip(rows, timings, strict=True):
         if timing.output_log_ns is None:
@@ -168,7 +172,10 @@ def test_recorded_mask_miou_equals_that_of_the_written_masks_against_the_truth(
     with open_source(mask_bag) as source:
         truth = masks(source, '/ground_truth/labels')
         written = masks(source, LIVE_MASK_TOPIC)
-    total = sum(confusion(written[key], truth[key]) for key in truth if key in written)
+    total = np.zeros((256, 256), dtype=np.int64)
+    for key in truth:
+        if key in written:
+            total += confusion(written[key], truth[key])
     expected = scores(total)
     run = rb.load_run(mask_run)
     row = next(s for s in run.summary_rows if s.backend == 'recorded')

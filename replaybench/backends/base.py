@@ -11,7 +11,7 @@ if TYPE_CHECKING:
     from collections.abc import Mapping
     from pathlib import Path
 
-    from replaybench.decode.recorded import RecordedOutput
+    from replaybench.decode.recorded import OutputReader, RecordedOutput
     from replaybench.types import BackendResult, Frame
 
 __all__ = [
@@ -65,11 +65,13 @@ class RecordedDetections(NamedTuple):
     ``topic``: the recorded output topic(s) read (``--recorded-topic``, or the only candidate
     of each input); ``table``: their outputs keyed by (input index, frame_id, stamp_ns), each
     the ``BackendResult`` to return for the frame and the output's log time
-    (``replaybench.decode.recorded``, which reads each message type).
+    (``replaybench.decode.recorded``, which reads each message type); ``readers``: by input
+    index, the reader of its topic's type (its task, what a frame without an output gets).
     """
 
     topic: str
     table: Mapping[tuple[int, str, int], RecordedOutput]
+    readers: Mapping[int, OutputReader] | None = None
 
 
 @runtime_checkable

@@ -1,9 +1,13 @@
 """The ``recorded`` backend: outputs a robot already recorded in the bag, scored like a backend.
 
 It runs nothing: for each replayed image it returns the output recorded on the chosen topic with
-the same frame_id and header stamp (none when there is no such message), read by the topic's type
-(``replaybench.decode.recorded.RECORDED_READERS``; Detection2DArray today). Its rows carry no
-replay latency or stage times, since the detector ran on the robot, not here; the runner gives
+the same frame_id and header stamp, read by the topic's type
+(``replaybench.replay.recorded.RECORDED_READERS``): a Detection2DArray's boxes, an
+AprilTagDetectionArray's tags (a ``TagResult``, as the tag backends return it) or a label-mask
+Image's mask (as a segmentation backend returns it). A frame without such a message gets its
+reader's ``missing`` result: no detections, no tags (both scored as misses), no mask (not
+scored). Its rows carry no
+replay latency or stage times, since the node ran on the robot, not here; the runner gives
 them the recorded latency instead, from the output's log time against its image's header stamp
 and log time (``replaybench.results.recorded_latency``). Its accuracy, its agreement with the
 other backends and its recorded latency are what it is for.
@@ -14,27 +18,35 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from replaybench.backends.base import Availability, BackendOptions
+from replaybench.errors import BackendError
 from replaybench.types import BackendResult, StageTimes
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
     from replaybench.backends.base import RecordedDetections
-    from replaybench.decode.recorded import RecordedOutput
+    from replaybench.decode.recorded import OutputReader, RecordedOutput
     from replaybench.types import Frame
 
 __all__ = ['RecordedBackend']
 
 _NO_STAGES = StageTimes()
+_NOTHING = BackendResult((), _NO_STAGES)
+#: Who made a task's outputs on the robot (the ``latency`` line of ``info``).
+_PRODUCERS: dict[str, str] = {
+    'detections': 'the detector',
+    'tags': 'the tag detector',
+    'segmentation': 'the segmentation node',
+}
 
 
 class RecordedBackend:
-    """Returns the detections recorded in the bag for each frame (matched by frame_id + stamp)."""
+    """Returns the output recorded in the bag for each frame (matched by frame_id + stamp)."""
 
     name: ClassVar[str] = 'recorded'
     description: ClassVar[str] = (
-        'outputs recorded in the bag (a Detection2DArray topic, --recorded-topic), '
-        'scored as a backend, with their recorded latency'
+        'outputs recorded in the bag (a Detection2DArray, AprilTagDetectionArray or label-mask '
+        'Image topic, --recorded-topic), scored as a backend, with their recorded latency'
     )
     #: The runner leaves latency and stage columns empty for this backend.
     measures_latency: ClassVar[bool] = False
@@ -45,8 +57,10 @@ class RecordedBackend:
         self.options = options if options is not None else BackendOptions()
         self.topic = ''
         self._table: Mapping[tuple[int, str, int], RecordedOutput] = {}
+        self._readers: Mapping[int, OutputReader] = {}
         self._matched = 0
-        self._missing = 0
+        # frames without a recorded output, by what the outputs are ('detections', 'tags')
+        self._missing: dict[str, int] = {'detections': 0}
 
     @classmethod
     def available(cls) -> Availability:
@@ -56,6 +70,12 @@ class RecordedBackend:
         """Take the recorded outputs, keyed by (input index, frame_id, stamp_ns)."""
         self.topic = recorded.topic
         self._table = recorded.table
+        self._readers = recorded.readers or {}
+        self._missing = {self._noun(index): 0 for index in sorted(self._readers) or [0]}
+
+    def _noun(self, input_index: int) -> str:
+        reader = self._readers.get(input_index)
+        return 'detections' if reader is None else reader.noun
 
     def open(self) -> None:
         """Nothing to load: ``prepare`` gave the recorded messages."""
@@ -63,18 +83,30 @@ class RecordedBackend:
     def detect(self, frame: Frame) -> BackendResult:
         found = self._table.get((frame.input_index, frame.frame_id, frame.stamp_ns))
         if found is None:
-            self._missing += 1
-            return BackendResult((), _NO_STAGES)
+            noun = self._noun(frame.input_index)
+            self._missing[noun] = self._missing.get(noun, 0) + 1
+            reader = self._readers.get(frame.input_index)
+            return _NOTHING if reader is None else reader.missing
+        mask = found.result.mask
+        if mask is not None and mask.labels.shape != (frame.height, frame.width):
+            h, w = mask.labels.shape
+            msg = (
+                f'{self.topic}: the recorded mask of {frame.topic} #{frame.seq} is {w}x{h}, its '
+                f'image {frame.width}x{frame.height}: masks are scored at their image size'
+            )
+            raise BackendError(msg)
         self._matched += 1
         return found.result
 
     def info(self) -> dict[str, Any]:
+        tasks = sorted({r.task for r in self._readers.values()}) or ['detections']
+        made_by = ' and '.join(_PRODUCERS.get(task, 'the node') for task in tasks)
         return {
             'topic': self.topic,
             'messages': len(self._table),
             'frames_matched': self._matched,
-            'frames_without_recorded_detections': self._missing,
-            'latency': 'not measured: the detector ran when the bag was recorded',
+            **{f'frames_without_recorded_{noun}': n for noun, n in self._missing.items()},
+            'latency': f'not measured: {made_by} ran when the bag was recorded',
             'recorded_latency': (
                 'from the recording: capture_to_output_ms (output log time - image header '
                 'stamp) and pipeline_ms (output log time - image log time)'

@@ -34,14 +34,16 @@ def fixtures(
         bool,
         typer.Option(
             '--masks',
-            help='Also write ground-truth label masks (mono8 class ids) on /ground_truth/labels.',
+            help='Also write ground-truth label masks (mono8 class ids) on /ground_truth/labels, '
+            "and live_masks.mcap (a segmentation node's masks recorded live).",
         ),
     ] = False,
     tags: Annotated[
         bool,
         typer.Option(
             '--tags',
-            help='Write the AprilTag bags instead (tags.mcap, tags_fisheye.mcap).',
+            help='Write the AprilTag bags instead (tags.mcap, tags_fisheye.mcap, and '
+            "live_tags.mcap: a tag node's outputs recorded live).",
         ),
     ] = False,
 ) -> None:
@@ -66,10 +68,17 @@ def fixtures(
             msg = f'invalid --size {size!r}: use WxH with both at least 32, e.g. 640x480'
             raise UsageError(msg)
         if tags:
+            from replaybench.fixtures.live_tasks import write_live_tag_fixture
             from replaybench.fixtures.tags import generate_tag_fixtures
 
             paths = generate_tag_fixtures(
                 out, frames=frames, size=(int(w), int(h)), progress=FixtureProgress(sys.stderr)
+            )
+            # a tag node's outputs recorded live beside the tag bags
+            paths.append(
+                write_live_tag_fixture(
+                    out, frames=frames, size=(int(w), int(h)), progress=FixtureProgress(sys.stderr)
+                )
             )
         else:
             paths = generate_fixtures(

@@ -1,19 +1,32 @@
-"""Perception outputs recorded in a bag (what the robot's own nodes published), read per type.
+"""Perception outputs recorded in a bag (what the robot's own nodes published): how one is read.
 
 The ``recorded`` backend replays a recorded output topic as if a backend had produced it. Which
-message types it reads, and how, is one table: ``RECORDED_READERS`` maps a message type (ROS 2
-spelling, ``vision_msgs/msg/Detection2DArray``) to an ``OutputReader``. An entry provides:
+message types it reads is one table, ``replaybench.replay.recorded.RECORDED_READERS``: a message
+type (ROS 2 spelling, ``vision_msgs/msg/Detection2DArray``) -> an ``OutputReader``. This module
+holds the reader's parts and two of the readers:
 
-* ``task``: the task type the output belongs to (``'detections'``), named in notes and errors;
+* ``read_detection2d_array`` (task ``detections``): a Detection2DArray's boxes, as a detector
+  returns them;
+* ``read_label_mask`` (task ``segmentation``): a ``mono8`` (or ``mono16`` with ids up to 255)
+  Image of class ids, as the ``BackendResult.mask`` of a segmentation backend; an Image that is
+  not a label mask (``rgb8``, a ``16UC1`` depth image) is refused with a ``UsageError``.
+
+The tags' reader (AprilTagDetectionArray -> ``TagResult``) is
+``replaybench.fiducials.recorded.read_tag_array_output``. An ``OutputReader`` provides:
+
+* ``task``: the task type the output belongs to (``'detections'``); ``outputs``: what its
+  messages hold, in notes and errors (``'detections'``, ``'tags'``, ``'masks'``);
 * ``read(raw) -> RecordedMessage``: the message's header (frame_id, stamp) and the task's result
   for it, as the ``BackendResult`` a replayed backend of that task would return for the frame
   (``left_out``: values dropped as unusable, e.g. non-finite boxes); raises ``DecodeError`` for a
   message it cannot read (the message is skipped);
 * ``candidate``: True when a topic of this type is picked without ``--recorded-topic`` if it is
   the only such topic besides the ground truth (False for types also used for other data, such
-  as ``sensor_msgs/msg/Image``, which camera topics use too).
+  as ``sensor_msgs/msg/Image``, which camera topics use too);
+* ``missing``: what a frame without a recorded output gets (no detections, an empty
+  ``TagResult`` so the frame counts against tag recall; no mask, so the frame is not scored).
 
-``read_recorded_outputs`` reads a topic through its entry into a table keyed by (frame_id,
+``read_recorded_outputs`` reads a topic through its reader into a table keyed by (frame_id,
 stamp_ns), keeping each output's log time: the time the recorder logged it, from which
 ``replaybench.results.recorded_latency`` derives the recorded latency.
 """
@@ -24,24 +37,26 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from replaybench.decode.detections import decode_detections
-from replaybench.errors import DecodeError
-from replaybench.types import BackendResult
+from replaybench.errors import DecodeError, UsageError
+from replaybench.types import BackendResult, LabelMask
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Mapping
+    from collections.abc import Callable
 
     from replaybench.decode.kinds import MessageSource
     from replaybench.types import RawMessage
 
 __all__ = [
-    'RECORDED_READERS',
+    'MASK_ENCODINGS',
     'OutputReader',
     'RecordedMessage',
     'RecordedOutput',
-    'output_reader',
+    'read_detection2d_array',
+    'read_label_mask',
     'read_recorded_outputs',
-    'recorded_candidates',
 ]
+
+_NOTHING = BackendResult(())
 
 
 @dataclass(frozen=True, slots=True)
@@ -71,55 +86,63 @@ class OutputReader:
     task: str
     read: Callable[[RawMessage], RecordedMessage]
     candidate: bool = True
+    #: what its messages hold, plural (notes, errors, info keys); the task's name when empty
+    outputs: str = ''
+    #: the result of a frame without a recorded output
+    missing: BackendResult = _NOTHING
+
+    @property
+    def noun(self) -> str:
+        """What the outputs are called: ``outputs``, else the task's name."""
+        return self.outputs or self.task
 
 
-def _read_detection2d_array(raw: RawMessage) -> RecordedMessage:
+def read_detection2d_array(raw: RawMessage) -> RecordedMessage:
     found = decode_detections(raw)
     return RecordedMessage(
         found.frame_id, found.stamp_ns, BackendResult(found.detections), found.nonfinite
     )
 
 
-#: message type (ROS 2 spelling) -> its reader. Adding a task's recorded output is one entry.
-RECORDED_READERS: Mapping[str, OutputReader] = {
-    'vision_msgs/msg/Detection2DArray': OutputReader('detections', _read_detection2d_array),
-}
+#: Image encodings read as label masks (as ``decode_image`` names them).
+MASK_ENCODINGS = ('mono8', 'mono16')
 
 
-def _ros2_name(msgtype: str) -> str:
-    package, _, name = msgtype.partition('/')
-    return msgtype if '/msg/' in msgtype or not name else f'{package}/msg/{name}'
+def read_label_mask(raw: RawMessage) -> RecordedMessage:
+    """A mono8 / mono16 Image of class ids as a segmentation backend's mask (class names are
+    not recorded: ids stand for them). ``UsageError`` for an image that is not a label mask,
+    ``DecodeError`` for a mono16 mask with an id above 255. The masks of the topic are held for
+    the run, one ``H x W`` byte array each, as a pass holds its backends' masks."""
+    import numpy as np
 
+    from replaybench.decode.image import decode_image
 
-def output_reader(msgtype: str) -> OutputReader | None:
-    """The reader of recorded outputs of ``msgtype`` (ROS 1 or ROS 2 spelling); None if none."""
-    return RECORDED_READERS.get(_ros2_name(msgtype))
-
-
-def recorded_candidates(topics: Mapping[str, str], exclude: str | None) -> list[str]:
-    """The topics (name -> msgtype) that may be picked without ``--recorded-topic``: of a
-    ``candidate`` type, other than ``exclude`` (the ground-truth topic)."""
-    return [
-        name
-        for name, msgtype in topics.items()
-        if name != exclude and (reader := output_reader(msgtype)) is not None and reader.candidate
-    ]
+    frame = decode_image(raw)
+    if frame.encoding not in MASK_ENCODINGS or frame.is_depth:
+        msg = (
+            f'{raw.topic} holds {frame.source_encoding} images, not label masks (mono8 or mono16 '
+            'class ids): the recorded backend reads an Image topic as label masks'
+        )
+        raise UsageError(msg)
+    image = frame.image.reshape(frame.height, frame.width)
+    if frame.encoding == 'mono16' and image.size and int(image.max()) > 255:
+        msg = f'a mask with class id {int(image.max())}: ids above 255 are not read'
+        raise DecodeError(msg)
+    labels = np.array(image, dtype=np.uint8, order='C')
+    mask = LabelMask(labels, ())
+    return RecordedMessage(frame.frame_id, frame.stamp_ns, BackendResult((), mask=mask))
 
 
 def read_recorded_outputs(
-    source: MessageSource, topic: str, msgtype: str, notes: list[str] | None = None
+    source: MessageSource, topic: str, reader: OutputReader, notes: list[str] | None = None
 ) -> dict[tuple[str, int], RecordedOutput]:
-    """The outputs recorded on ``topic`` keyed by (frame_id, stamp_ns), each with its log time.
+    """The outputs recorded on ``topic`` (read by ``reader``) keyed by (frame_id, stamp_ns),
+    each with its log time.
 
     Messages the reader cannot decode are skipped; when two share a key the later one is kept.
     ``notes`` gets a line for values left out (``RecordedMessage.left_out``) and one for messages
-    skipped. ``DecodeError`` when ``msgtype`` has no reader.
+    skipped. The reader's ``UsageError`` (a topic not of its task at all) goes through.
     """
-    reader = output_reader(msgtype)
-    if reader is None:
-        types = ', '.join(sorted(RECORDED_READERS))
-        msg = f'{topic} is a {msgtype} topic; recorded outputs are read from: {types}'
-        raise DecodeError(msg)
     table: dict[tuple[str, int], RecordedOutput] = {}
     left_out = with_left_out = skipped = 0
     first_error = ''
@@ -137,6 +160,8 @@ def read_recorded_outputs(
     if notes is not None and left_out:
         if reader.task == 'detections':
             what = f'{left_out} detection(s) with a NaN or infinite box or score'
+        elif reader.task == 'tags':
+            what = f'{left_out} tag(s) with a NaN or infinite corner'
         else:
             what = f'{left_out} unusable value(s)'
         notes.append(f'{topic}: left out {what} in {with_left_out} message(s)')

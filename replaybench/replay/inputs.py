@@ -18,16 +18,16 @@ from replaybench.decode.camera_info import CameraInfoIndex
 from replaybench.decode.probe import CameraTopic, probe_topics, unreadable_image_topics
 from replaybench.errors import DecodeError, SourceError, UsageError
 from replaybench.replay.hashing import ANNOUNCE_MIN_BYTES, InputHash, describe_size
-from replaybench.replay.recorded import read_recorded
+from replaybench.replay.recorded import read_recorded, without_recorded
 from replaybench.replay.segmentation import replayable
-from replaybench.replay.tags import TagTable, read_tag_truth
+from replaybench.replay.tags import TAG_GROUND_TRUTH_TOPIC, TagTable, read_tag_truth
 from replaybench.sources import Source, open_source
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Sequence
     from pathlib import Path
 
-    from replaybench.decode.recorded import RecordedOutput
+    from replaybench.decode.recorded import OutputReader, RecordedOutput
     from replaybench.replay.config import InputOptions, RunConfig
     from replaybench.results.groundtruth import ExternalGroundTruth, MatchMode
     from replaybench.types import Detection, Frame, RawMessage, SkippedTopic
@@ -72,6 +72,7 @@ class OpenedInput(NamedTuple):
     max_frames: int | None = None  # at most this many frames of each topic are replayed
     size_bytes: int = 0  # of its files, when it was opened
     files_state: tuple[tuple[int, int], ...] = ()  # (size, mtime_ns) per file when hashed
+    recorded_reader: OutputReader | None = None  # how the recorded topic's type is read
 
 
 def load_external(config: RunConfig) -> ExternalGroundTruth | None:
@@ -170,11 +171,14 @@ def open_input(
         if gt_topic and gt_present and external is None:
             ground_truth = _read_detections(source, gt_topic, notes)
         recorded: dict[tuple[str, int], RecordedOutput] = {}
-        recorded_topic = None
+        recorded_topic = recorded_reader = None
         if recorded_detections:
-            recorded_topic, recorded = read_recorded(
-                path, source, all_topics, options.recorded_topic, options.ground_truth_topic, notes
+            # the ground truth of boxes and of tags is never the recorded output
+            truths = (options.ground_truth_topic, TAG_GROUND_TRUTH_TOPIC)
+            recorded_topic, recorded_reader, recorded = read_recorded(
+                path, source, all_topics, options.recorded_topic, truths, notes
             )
+            topics = without_recorded(path, topics, recorded_topic)
         tag_truth = read_tag_truth(source, notes)
         # the frame drawn in samples/: the middle one of the replayed frames (the first one when
         # --start/--duration cut a window whose size is unknown before reading)
@@ -199,6 +203,7 @@ def open_input(
             max_frames=options.max_frames,
             size_bytes=sum(f.stat().st_size for f in source.files),
             tag_truth=tag_truth,
+            recorded_reader=recorded_reader,
         )
     except BaseException:
         source.close()

@@ -19,7 +19,12 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING, Any, Protocol
 
-from replaybench.replay.recorded import NOT_RECORDED, frame_recorded_times, recorded_note
+from replaybench.replay.recorded import (
+    NOT_RECORDED,
+    boxes_scored,
+    frame_recorded_times,
+    recorded_note,
+)
 from replaybench.replay.segmentation import NO_MASK, Segmentation
 from replaybench.replay.tags import TagScores
 from replaybench.results.records import FrameRecord
@@ -205,7 +210,7 @@ class Recorder:
                 log_time_ns=log_time_ns,
                 stamp_ns=stamp_ns,
                 status='ok',
-                note='' if timed else recorded_note(recorded),
+                note='' if timed else recorded_note(recorded, done.inp.recorded_reader),
                 warmup=timed and n_done < self.warmups(topic),
                 dropped=False,
                 release_s=entry.release - t0,
@@ -267,8 +272,8 @@ class Recorder:
         )
         self.detections.setdefault(label_key, {})[(number, seq)] = detections
         self.detections_out.add(done.label, topic, log_time_ns, stamp_ns, frame_id, detections)
-        if mask is not None:
-            pass  # a segmentation backend: scored against masks above
+        if mask is not None or not boxes_scored(inp.recorded_reader, done.measures_latency):
+            pass  # a segmentation backend (or recorded masks): scored against masks above
         elif inp.external is not None:
             truth = inp.external.lookup(topic, seq, stamp_ns)
             if truth is not None:

@@ -117,6 +117,7 @@ def _recorded_detections(inputs: Sequence[OpenedInput]) -> RecordedDetections:
     return RecordedDetections(
         ', '.join(sorted({i.recorded_topic or '' for i in inputs})),
         {(inp.number, *key): dets for inp in inputs for key, dets in inp.recorded.items()},
+        {inp.number: inp.recorded_reader for inp in inputs if inp.recorded_reader is not None},
     )
 
 

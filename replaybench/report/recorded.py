@@ -145,8 +145,7 @@ def _replayed_row(row: SummaryRow, colours: Mapping[str, str]) -> str:
         _cell(_swatch(colours, backend) + _e(backend), numeric=False),
         _cell(f'<code>{_e(row.topic or "?")}</code>', numeric=False),
         _cell(
-            'replayed latency<br><span class="muted">frame released → detections (this '
-            'machine)</span>',
+            'replayed latency<br><span class="muted">frame released → output (this machine)</span>',
             numeric=False,
         ),
         _with_ci(row.latency_ms_p50, row.latency_ms_p50_ci_low, row.latency_ms_p50_ci_high),
@@ -229,7 +228,7 @@ def recorded_latency_html(
         'delay cancels); the figure to set beside a replayed latency. Capture-to-output = output '
         "log time − image header stamp: also the image's transport to the recorder and what "
         "the driver's stamp precedes; only meaningful when the camera's and the recorder's "
-        "clocks agree. Replayed latency runs from a frame's release to its detections on this "
+        "clocks agree. Replayed latency runs from a frame's release to its output on this "
         'machine, reading and decoding included. Under p50 and p99: the 95 % interval (block '
         'bootstrap; none under 20 frames).'
     )

@@ -290,15 +290,26 @@ def test_a_row_without_replay_latency_has_no_too_few_measured_frames_warning(tmp
 
 def test_a_recorded_topic_of_a_type_without_a_reader_is_refused(tmp_path):
     from replaybench.errors import UsageError
+    from replaybench.fixtures.writer import camera_info
+    from replaybench.msgs import CAMERA_INFO, serialize_camera_info
 
-    bag = _write_mcap(tmp_path / 'robot.mcap', _messages())
-    with pytest.raises(UsageError, match='is a sensor_msgs/msg/Image topic; the recorded backend'):
+    info = serialize_camera_info(camera_info((96, 72), T0, 'cam'))
+    bag = _write_mcap(
+        tmp_path / 'robot.mcap', [('/camera/camera_info', CAMERA_INFO, T0, info), *_messages()]
+    )
+    with pytest.raises(
+        UsageError,
+        match=r'is a sensor_msgs/msg/CameraInfo topic; the recorded backend reads '
+        r'vision_msgs/msg/Detection2DArray \(detections\), '
+        r'isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray \(tags\), '
+        r'sensor_msgs/msg/Image \(masks, named with --recorded-topic\)$',
+    ):
         run_benchmark(
             RunConfig(
                 inputs=[bag],
                 backends=['recorded'],
                 out_dir=None,
-                recorded_topic=IMAGE_TOPIC,
+                recorded_topic='/camera/camera_info',
                 report=False,
             )
         )
@@ -342,6 +353,7 @@ def test_one_reader_entry_is_all_another_recorded_output_type_needs(tmp_path, mo
     from replaybench.decode import recorded as recorded_outputs
     from replaybench.fixtures.writer import camera_info
     from replaybench.msgs import CAMERA_INFO, serialize_camera_info
+    from replaybench.replay import recorded as recorded_table
     from replaybench.types import BackendResult, Detection
 
     def read_camera_info(raw):
@@ -350,7 +362,7 @@ def test_one_reader_entry_is_all_another_recorded_output_type_needs(tmp_path, mo
         return recorded_outputs.RecordedMessage(info.frame_id, info.stamp_ns, BackendResult((box,)))
 
     entry = recorded_outputs.OutputReader('frames', read_camera_info, candidate=False)
-    monkeypatch.setitem(recorded_outputs.RECORDED_READERS, CAMERA_INFO, entry)
+    monkeypatch.setitem(recorded_table.RECORDED_READERS, CAMERA_INFO, entry)
     messages = [m for m in _messages() if m[0] == IMAGE_TOPIC]
     for _, _, image_log, _ in list(messages):
         stamp = T0 + (image_log - T0) // PERIOD * PERIOD
@@ -383,6 +395,8 @@ def test_without_a_recorded_topic_to_pick_alone_the_error_names_what_it_reads(tm
     with pytest.raises(
         UsageError,
         match=r'needs --recorded-topic TOPIC \(topics it can pick alone '
-        r'besides the ground truth: none; it reads vision_msgs/msg/Detection2DArray',
+        r'besides the ground truth: none; it reads vision_msgs/msg/Detection2DArray '
+        r'\(detections\), isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray \(tags\), '
+        r'sensor_msgs/msg/Image \(masks, named with --recorded-topic\)\)$',
     ):
         run_benchmark(RunConfig(inputs=[bag], backends=['recorded'], out_dir=None, report=False))

@@ -1,0 +1,42 @@
+"""Recorded AprilTag outputs: an AprilTagDetectionArray a robot's tag node published, read as the
+``TagResult`` a tag backend returns for the frame (the ``recorded`` backend's reader of that
+type, ``replaybench.replay.recorded.RECORDED_READERS``)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from replaybench.decode.recorded import RecordedMessage
+from replaybench.fiducials.msgs import decode_tag_array
+from replaybench.fiducials.types import TagResult
+from replaybench.types import Detection
+
+if TYPE_CHECKING:
+    from replaybench.types import RawMessage
+
+__all__ = ['read_tag_array_output']
+
+
+def read_tag_array_output(raw: RawMessage) -> RecordedMessage:
+    """The tags as a tag backend returns them (``replaybench.fiducials.detect.TagAssembler``):
+    sorted by id, each with its box (the corners' bounding box, pixel centres at +0.5);
+    tags with a non-finite corner are left out."""
+    import math
+
+    found = decode_tag_array(raw)
+    usable = [t for t in found.tags if all(math.isfinite(v) for c in t.corners for v in c)]
+    usable.sort(key=lambda t: (t.tag_id, t.corners))
+    boxes = []
+    for tag in usable:
+        xs = [x for x, _ in tag.corners]
+        ys = [y for _, y in tag.corners]
+        x0, y0, x1, y1 = min(xs) + 0.5, min(ys) + 0.5, max(xs) + 0.5, max(ys) + 0.5
+        boxes.append(Detection(tag.tag_id, tag.label, tag.score, x0, y0, x1, y1))
+    posed = any(t.pose is not None for t in usable)
+    note = ''
+    if usable and not all(t.pose is not None for t in usable):
+        note = f'{raw.topic}: tags recorded without a pose: corners and ids only'
+    result = TagResult(
+        tuple(boxes), tags=tuple(usable), camera_frame=found.frame_id if posed else '', note=note
+    )
+    return RecordedMessage(found.frame_id, found.stamp_ns, result, len(found.tags) - len(usable))

@@ -187,6 +187,50 @@ def _boxes(
     return boxes
 
 
+class _Slot(NamedTuple):
+    """One box of a class's cleaned mask and the region its morphology needs: the box
+    grown by the morphology's reach (``x0, y0, x1, y1``, frame pixels)."""
+
+    class_index: int
+    box: tuple[int, int, int, int]
+    region: tuple[int, int, int, int]
+
+
+def _layout(
+    regions: list[tuple[int, int, int, int]], width: int, height: int
+) -> tuple[list[tuple[int, int, int]], list[int], int, int]:
+    """Regions side by side on one canvas: ``(number, x, y)`` of those placed, the numbers
+    of those left alone, the canvas's height and width.
+
+    A region on the frame's left edge goes first, one on its right edge last (one of each;
+    any other such region, and one as wide as the frame, is left alone); one on the frame's
+    bottom edge (and not its top) at the canvas's bottom, any other at its top.
+    """
+    left: list[int] = []
+    middle: list[int] = []
+    right: list[int] = []
+    alone: list[int] = []
+    for number, (x0, _, x1, _) in enumerate(regions):
+        if x0 == 0 and x1 == width:
+            alone.append(number)
+        elif x0 == 0:
+            (alone if left else left).append(number)
+        elif x1 == width:
+            (alone if right else right).append(number)
+        else:
+            middle.append(number)
+    row = left + middle + right
+    canvas_h = max((regions[n][3] - regions[n][1] for n in row), default=0)
+    placed = []
+    x = 0
+    for number in row:
+        x0, y0, x1, y1 = regions[number]
+        y = canvas_h - (y1 - y0) if y1 == height and y0 > 0 else 0
+        placed.append((number, x, y))
+        x += x1 - x0
+    return placed, alone, canvas_h, x
+
+
 class _Buffers:
     def __init__(self, height: int, width: int, groups: int) -> None:
         self.shape = (height, width)
@@ -196,6 +240,13 @@ class _Buffers:
         self.bits = [np.empty((height, width), dtype=np.uint8) for _ in range(groups)]
         #: Filled with a class id on a box before that box's ids are copied into the mask.
         self.ids = np.empty((height, width), dtype=np.uint8)
+        self._canvas = np.empty(height * width, dtype=np.uint8)
+
+    def canvas(self, height: int, width: int) -> npt.NDArray[np.uint8]:
+        """A ``height x width`` work image (its memory reused from frame to frame)."""
+        if self._canvas.size < height * width:
+            self._canvas = np.empty(height * width, dtype=np.uint8)
+        return self._canvas[: height * width].reshape(height, width)
 
 
 class HsvSegBackend(ColourMorphology):
@@ -277,13 +328,76 @@ class HsvSegBackend(ColourMorphology):
         cv2.cvtColor(image, code, dst=buffers.hsv)
         return buffers.hsv
 
+    def _morphology(self, image: npt.NDArray[np.uint8]) -> None:
+        """The open and close of ``image`` in place: the erosions and dilations that
+        ``cv2.morphologyEx`` makes, with the open's and the close's dilations in one call."""
+        import cv2
+
+        if not self._morph:
+            return
+        kernel = cast('npt.NDArray[np.uint8]', self._kernel)
+        params = self.config.detector
+        opens, closes = params.open_iterations, params.close_iterations
+        if opens:
+            cv2.erode(image, kernel, dst=image, iterations=opens)
+        cv2.dilate(image, kernel, dst=image, iterations=opens + closes)
+        if closes:
+            cv2.erode(image, kernel, dst=image, iterations=closes)
+
+    def _clean(self, slots: list[_Slot], buffers: _Buffers) -> list[npt.NDArray[np.uint8]]:
+        """Each slot's cleaned mask on its box (non-zero: the class's pixel).
+
+        A slot's mask is its class's range bits (0 outside the class, not 0 / 1: an erosion
+        or dilation of it is non-zero exactly where that of the 0 / 1 mask is). The regions
+        lie side by side on one canvas, so that the morphology runs once on all of them (its
+        cost is mostly per call and per row): a region's box is at least the reach away
+        from every side of it that is inside the frame, so what lies beyond such a side
+        cannot change the box; a side on the frame's edge is put on the canvas's same edge,
+        where OpenCV's border stands in for the frame's. Regions that cannot be put there
+        (a second one on the frame's left or right edge) get an image of their own. The
+        canvas above or below a region shorter than it keeps what it held: that lies
+        beyond a side inside the frame, farther than the reach from every box.
+        """
+        height, width = buffers.shape
+        placed, alone, canvas_h, canvas_w = _layout([s.region for s in slots], width, height)
+        canvas = buffers.canvas(canvas_h, canvas_w)
+        origins: dict[int, tuple[npt.NDArray[np.uint8], int, int]] = {}
+        for number, x, y in placed:
+            rx0, ry0, rx1, ry1 = slots[number].region
+            w, h = rx1 - rx0, ry1 - ry0
+            self._class_mask(slots[number], buffers, canvas[y : y + h, x : x + w])
+            origins[number] = (canvas, x, y)
+        if placed:
+            self._morphology(canvas)
+        for number in alone:
+            rx0, ry0, rx1, ry1 = slots[number].region
+            image = np.empty((ry1 - ry0, rx1 - rx0), dtype=np.uint8)
+            self._class_mask(slots[number], buffers, image)
+            self._morphology(image)
+            origins[number] = (image, 0, 0)
+        cleaned = []
+        for number, slot in enumerate(slots):
+            image, x, y = origins[number]
+            x0, y0, x1, y1 = slot.box
+            rx0, ry0 = slot.region[:2]
+            cleaned.append(image[y + y0 - ry0 : y + y1 - ry0, x + x0 - rx0 : x + x1 - rx0])
+        return cleaned
+
+    def _class_mask(self, slot: _Slot, buffers: _Buffers, out: npt.NDArray[np.uint8]) -> None:
+        """The slot's class's range bits on its region, into ``out``."""
+        rx0, ry0, rx1, ry1 = slot.region
+        class_bits = self._plan.class_bits[slot.class_index]
+        group, mask = class_bits[0]
+        np.bitwise_and(buffers.bits[group][ry0:ry1, rx0:rx1], mask, out=out)
+        for group, mask in class_bits[1:]:
+            part = np.bitwise_and(buffers.bits[group][ry0:ry1, rx0:rx1], mask)
+            np.bitwise_or(out, part, out=out)
+
     def detect(self, frame: Frame) -> BackendResult:
         import cv2
 
         if self._kernel is None:
             self.open()
-        kernel = cast('npt.NDArray[np.uint8]', self._kernel)
-        params = self.config.detector
         clock = time.perf_counter_ns
 
         t0 = clock()
@@ -303,45 +417,27 @@ class HsvSegBackend(ColourMorphology):
                 test.apply(planes[test.channel], buffers.part)
                 cv2.bitwise_and(bits, buffers.part, dst=bits)
             tiles.append(_tile_or(bits, _TILE))
-        cleaned: list[tuple[int, tuple[int, int, int, int], npt.NDArray[np.uint8]]] = []
         reach = self._reach
+        slots: list[_Slot] = []
         for index, class_bits in enumerate(plan.class_bits):
             for x0, y0, x1, y1 in _boxes(tiles, class_bits, self._grow, width, height):
-                # the mask and its morphology on the box plus the morphology's reach: exact
-                # inside the box, which holds every pixel of the class's cleaned mask. The
-                # mask is the class's bits (0 outside it, not 0 / 1): an erosion or dilation
-                # of it is non-zero exactly where that of the 0 / 1 mask is (min and max).
-                rx0, ry0 = max(x0 - reach, 0), max(y0 - reach, 0)
-                rx1, ry1 = min(x1 + reach, width), min(y1 + reach, height)
-                group, mask = class_bits[0]
-                region = np.bitwise_and(buffers.bits[group][ry0:ry1, rx0:rx1], mask)
-                for group, mask in class_bits[1:]:
-                    part = np.bitwise_and(buffers.bits[group][ry0:ry1, rx0:rx1], mask)
-                    np.bitwise_or(region, part, out=region)
-                if self._morph and params.open_iterations:
-                    cv2.morphologyEx(
-                        region,
-                        cv2.MORPH_OPEN,
-                        kernel,
-                        dst=region,
-                        iterations=params.open_iterations,
-                    )
-                if self._morph and params.close_iterations:
-                    cv2.morphologyEx(
-                        region,
-                        cv2.MORPH_CLOSE,
-                        kernel,
-                        dst=region,
-                        iterations=params.close_iterations,
-                    )
-                inner = region[y0 - ry0 : y1 - ry0, x0 - rx0 : x1 - rx0]
-                cleaned.append((index, (x0, y0, x1, y1), inner))
+                # the class's mask and its morphology on the box plus the morphology's reach:
+                # exact inside the box, which holds every pixel of the class's cleaned mask
+                region = (
+                    max(x0 - reach, 0),
+                    max(y0 - reach, 0),
+                    min(x1 + reach, width),
+                    min(y1 + reach, height),
+                )
+                slots.append(_Slot(index, (x0, y0, x1, y1), region))
+        cleaned = self._clean(slots, buffers)
         t2 = clock()
 
         labels = np.zeros((height, width), dtype=np.uint8)
-        for index, (x0, y0, x1, y1), inner in reversed(cleaned):
+        for slot, inner in zip(reversed(slots), reversed(cleaned), strict=True):
+            x0, y0, x1, y1 = slot.box
             ids = buffers.ids[y0:y1, x0:x1]
-            ids.fill(index + 1)
+            ids.fill(slot.class_index + 1)
             cv2.copyTo(ids, inner, dst=labels[y0:y1, x0:x1])
         t3 = clock()
         return BackendResult(

@@ -117,6 +117,11 @@ class _Plan:
             [(group, np.uint8(mask)) for group, mask in enumerate(bits) if mask]
             for bits in class_bits
         ]
+        #: Per group, every class's bits in it (0 where the class has no range there).
+        self.group_masks = [
+            np.array([bits[group] for bits in class_bits], dtype=np.uint8)
+            for group in range(groups)
+        ]
 
 
 #: Side of the square tiles whose class occupancy bounds the per-class work, pixels.
@@ -146,44 +151,62 @@ def _tile_or(bits: npt.NDArray[np.uint8], tile: int) -> npt.NDArray[np.uint8]:
     return out
 
 
-def _boxes(
+def _class_boxes(
     tiles: list[npt.NDArray[np.uint8]],
-    class_bits: list[tuple[int, np.uint8]],
+    group_masks: list[npt.NDArray[np.uint8]],
     grow: int,
     width: int,
     height: int,
-) -> list[tuple[int, int, int, int]]:
-    """Pixel boxes ``(x0, y0, x1, y1)`` that hold every pixel a class's cleaned mask can have.
+) -> list[list[tuple[int, int, int, int]]]:
+    """Per class, pixel boxes ``(x0, y0, x1, y1)`` that hold every pixel its cleaned mask can
+    have.
 
-    The bounding boxes of the 8-connected groups of tiles with a pixel of the class, grown by
-    ``grow`` pixels (the open never adds a pixel, the close adds none farther than its
-    dilations reach); one box around them all when that costs fewer than ``_MERGE_PIXELS``
-    more pixels per box it spares.
+    Each class's tiles with a pixel of it, side by side with a column of empty tiles between
+    two classes, go through one connected-component labelling; the bounding box of each
+    8-connected group, grown by ``grow`` pixels (the open never adds a pixel, the close adds
+    none farther than its dilations reach), is a box of its class. A class's boxes become
+    one around them all when that costs fewer than ``_MERGE_PIXELS`` more pixels per box it
+    spares.
     """
     import cv2
 
-    group, mask = class_bits[0]
-    active = np.bitwise_and(tiles[group], mask)
-    for group, mask in class_bits[1:]:
-        np.bitwise_or(active, np.bitwise_and(tiles[group], mask), out=active)
-    if not active.any():
-        return []
-    count, _, stats, _ = cv2.connectedComponentsWithStats(active, connectivity=8)
-    boxes = [
-        (
-            max(left * _TILE - grow, 0),
-            max(top * _TILE - grow, 0),
-            min((left + w) * _TILE + grow, width),
-            min((top + h) * _TILE + grow, height),
+    n_rows, n_cols = tiles[0].shape
+    classes = len(group_masks[0])
+    stride = n_cols + 1
+    active = np.zeros((n_rows, classes, stride), dtype=np.uint8)
+    view = active[:, :, :n_cols]
+    np.bitwise_and(tiles[0][:, None, :], group_masks[0][None, :, None], out=view)
+    for group_tiles, masks in zip(tiles[1:], group_masks[1:], strict=True):
+        np.bitwise_or(view, group_tiles[:, None, :] & masks[None, :, None], out=view)
+    flat = active.reshape(n_rows, classes * stride)
+    # Grana's algorithm: a half of the default's time at this size with int32 labels
+    count, _, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(
+        flat, 8, cv2.CV_32S, cv2.CCL_GRANA
+    )
+    found: list[list[tuple[int, int, int, int]]] = [[] for _ in range(classes)]
+    for left, top, w, h, _area in stats[1:count].tolist():
+        index, x = divmod(left, stride)
+        found[index].append(
+            (
+                max(x * _TILE - grow, 0),
+                max(top * _TILE - grow, 0),
+                min((x + w) * _TILE + grow, width),
+                min((top + h) * _TILE + grow, height),
+            )
         )
-        for left, top, w, h, _area in stats[1:count].tolist()
-    ]
-    if len(boxes) > 1:
-        x0, y0 = min(b[0] for b in boxes), min(b[1] for b in boxes)
-        x1, y1 = max(b[2] for b in boxes), max(b[3] for b in boxes)
-        parts = sum((b[2] - b[0]) * (b[3] - b[1]) for b in boxes)
-        if (x1 - x0) * (y1 - y0) - parts <= _MERGE_PIXELS * (len(boxes) - 1):
-            return [(x0, y0, x1, y1)]
+    return [_merged(boxes) for boxes in found]
+
+
+def _merged(boxes: list[tuple[int, int, int, int]]) -> list[tuple[int, int, int, int]]:
+    """``boxes``, or one box around them all when that costs fewer than ``_MERGE_PIXELS``
+    more pixels per box it spares."""
+    if len(boxes) < 2:
+        return boxes
+    x0, y0 = min(b[0] for b in boxes), min(b[1] for b in boxes)
+    x1, y1 = max(b[2] for b in boxes), max(b[3] for b in boxes)
+    parts = sum((b[2] - b[0]) * (b[3] - b[1]) for b in boxes)
+    if (x1 - x0) * (y1 - y0) - parts <= _MERGE_PIXELS * (len(boxes) - 1):
+        return [(x0, y0, x1, y1)]
     return boxes
 
 
@@ -419,8 +442,9 @@ class HsvSegBackend(ColourMorphology):
             tiles.append(_tile_or(bits, _TILE))
         reach = self._reach
         slots: list[_Slot] = []
-        for index, class_bits in enumerate(plan.class_bits):
-            for x0, y0, x1, y1 in _boxes(tiles, class_bits, self._grow, width, height):
+        boxes = _class_boxes(tiles, plan.group_masks, self._grow, width, height)
+        for index, class_boxes in enumerate(boxes):
+            for x0, y0, x1, y1 in class_boxes:
                 # the class's mask and its morphology on the box plus the morphology's reach:
                 # exact inside the box, which holds every pixel of the class's cleaned mask
                 region = (

@@ -12,15 +12,16 @@ Per frame: one conversion to HSV (``preprocess``). Then the range bits of every 
 either one ``cv2.threshold`` / ``cv2.inRange`` (when every range of the byte has the same
 interval on that channel, as the default classes have on S and V) or a 256-entry ``cv2.LUT``
 that sets the bits of the ranges holding the value; the planes' results AND-ed. The OR of
-those bits over 16x16 tiles says which tiles hold which classes. Per class, only on the
-bounding boxes of its 8-connected groups of tiles, grown by the close's reach (no cleaned
-pixel lies farther from a pixel of the class) plus the whole morphology's reach (so that the
-box is exact): the class's bits (an AND with its range bits) and the open / close (``infer``).
-The label mask is written from the cleaned masks, last class first, one masked
-``cv2.copyTo`` per box (``postprocess``). ``benchmarks/naive_hsv_seg.py`` is the
-straightforward per-class port (``cv2.inRange`` per range, full-frame morphology, boolean
-indexing); both give the same mask (tests/backends/test_hsv_seg.py), and
-``benchmarks/bench_segmentation.py`` times them.
+those bits over 16x16 tiles says which tiles hold which classes; one connected-component
+labelling of all classes' tiles gives each class's boxes (its 8-connected groups of tiles),
+grown by the close's reach (no cleaned pixel lies farther from a pixel of the class). Only on
+those boxes plus the whole morphology's reach (so that the box is exact): the class's bits
+(an AND with its range bits), every region side by side on one canvas, and the open / close
+of the canvas in one erode, dilate and erode (``infer``). The label mask is written from the
+cleaned masks, last class first, one masked ``cv2.copyTo`` per box (``postprocess``).
+``benchmarks/naive_hsv_seg.py`` is the straightforward per-class port (``cv2.inRange`` per
+range, full-frame morphology, boolean indexing); both give the same mask
+(tests/backends/test_hsv_seg.py), and ``benchmarks/bench_segmentation.py`` times them.
 """
 
 from __future__ import annotations

@@ -220,3 +220,57 @@ def test_a_real_photo_matches_the_naive_port_with_the_default_classes(
         labels = _labels(backend, photo)
         assert np.array_equal(labels, naive.naive_segment(photo, backend.config)), extra
         assert int(labels.max()) > 0
+
+
+def _random_config(rng: np.random.Generator) -> HsvConfig:
+    """Up to 6 classes of up to 3 ranges (up to 18: several bytes of bits); S and V shared by
+    every range (interval tests) or drawn per range (tables); any kernel and iterations."""
+    shared = bool(rng.random() < 0.5)
+    # shared S and V intervals: from 0 or above, to 255 or below (each kind of interval test)
+    s_low, v_low = (int(v) * int(rng.random() < 0.7) for v in rng.integers(1, 150, size=2))
+    s_high, v_high = (255 - int(v) * int(rng.random() < 0.4) for v in rng.integers(0, 100, size=2))
+    classes = []
+    for number in range(int(rng.integers(1, 7))):
+        ranges = []
+        for _ in range(int(rng.integers(1, 4))):
+            h0 = int(rng.integers(0, 181))
+            h1 = int(rng.integers(h0, 181))
+            if shared:
+                low, high = [h0, s_low, v_low], [h1, s_high, v_high]
+            else:
+                s0, v0 = (int(v) for v in rng.integers(0, 256, size=2))
+                low = [h0, s0, v0]
+                high = [h1, int(rng.integers(s0, 256)), int(rng.integers(v0, 256))]
+            ranges.append([low, high])
+        classes.append({'name': f'class{number}', 'ranges': ranges})
+    detector = {
+        'kernel': int(rng.choice([1, 3, 5, 7, 9])),
+        'open_iterations': int(rng.integers(0, 3)),
+        'close_iterations': int(rng.integers(0, 3)),
+    }
+    return parse_config({'detector': detector, 'classes': classes})
+
+
+def test_random_configurations_and_frames_match_the_naive_port(
+    naive: ModuleType, tmp_path: Path
+) -> None:
+    rng = np.random.default_rng(2611)
+    for case in range(30):
+        config = _random_config(rng)
+        backend = _with_config(config, tmp_path)
+        if case % 2:
+            width, height = (int(v) for v in rng.integers(20, 400, size=2))
+            image, _ = Scene((width, height), seed=case).render(int(rng.integers(0, 50)))
+        else:
+            shape = (int(rng.integers(10, 200)), int(rng.integers(10, 200)), 3)
+            hsv = rng.integers(0, 256, size=shape, dtype=np.uint8)
+            hsv[:, :, 0] %= 180
+            for _ in range(10):
+                x, y = (int(v) for v in rng.integers(-10, 200, size=2))
+                w, h = (int(v) for v in rng.integers(1, 80, size=2))
+                colour = (int(rng.integers(0, 180)), int(rng.integers(0, 256)), 220)
+                cv2.rectangle(hsv, (x, y), (x + w, y + h), colour, -1)
+            image = np.asarray(cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR))
+        expected = naive.naive_segment(image, config)
+        for _ in range(2):  # the second frame reuses the work images of the first
+            assert np.array_equal(_labels(backend, image), expected), case

@@ -166,3 +166,111 @@ def test_bad_options_and_images_are_one_clear_error() -> None:
     backend = HsvSegBackend()
     with pytest.raises(BackendError, match='hsv-seg: frame'):
         backend.detect(_frame(np.zeros((4, 4, 2), np.uint8), 'bgr8'))
+
+
+def test_item_s_frames_at_640x480_match_the_naive_port(naive: ModuleType) -> None:
+    # the twelve frames benchmarks item s times at 640x480 (benchmarks.data.scene_frames)
+    scene = Scene((640, 480))
+    backend = HsvSegBackend()
+    for i in range(12):
+        image, _ = scene.render(5 * i)
+        assert np.array_equal(_labels(backend, image), naive.naive_segment(image)), i
+
+
+def _every_channel_test_config() -> HsvConfig:
+    """Two bytes of range bits whose channels take each kind of test: a table (H of the
+    first, S of the second), a threshold from below (V of the second) and from above (V of
+    the first), an interval (H of the second) and none (S of the first)."""
+    first = [[[h, 0, 0], [h + 14, 255, 180]] for h in range(0, 120, 15)]
+    second = [[[120, 40, 70], [180, 200, 255]], [[120, 90, 70], [180, 255, 255]]]
+    classes = [{'name': f'band{i}', 'ranges': [r]} for i, r in enumerate(first[:7])]
+    classes.append({'name': 'across', 'ranges': [first[7], second[0]]})
+    classes.append({'name': 'purple', 'ranges': [second[1]]})
+    return parse_config({'classes': classes})
+
+
+def test_every_kind_of_channel_test_matches_the_naive_port(
+    naive: ModuleType, tmp_path: Path, shared_real: Path
+) -> None:
+    config = _every_channel_test_config()
+    backend = _with_config(config, tmp_path)
+    tests = backend._plan.tests
+    first = {t.channel: (t.lut is not None, t.lower, t.upper) for t in tests[0]}
+    second = {t.channel: (t.lut is not None, t.lower, t.upper) for t in tests[1]}
+    assert first == {0: (True, 0, 0), 2: (False, 0, 180)}
+    assert second == {0: (False, 120, 180), 1: (True, 0, 0), 2: (False, 70, 255)}
+    photo = cv2.imread(str(shared_real / 'images' / 'astronaut.png'), cv2.IMREAD_COLOR)
+    assert photo is not None
+    scene = Scene((320, 240), seed=3)
+    images = [photo, photo[100:300, 50:411], *(scene.render(i)[0] for i in (0, 9))]
+    for number, image in enumerate(images):
+        labels = _labels(backend, image)
+        assert np.array_equal(labels, naive.naive_segment(image, config)), number
+    assert len(np.unique(_labels(backend, photo))) >= 5  # the photo reaches many classes
+
+
+def test_a_real_photo_matches_the_naive_port_with_the_default_classes(
+    naive: ModuleType, shared_real: Path
+) -> None:
+    photo = cv2.imread(str(shared_real / 'images' / 'astronaut.png'), cv2.IMREAD_COLOR)
+    assert photo is not None
+    backend = HsvSegBackend()
+    for extra in ({}, {'kernel': '9', 'close_iterations': '2'}):
+        backend = HsvSegBackend(BackendOptions(extra=extra))
+        labels = _labels(backend, photo)
+        assert np.array_equal(labels, naive.naive_segment(photo, backend.config)), extra
+        assert int(labels.max()) > 0
+
+
+def _random_config(rng: np.random.Generator) -> HsvConfig:
+    """Up to 6 classes of up to 3 ranges (up to 18: several bytes of bits); S and V shared by
+    every range (interval tests) or drawn per range (tables); any kernel and iterations."""
+    shared = bool(rng.random() < 0.5)
+    # shared S and V intervals: from 0 or above, to 255 or below (each kind of interval test)
+    s_low, v_low = (int(v) * int(rng.random() < 0.7) for v in rng.integers(1, 150, size=2))
+    s_high, v_high = (255 - int(v) * int(rng.random() < 0.4) for v in rng.integers(0, 100, size=2))
+    classes = []
+    for number in range(int(rng.integers(1, 7))):
+        ranges = []
+        for _ in range(int(rng.integers(1, 4))):
+            h0 = int(rng.integers(0, 181))
+            h1 = int(rng.integers(h0, 181))
+            if shared:
+                low, high = [h0, s_low, v_low], [h1, s_high, v_high]
+            else:
+                s0, v0 = (int(v) for v in rng.integers(0, 256, size=2))
+                low = [h0, s0, v0]
+                high = [h1, int(rng.integers(s0, 256)), int(rng.integers(v0, 256))]
+            ranges.append([low, high])
+        classes.append({'name': f'class{number}', 'ranges': ranges})
+    detector = {
+        'kernel': int(rng.choice([1, 3, 5, 7, 9])),
+        'open_iterations': int(rng.integers(0, 3)),
+        'close_iterations': int(rng.integers(0, 3)),
+    }
+    return parse_config({'detector': detector, 'classes': classes})
+
+
+def test_random_configurations_and_frames_match_the_naive_port(
+    naive: ModuleType, tmp_path: Path
+) -> None:
+    rng = np.random.default_rng(2611)
+    for case in range(30):
+        config = _random_config(rng)
+        backend = _with_config(config, tmp_path)
+        if case % 2:
+            width, height = (int(v) for v in rng.integers(20, 400, size=2))
+            image, _ = Scene((width, height), seed=case).render(int(rng.integers(0, 50)))
+        else:
+            shape = (int(rng.integers(10, 200)), int(rng.integers(10, 200)), 3)
+            hsv = rng.integers(0, 256, size=shape, dtype=np.uint8)
+            hsv[:, :, 0] %= 180
+            for _ in range(10):
+                x, y = (int(v) for v in rng.integers(-10, 200, size=2))
+                w, h = (int(v) for v in rng.integers(1, 80, size=2))
+                colour = (int(rng.integers(0, 180)), int(rng.integers(0, 256)), 220)
+                cv2.rectangle(hsv, (x, y), (x + w, y + h), colour, -1)
+            image = np.asarray(cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR))
+        expected = naive.naive_segment(image, config)
+        for _ in range(2):  # the second frame reuses the work images of the first
+            assert np.array_equal(_labels(backend, image), expected), case

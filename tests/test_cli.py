@@ -151,10 +151,16 @@ def test_every_bundled_fixture_bag_runs(tmp_path, fixture_bags):
         p for p in fixture_bags.iterdir() if p.suffix in {'.mcap', '.bag', '.db3'} or p.is_dir()
     )
     assert len(bags) >= 5
+    # a recorded label-mask topic is an Image topic like a camera's: that bag's camera is named
+    topics = {'live_masks.mcap': ['--topic', '/camera/image_raw/compressed']}
     for i, bag in enumerate(bags):
         result = runner.invoke(
-            app, ['run', str(bag), '-b', 'hsv', '--out', str(tmp_path / str(i)), '--no-report']
-        )
+            app,
+            [
+                'run', str(bag), '-b', 'hsv', '--out', str(tmp_path / str(i)), '--no-report',
+                *topics.get(bag.name, []),
+            ],
+        )  # fmt: skip
         assert result.exit_code == 0, (bag, result.output)
         run = json.loads((tmp_path / str(i) / 'run.json').read_text())
         assert all(s['accuracy'] and s['accuracy']['recall50'] > 0.5 for s in run['summary']), bag

@@ -100,9 +100,9 @@ def format_summary(
         if acc.diff is not None:
             parts.append(f'map50 {acc.diff:+.4f} (no CI)')
         parts += recorded_parts(row)
-        method = method_text(row.metrics['median_ms']) or method_text(
-            row.metrics['recorded_pipeline_ms']
-        )
+        # a recording's row: the method of its recorded latency (its replay is not timed)
+        timed = 'median_ms' if row.recorded_outputs is None else 'recorded_pipeline_ms'
+        method = method_text(row.metrics[timed])
         how = f' [{method}]' if method else ''
         lines.append(f'  {row.name}{versus}: ' + ', '.join(parts) + how)
     if not any(r.role == 'candidate' for r in comparison.rows):

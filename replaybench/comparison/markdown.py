@@ -72,9 +72,9 @@ def _row_line(row: Row, recorded: bool = False) -> str:
     cells.append(_cell(f'{acc.diff:+.4f}') if acc.diff is not None else '')
     if recorded:
         cells += [_cell(_recorded_text(row, k)) for k in RECORDED_SHORT]
-    method = method_text(row.metrics['median_ms'])
-    if recorded and not method:
-        method = method_text(row.metrics['recorded_pipeline_ms'])
+    # a recording's row: the method of its recorded latency (its replay is not timed)
+    timed = 'median_ms' if row.recorded_outputs is None else 'recorded_pipeline_ms'
+    method = method_text(row.metrics[timed])
     cells.append(_cell(method))
     return '| ' + ' | '.join(cells) + ' |'
 

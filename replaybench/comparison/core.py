@@ -173,6 +173,11 @@ class Comparison:
     confidence: float
     #: (run index, backend, topic) -> measured latencies (ms) in replay order
     latencies: dict[tuple[int, str, str], npt.NDArray[np.float64]] = field(repr=False)
+    #: (run index, backend, topic) -> recorded pipeline latencies (ms) in log-time order, for
+    #: the rows of recordings whose pipeline figure is reported
+    recorded_latencies: dict[tuple[int, str, str], npt.NDArray[np.float64]] = field(
+        default_factory=dict, repr=False
+    )
 
     @property
     def baseline_run(self) -> RunInfo:
@@ -507,6 +512,12 @@ def compare_runs(
         confidence=confidence,
         latencies={
             (run.index, b, t): s.latency for run in runs for (b, t), s in series[run.index].items()
+        },
+        recorded_latencies={
+            (run.index, b, t): found
+            for run in runs
+            for (b, t), rec in recorded[run.index].items()
+            if (found := rec.figures.get('pipeline_ms')) is not None
         },
     )
 

@@ -470,16 +470,36 @@ def _charts(comparison: Comparison) -> str:
         def name(row: Row, backend: str = backend) -> str:
             return row.run_label if row.backend == backend else f'{row.run_label} · {row.backend}'
 
-        series = [
-            (name(r), colour(r.run), comparison.latencies[(r.run, r.backend, r.topic)].tolist())
-            for r in rows
-        ]
+        def values(row: Row) -> list[float]:
+            # a recording's row: its recorded pipeline latency (its replay is not timed)
+            key = (row.run, row.backend, row.topic)
+            found = comparison.recorded_latencies.get(key)
+            if found is not None and not comparison.latencies[key].size:
+                return [float(v) for v in found]
+            return [float(v) for v in comparison.latencies[key]]
+
+        def recorded(row: Row) -> bool:
+            key = (row.run, row.backend, row.topic)
+            return key in comparison.recorded_latencies and not comparison.latencies[key].size
+
+        def label(row: Row) -> str:
+            return f'{name(row)} · recorded pipeline' if recorded(row) else name(row)
+
+        series = [(label(r), colour(r.run), values(r)) for r in rows]
         cdf = step_cdf(series, title=f'Latency CDF · {backend} · {topic}', x_label='latency (ms)')
         bars: list[_Bar] = []
         for r in rows:
-            for metric, tag, opacity in (('median_ms', 'p50', 0.55), ('p99_ms', 'p99', 1.0)):
+            pairs = (('median_ms', 'p50', 0.55), ('p99_ms', 'p99', 1.0))
+            if recorded(r):
+                pairs = (
+                    ('recorded_pipeline_ms', 'p50', 0.55),
+                    ('recorded_pipeline_p99_ms', 'p99', 1.0),
+                )
+            for metric, tag, opacity in pairs:
                 m = r.metrics[metric]
-                bars.append(_Bar(f'{tag} · {name(r)}', colour(r.run), opacity, m.value, m.value_ci))
+                bars.append(
+                    _Bar(f'{tag} · {label(r)}', colour(r.run), opacity, m.value, m.value_ci)
+                )
         whiskers = _interval_chart(
             bars,
             title=f'p50 / p99 latency, {level}% CI · {backend} · {topic}',

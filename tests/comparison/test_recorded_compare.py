@@ -215,6 +215,10 @@ def test_a_replayed_backend_against_a_recording_shows_the_recording_beside_its_l
     assert float(record['median_ms']) > 0
     text = (tmp_path / 'cmp.md').read_text(encoding='utf-8')
     assert f'{m.baseline:.4g} ms in the baseline recording (this row replays)' in text
+    # comparison.html: the recording's pipeline latency charted beside null's own latency
+    page = (tmp_path / 'cmp' / 'comparison.html').read_text(encoding='utf-8')
+    assert '· recorded pipeline</text>' in page
+    assert f'>{m.baseline:.4g}</text>' in page  # its p50 bar
 
 
 def test_every_exporter_carries_the_recorded_metrics(runs: dict[str, Path], tmp_path: Path) -> None:

@@ -14,7 +14,8 @@ metrics are, under their own names:
 ================================  ==================================================
 
 The value of a row is that of summary.csv (``pipeline_ms_p50``, ...: the matched outputs of the
-measured frames, linear percentiles) with its 95 % interval; a candidate's change is the ratio
+measured frames, linear percentiles) with its 95 % interval (of a run of ``--repeat``, the first
+pass: every pass replays the same recording); a candidate's change is the ratio
 of the whole series, and the interval the gate judges is ``blocks.change_interval`` over the
 two series of outputs **in log-time order** (the image's log time): between blocks of
 consecutive outputs from ``MIN_FRAMES`` on each side, output by output below. A row that
@@ -67,7 +68,7 @@ _SOURCE: dict[str, tuple[str, str, str]] = {
 class RecordedSeries(NamedTuple):
     """The recorded latencies of one (backend, topic) that replays recorded outputs."""
 
-    #: recorded outputs matched to measured frames
+    #: recorded outputs matched to measured frames (of the first pass)
     outputs: int
     #: figure (``pipeline_ms``, ``capture_to_output_ms``) -> its latencies (ms) in log-time
     #: order, as frames.csv holds them; None where the run refused the figure
@@ -90,8 +91,11 @@ def recorded_series(
     if summary is None:
         return None
     measured = [r for r in records if r.status == 'ok' and not r.warmup]
-    # log-time order (the image's); passes of --repeat one after the other
-    ordered = sorted(measured, key=lambda r: (r.repeat, r.log_time_ns, r.input, r.seq))
+    # every pass of --repeat replays the same recording, so the same recorded latencies: the
+    # first pass holds them once (more passes would only repeat them, not add evidence)
+    first = min((r.repeat for r in measured), default=0)
+    once = [r for r in measured if r.repeat == first]
+    ordered = sorted(once, key=lambda r: (r.log_time_ns, r.input, r.seq))  # log-time order
     times = [recorded_times(r.log_time_ns, r.stamp_ns, r.output_log_time_ns) for r in ordered]
     figures: dict[str, npt.NDArray[np.float64] | None] = {}
     for figure in RECORDED_FIGURES:
@@ -100,8 +104,8 @@ def recorded_series(
             continue
         values = [v for t in times if (v := getattr(t, figure)) is not None]
         figures[figure] = np.asarray([written(v, figure) for v in values], dtype=np.float64)
-    outputs = summary.get('recorded_outputs')
-    return RecordedSeries(int(outputs or 0), figures, summary)
+    outputs = sum(t.output_log_time_ns is not None for t in times)
+    return RecordedSeries(outputs, figures, summary)
 
 
 class RecordedParts(NamedTuple):

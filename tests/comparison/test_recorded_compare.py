@@ -38,10 +38,12 @@ def _expected(frames: int, base_ms: int) -> tuple[list[float], list[float]]:
     return pipeline, capture
 
 
-def _run(base: Path, name: str, frames: int, base_ms: int, backends: str = 'recorded') -> Path:
+def _run(
+    base: Path, name: str, frames: int, base_ms: int, backends: str = 'recorded', repeat: int = 1
+) -> Path:
     bag = write_live_mcap(base / f'{name}.mcap', frames, SIZE, base_ms=base_ms)
     out = base / name
-    rb.run(bag, backends=backends.split(','), out=out, report=False)
+    rb.run(bag, backends=backends.split(','), out=out, report=False, repeat=repeat)
     return out
 
 
@@ -51,6 +53,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return {
         'fast': _run(base, 'fast', FRAMES, FAST_MS, 'recorded,null'),
         'fast-again': _run(base, 'fast-again', FRAMES, FAST_MS),
+        'fast-twice': _run(base, 'fast-twice', FRAMES, FAST_MS, repeat=2),
         'slow': _run(base, 'slow', FRAMES, SLOW_MS),
         'short-fast': _run(base, 'short-fast', 3, FAST_MS),
         'short-slow': _run(base, 'short-slow', 3, SLOW_MS),
@@ -303,3 +306,20 @@ def test_the_command_line_gate_exits_1_on_a_slower_recording(runs: dict[str, Pat
     assert 'recorded pipeline ×1.451 [1.368, 1.549]' in done.stdout
     assert '[between-block 4/4]' in done.stdout
     assert 'FAIL recorded_pipeline_ms > +30%' in done.stdout + done.stderr
+
+
+def test_passes_of_repeat_hold_a_recording_once(runs: dict[str, Path]) -> None:
+    """Every pass replays the same recorded latencies: compared once, not as twice the
+    evidence (a narrower interval)."""
+    once = _row(rb.compare(runs['fast'], runs['fast-again'])).metrics['recorded_pipeline_ms']
+    row = _row(rb.compare(runs['fast'], runs['fast-twice']))
+    twice = row.metrics['recorded_pipeline_ms']
+    assert twice.ratio == 1.0
+    assert twice.ratio_ci == once.ratio_ci
+    assert twice.blocks == (4, 4)
+    record = next(
+        r
+        for r in rb.compare(runs['fast'], runs['fast-twice']).table_rows or []
+        if r['role'] == 'candidate'
+    )
+    assert record['recorded_outputs'] == 36

@@ -323,3 +323,38 @@ def test_passes_of_repeat_hold_a_recording_once(runs: dict[str, Path]) -> None:
         if r['role'] == 'candidate'
     )
     assert record['recorded_outputs'] == 36
+
+
+@pytest.mark.parametrize('task', ['tags', 'masks'])
+def test_recorded_tags_and_masks_compare_on_their_recorded_latency(
+    task: str, tmp_path: Path
+) -> None:
+    from replaybench.fixtures.live_tasks import (
+        LIVE_MASK_TOPIC,
+        mask_timings,
+        tag_timings,
+        write_live_mask_mcap,
+        write_live_tag_mcap,
+    )
+
+    frames = 24
+    if task == 'tags':
+        bag = write_live_tag_mcap(tmp_path / 'tags.mcap', frames, (320, 240))
+        timings, topic = tag_timings(frames), None
+    else:
+        bag = write_live_mask_mcap(tmp_path / 'masks.mcap', frames, SIZE)
+        timings, topic = mask_timings(frames), LIVE_MASK_TOPIC
+    for name in ('a', 'b'):
+        rb.run(bag, backends='recorded', out=tmp_path / name, report=False, recorded_topic=topic)
+    pipeline = [(t.output_log_ns - t.image_log_ns) / 1e6 for t in timings if t.output_log_ns]
+    capture = [(t.output_log_ns - t.stamp_ns) / 1e6 for t in timings if t.output_log_ns]
+    row = _row(rb.compare(tmp_path / 'a', tmp_path / 'b'))
+    assert row.metrics['recorded_pipeline_ms'].value == pytest.approx(
+        float(np.percentile(pipeline, 50))
+    )
+    assert row.metrics['recorded_capture_p99_ms'].baseline == pytest.approx(
+        float(np.percentile(capture, 99))
+    )
+    assert row.metrics['recorded_pipeline_ms'].ratio == 1.0
+    assert row.metrics['recorded_pipeline_ms'].method == 'per-frame'  # under 20 outputs
+    assert row.metrics['recorded_pipeline_ms'].significant is False

@@ -7,6 +7,7 @@ from __future__ import annotations
 from replaybench.comparison.core import (
     ACCURACY_METRICS,
     METRICS,
+    RECORDED_METRICS,
     TIMING_METRICS,
     Comparison,
     MetricComparison,
@@ -71,6 +72,7 @@ __all__ = [
     'METRICS',
     'MIN_BLOCKS',
     'MIN_FRAMES',
+    'RECORDED_METRICS',
     'TIMING_METRICS',
     'VERDICTS',
     'ChangeInterval',

@@ -7,6 +7,12 @@ from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 import numpy as np
 
+from replaybench.comparison.recorded import (
+    RECORDED_METRICS,
+    RecordedSeries,
+    recorded_metric_parts,
+    recorded_series,
+)
 from replaybench.comparison.repeats import (
     CAUTION_ADVICE,
     PassValues,
@@ -45,6 +51,7 @@ if TYPE_CHECKING:
 __all__ = [
     'ACCURACY_METRICS',
     'METRICS',
+    'RECORDED_METRICS',
     'TAG_METRICS',
     'TIMING_METRICS',
     'Comparison',
@@ -64,8 +71,9 @@ ACCURACY_METRICS: tuple[str, ...] = ('map50', 'recall50', 'precision50', 'miou',
 #: accuracy is: point estimates, no interval.
 TAG_METRICS: tuple[str, ...] = TAG_SUMMARY_COLUMNS
 
-#: Every metric, in table order.
-METRICS: tuple[str, ...] = TIMING_METRICS + ACCURACY_METRICS + TAG_METRICS
+#: Every metric, in table order; the recorded outputs' latency (``recorded`` backend rows:
+#: ``comparison.recorded``) last, compared as the timing metrics are.
+METRICS: tuple[str, ...] = TIMING_METRICS + ACCURACY_METRICS + TAG_METRICS + RECORDED_METRICS
 
 _REPLICATE: dict[str, str] = {'median_ms': 'p50', 'p99_ms': 'p99', 'mean_ms': 'mean', 'fps': 'fps'}
 _SUMMARY: dict[str, str] = {
@@ -137,6 +145,12 @@ class Row:
     caution: str | None = None
     #: passes of ``--repeat`` (1 for a single pass)
     repeats: int = 1
+    #: recorded outputs matched to measured frames (``recorded`` backend); None for a row
+    #: that replays
+    recorded_outputs: int | None = None
+    #: summary.csv's ``recorded_latency_note`` (why a recorded figure is not reported; '' when
+    #: nothing is said); None for a row that replays
+    recorded_note: str | None = None
 
     @property
     def name(self) -> str:
@@ -159,6 +173,11 @@ class Comparison:
     confidence: float
     #: (run index, backend, topic) -> measured latencies (ms) in replay order
     latencies: dict[tuple[int, str, str], npt.NDArray[np.float64]] = field(repr=False)
+    #: (run index, backend, topic) -> recorded pipeline latencies (ms) in log-time order, for
+    #: the rows of recordings whose pipeline figure is reported
+    recorded_latencies: dict[tuple[int, str, str], npt.NDArray[np.float64]] = field(
+        default_factory=dict, repr=False
+    )
 
     @property
     def baseline_run(self) -> RunInfo:
@@ -201,6 +220,30 @@ def _series(records: Sequence[FrameRecord]) -> dict[tuple[str, str], _Series]:
         caution = single_pass_caution(group, latency, summary.throughput_fps)
         result[key] = _Series(latency, intervals, summary, pass_values(group), caution)
     return result
+
+
+def _recorded(records: Sequence[FrameRecord], seed: int) -> dict[tuple[str, str], RecordedSeries]:
+    """The recorded latencies of each (backend, topic) that replays recorded outputs."""
+    groups: dict[tuple[str, str], list[FrameRecord]] = {}
+    for record in records:
+        groups.setdefault((record.backend, record.topic), []).append(record)
+    found = {key: recorded_series(*key, group, seed=seed) for key, group in groups.items()}
+    return {key: s for key, s in found.items() if s is not None}
+
+
+def _recorded_flags(rec: RecordedSeries) -> list[str]:
+    """A recorded row's flags: figures the run refused, and too few outputs for blocks."""
+    flags = [
+        f'recorded latency: {part}'
+        for part in rec.note.split('; ')
+        if 'not reported' in part or part.startswith('no recorded output')
+    ]
+    if 0 < rec.outputs < MIN_FRAMES:
+        flags.append(
+            f'{rec.outputs} recorded outputs: fewer than {MIN_FRAMES}, their latencies compared '
+            'output by output (no blocks, no bootstrap CI of their own)'
+        )
+    return flags
 
 
 def _accuracy(run: RunResult) -> dict[tuple[str, str], dict[str, float]]:
@@ -323,6 +366,7 @@ def compare_runs(
     base_run = runs[baseline]
     series = [_series(r.data.frames) for r in runs]
     accuracy = [_accuracy(r.data.run) for r in runs]
+    recorded = [_recorded(r.data.frames, seed) for r in runs]
     baseline_keys = list(series[baseline])
     if baseline_backend is None and len(runs) == 1:
         backends = list(dict.fromkeys(b for b, _ in baseline_keys))
@@ -374,7 +418,10 @@ def compare_runs(
                 flags.append(f'unstable latency: CV {cv:.3f} > {CV_LIMIT:g}')
             if s.caution is not None:
                 flags.append(f'{s.caution}: {CAUTION_ADVICE}')
-            if s.latency.size < MIN_FRAMES:
+            rec = recorded[run.index].get((backend, topic))
+            if rec is not None:
+                flags += _recorded_flags(rec)
+            elif s.latency.size < MIN_FRAMES:
                 flags.append(
                     f'{s.latency.size} measured frames: fewer than {MIN_FRAMES}, compared frame by '
                     'frame (no blocks, no bootstrap CI of its own)'
@@ -414,6 +461,12 @@ def compare_runs(
                 metrics[metric] = _accuracy_metric(
                     metric, acc.get(metric), base_acc.get(metric), paired
                 )
+            base_rec = recorded[baseline].get((ref, topic)) if ref is not None else None
+            for metric in RECORDED_METRICS:
+                parts = recorded_metric_parts(
+                    metric, rec, base_rec, paired=paired, confidence=confidence
+                )
+                metrics[metric] = MetricComparison(metric, *parts)
             row = Row(
                 run=run.index,
                 run_label=run.label,
@@ -429,6 +482,8 @@ def compare_runs(
                 flags=tuple(flags),
                 caution=s.caution,
                 repeats=len(next(iter(s.passes.values()))) if s.passes else 1,
+                recorded_outputs=rec.outputs if rec is not None else None,
+                recorded_note=rec.note if rec is not None else None,
             )
             rows.append(row)
             extra = [f for f in flags if f not in flags_of_run[run.index]]
@@ -457,6 +512,12 @@ def compare_runs(
         confidence=confidence,
         latencies={
             (run.index, b, t): s.latency for run in runs for (b, t), s in series[run.index].items()
+        },
+        recorded_latencies={
+            (run.index, b, t): found
+            for run in runs
+            for (b, t), rec in recorded[run.index].items()
+            if (found := rec.figures.get('pipeline_ms')) is not None
         },
     )
 

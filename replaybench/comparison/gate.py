@@ -6,7 +6,13 @@ from __future__ import annotations
 import re
 from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench.comparison.core import ACCURACY_METRICS, METRICS, TAG_METRICS, TIMING_METRICS
+from replaybench.comparison.core import (
+    ACCURACY_METRICS,
+    METRICS,
+    RECORDED_METRICS,
+    TAG_METRICS,
+    TIMING_METRICS,
+)
 from replaybench.comparison.repeats import CAUTION_ADVICE
 from replaybench.comparison.verdict import Verdict, decide, overall, past
 from replaybench.errors import UsageError
@@ -41,7 +47,8 @@ CONDITION_GRAMMAR = (
     + ', '.join(METRICS)
     + ' (p50_ms = median_ms), OP one of > >= < <=, and a trailing % for a change relative to the '
     "baseline (else an absolute difference in the metric's unit), "
-    "e.g. 'p99_ms > +10%', 'fps < -10%', 'map50 < -0.02', 'miou < -0.01'"
+    "e.g. 'p99_ms > +10%', 'fps < -10%', 'map50 < -0.02', 'miou < -0.01', "
+    "'recorded_pipeline_ms > +10%'"
 )
 
 _PATTERN = re.compile(
@@ -49,7 +56,13 @@ _PATTERN = re.compile(
     r'(?P<number>[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?)\s*(?P<pct>%?)\s*$'
 )
 
-_UNITS: dict[str, str] = {'median_ms': ' ms', 'p99_ms': ' ms', 'mean_ms': ' ms', 'fps': ' fps'}
+_UNITS: dict[str, str] = {
+    'median_ms': ' ms',
+    'p99_ms': ' ms',
+    'mean_ms': ' ms',
+    'fps': ' fps',
+    **dict.fromkeys(RECORDED_METRICS, ' ms'),
+}
 _NAMES: dict[str, str] = {
     'median_ms': 'median latency',
     'p99_ms': 'p99 latency',
@@ -67,6 +80,10 @@ _NAMES: dict[str, str] = {
     'tag_trans_err_m': 'tag translation error (m)',
     'tag_trans_err_pct': 'tag translation error (% of range)',
     'tag_rot_err_deg': 'tag rotation error (deg)',
+    'recorded_pipeline_ms': 'recorded median pipeline latency',
+    'recorded_pipeline_p99_ms': 'recorded p99 pipeline latency',
+    'recorded_capture_ms': 'recorded median capture-to-output latency',
+    'recorded_capture_p99_ms': 'recorded p99 capture-to-output latency',
 }
 
 
@@ -208,6 +225,25 @@ _SIDE = {'>': 'above', '>=': 'at or above', '<': 'below', '<=': 'at or below'}
 _OTHER_SIDE = {'>': 'at or below', '>=': 'below', '<': 'at or above', '<=': 'above'}
 
 
+def _missing_recorded(
+    condition: Condition, m: MetricComparison, row: Row, baseline: Row | None
+) -> tuple[Verdict, str] | None:
+    """Why a recorded metric has no change, when a side is not a recording or refused it:
+    inconclusive (the data cannot decide), never failed; None for the general reasons."""
+    name = _NAMES[condition.metric]
+    for side, which, value in ((row, 'this row', m.value), (baseline, 'the baseline', m.baseline)):
+        if side is None or value is not None:
+            continue
+        if side.recorded_note is None:
+            return 'inconclusive', (
+                f'{which} ({side.backend}) replays: it has no {name}, which only a recording '
+                'holds (its own latency is median_ms)'
+            )
+        why = side.recorded_note or 'no recorded output with a latency'
+        return 'inconclusive', f'{which} has no {name}: {why}'
+    return None
+
+
 def _missing(condition: Condition, m: MetricComparison) -> tuple[Verdict, str]:
     name = _NAMES[condition.metric]
     if m.baseline is not None and m.value is None:
@@ -220,6 +256,12 @@ def _missing(condition: Condition, m: MetricComparison) -> tuple[Verdict, str]:
 
 
 def _no_interval(m: MetricComparison, row: Row, baseline: Row | None) -> str:
+    if m.method == 'per-frame' and m.metric in RECORDED_METRICS:
+        theirs = baseline.recorded_outputs if baseline is not None else '?'
+        return (
+            f'no CI: {theirs} baseline against {row.recorded_outputs} recorded outputs are too '
+            f'few for a {CONFIDENCE:.0%} rank interval'
+        )
     if m.method == 'per-frame':
         theirs = baseline.measured if baseline is not None else '?'
         return (
@@ -238,7 +280,10 @@ def _judge(
     est, ci = _change(m, condition)
     method = method_text(m)
     if est is None:
-        verdict, reason = _missing(condition, m)
+        found = None
+        if condition.metric in RECORDED_METRICS:
+            found = _missing_recorded(condition, m, row, baseline)
+        verdict, reason = found or _missing(condition, m)
         return GateResult(
             condition.text,
             row.backend,
@@ -285,6 +330,8 @@ def _judge(
     shown = _change_text(est, condition)
     typical = _typical(m, condition)
     unit = _UNIT.get(m.method or '', 'frame')
+    if condition.metric in RECORDED_METRICS and unit == 'frame':
+        unit = 'output'
     detail = f'typical {unit} {_change_text(typical, condition)}, ' if typical is not None else ''
     if ci:
         ci_text = (

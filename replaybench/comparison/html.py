@@ -6,7 +6,12 @@ import math
 from html import escape
 from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench.comparison.core import ACCURACY_METRICS, TAG_METRICS, TIMING_METRICS
+from replaybench.comparison.core import (
+    ACCURACY_METRICS,
+    RECORDED_METRICS,
+    TAG_METRICS,
+    TIMING_METRICS,
+)
 from replaybench.comparison.gate import gate_verdict, method_text
 from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match
 from replaybench.report.svg import colour, nice_ticks, step_cdf
@@ -79,6 +84,10 @@ _NAMES: dict[str, str] = {
     'tag_trans_err_m': 'trans m',
     'tag_trans_err_pct': 'trans %',
     'tag_rot_err_deg': 'rot deg',
+    'recorded_pipeline_ms': 'recorded pipeline ms',
+    'recorded_pipeline_p99_ms': 'recorded pipeline p99 ms',
+    'recorded_capture_ms': 'recorded capture ms',
+    'recorded_capture_p99_ms': 'recorded capture p99 ms',
 }
 
 _FONT = 'system-ui, -apple-system, Segoe UI, Roboto, sans-serif'
@@ -277,6 +286,17 @@ def _timing_cell(m: MetricComparison, role: str) -> str:
     return f'<td class="n">{value}<span class="ci">{_e(ratio)}</span>{detail}</td>'
 
 
+def _recorded_cell(m: MetricComparison, role: str) -> str:
+    """A recorded latency: as a timing metric where the row has it; for a replayed candidate
+    against a recording, the recording's value (the row's own latency is in its median)."""
+    if role == 'candidate' and m.value is None and m.baseline is not None:
+        return (
+            f'<td class="n">–<span class="ci">baseline recording {_e(_num(m.baseline))}'
+            '</span><span class="ci">this row replays</span></td>'
+        )
+    return _timing_cell(m, role)
+
+
 def _accuracy_cell(m: MetricComparison, role: str) -> str:
     value = _e(_num(m.value))
     if role != 'candidate' or m.diff is None:
@@ -290,8 +310,14 @@ def _summary(comparison: Comparison) -> str:
         for m in (*ACCURACY_METRICS, *TAG_METRICS)
         if any(r.metrics[m].value is not None for r in comparison.rows)
     ]
+    recorded = [
+        m
+        for m in RECORDED_METRICS
+        if any(r.metrics[m].value is not None or r.metrics[m].baseline is not None
+               for r in comparison.rows)
+    ]  # fmt: skip
     head = ['run', 'backend', 'topic', 'role', 'n']
-    head += [_NAMES[m] for m in (*TIMING_METRICS, *accuracy)]
+    head += [_NAMES[m] for m in (*TIMING_METRICS, *accuracy, *recorded)]
     th = ''.join(
         f'<th class="n">{_e(h)}</th>' if i >= 4 else f'<th>{_e(h)}</th>' for i, h in enumerate(head)
     )
@@ -312,6 +338,7 @@ def _summary(comparison: Comparison) -> str:
         ]
         cells += [_timing_cell(row.metrics[m], role) for m in TIMING_METRICS]
         cells += [_accuracy_cell(row.metrics[m], role) for m in accuracy]
+        cells += [_recorded_cell(row.metrics[m], role) for m in recorded]
         css = 'base' if role == 'baseline' else ''
         body.append(f'<tr class="{css}">{"".join(cells)}</tr>')
         if row.flags:
@@ -327,7 +354,11 @@ def _summary(comparison: Comparison) -> str:
         'baseline, whole runs), the typical ratio between blocks of frames (frames below '
         f'{MIN_FRAMES}) and its {round(comparison.confidence * 100)}% CI, which the gate '
         'judges; "not significant" when the CI contains 1. Baseline rows: value and the CI of '
-        'the value itself. Accuracy: difference of the run.json numbers, without CI. ⚑ flags: '
+        'the value itself. Accuracy: difference of the run.json numbers, without CI. Recorded: the '
+        "latency a recording's outputs had on the robot (pipeline: output log time − image log "
+        'time; capture: − image stamp), compared as the timings are, between blocks of '
+        'consecutive outputs in log-time order; a replayed row against a recording shows the '
+        "recording's value beside its own median. ⚑ flags: "
         "facts that make a row's timings doubtful or not comparable.</p>"
     )
 
@@ -439,16 +470,36 @@ def _charts(comparison: Comparison) -> str:
         def name(row: Row, backend: str = backend) -> str:
             return row.run_label if row.backend == backend else f'{row.run_label} · {row.backend}'
 
-        series = [
-            (name(r), colour(r.run), comparison.latencies[(r.run, r.backend, r.topic)].tolist())
-            for r in rows
-        ]
+        def values(row: Row) -> list[float]:
+            # a recording's row: its recorded pipeline latency (its replay is not timed)
+            key = (row.run, row.backend, row.topic)
+            found = comparison.recorded_latencies.get(key)
+            if found is not None and not comparison.latencies[key].size:
+                return [float(v) for v in found]
+            return [float(v) for v in comparison.latencies[key]]
+
+        def recorded(row: Row) -> bool:
+            key = (row.run, row.backend, row.topic)
+            return key in comparison.recorded_latencies and not comparison.latencies[key].size
+
+        def label(row: Row) -> str:
+            return f'{name(row)} · recorded pipeline' if recorded(row) else name(row)
+
+        series = [(label(r), colour(r.run), values(r)) for r in rows]
         cdf = step_cdf(series, title=f'Latency CDF · {backend} · {topic}', x_label='latency (ms)')
         bars: list[_Bar] = []
         for r in rows:
-            for metric, tag, opacity in (('median_ms', 'p50', 0.55), ('p99_ms', 'p99', 1.0)):
+            pairs = (('median_ms', 'p50', 0.55), ('p99_ms', 'p99', 1.0))
+            if recorded(r):
+                pairs = (
+                    ('recorded_pipeline_ms', 'p50', 0.55),
+                    ('recorded_pipeline_p99_ms', 'p99', 1.0),
+                )
+            for metric, tag, opacity in pairs:
                 m = r.metrics[metric]
-                bars.append(_Bar(f'{tag} · {name(r)}', colour(r.run), opacity, m.value, m.value_ci))
+                bars.append(
+                    _Bar(f'{tag} · {label(r)}', colour(r.run), opacity, m.value, m.value_ci)
+                )
         whiskers = _interval_chart(
             bars,
             title=f'p50 / p99 latency, {level}% CI · {backend} · {topic}',

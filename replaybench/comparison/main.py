@@ -11,10 +11,17 @@ from replaybench.comparison.verdict import EXIT_STATUS
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from replaybench.comparison.core import Comparison, MetricComparison
+    from replaybench.comparison.core import Comparison, MetricComparison, Row
     from replaybench.comparison.gate import GateResult
 
-__all__ = ['EXIT_GATE_FAILED', 'EXIT_INCONCLUSIVE', 'format_summary', 'ratio_text']
+__all__ = [
+    'EXIT_GATE_FAILED',
+    'EXIT_INCONCLUSIVE',
+    'RECORDED_SHORT',
+    'format_summary',
+    'ratio_text',
+    'recorded_parts',
+]
 
 #: Exit status when a gate condition fails (bad input is ReplaybenchError.exit_code, 2).
 EXIT_GATE_FAILED = EXIT_STATUS['failed']
@@ -23,6 +30,12 @@ EXIT_GATE_FAILED = EXIT_STATUS['failed']
 EXIT_INCONCLUSIVE = EXIT_STATUS['inconclusive']
 
 _SHORT: dict[str, str] = {'median_ms': 'median', 'p99_ms': 'p99', 'mean_ms': 'mean', 'fps': 'fps'}
+#: The recorded latencies the summary and --markdown show (the medians; the p99s are in the
+#: files): metric -> short name.
+RECORDED_SHORT: dict[str, str] = {
+    'recorded_pipeline_ms': 'recorded pipeline',
+    'recorded_capture_ms': 'recorded capture-to-output',
+}
 
 
 def ratio_text(m: MetricComparison) -> str:
@@ -42,6 +55,25 @@ def ratio_text(m: MetricComparison) -> str:
     if not lo <= m.ratio <= hi and m.typical_ratio is not None:
         return f'{text} (typical ×{m.typical_ratio:.3f} {interval}){mark}'
     return f'{text} {interval}{mark}'
+
+
+def recorded_parts(row: Row) -> list[str]:
+    """The recorded latencies of a candidate row as the summary shows them: the ratio and its
+    interval where both rows are recordings; where only the baseline is (a replayed backend
+    against a recording), the recording's values beside this row's own median latency."""
+    parts = []
+    beside = []
+    for metric, short in RECORDED_SHORT.items():
+        m = row.metrics[metric]
+        if m.ratio is not None:
+            parts.append(f'{short} {ratio_text(m)}')
+        elif m.value is None and m.baseline is not None:
+            beside.append(f'{short} {m.baseline:.4g} ms')
+    if beside:
+        own = row.metrics['median_ms'].value
+        mine = f'this row replayed: median {own:.4g} ms' if own is not None else 'no latency here'
+        parts.append(', '.join(beside) + f' in the baseline recording ({mine})')
+    return parts
 
 
 def format_summary(
@@ -67,7 +99,10 @@ def format_summary(
         acc = row.metrics['map50']
         if acc.diff is not None:
             parts.append(f'map50 {acc.diff:+.4f} (no CI)')
-        method = method_text(row.metrics['median_ms'])
+        parts += recorded_parts(row)
+        # a recording's row: the method of its recorded latency (its replay is not timed)
+        timed = 'median_ms' if row.recorded_outputs is None else 'recorded_pipeline_ms'
+        method = method_text(row.metrics[timed])
         how = f' [{method}]' if method else ''
         lines.append(f'  {row.name}{versus}: ' + ', '.join(parts) + how)
     if not any(r.role == 'candidate' for r in comparison.rows):

@@ -15,7 +15,7 @@ import html
 from typing import TYPE_CHECKING
 
 from replaybench.comparison.gate import gate_verdict, method_text
-from replaybench.comparison.main import ratio_text
+from replaybench.comparison.main import RECORDED_SHORT, ratio_text
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -56,12 +56,26 @@ def _headline(gate: Sequence[GateResult], allow_inconclusive: bool) -> str:
     return f'✅ **replaybench gate: passed** ({len(gate)} checks)'
 
 
-def _row_line(row: Row) -> str:
+def _recorded_text(row: Row, metric: str) -> str:
+    m = row.metrics[metric]
+    if m.ratio is not None:
+        return ratio_text(m)
+    if m.value is None and m.baseline is not None:
+        return f'{m.baseline:.4g} ms in the baseline recording (this row replays)'
+    return ''
+
+
+def _row_line(row: Row, recorded: bool = False) -> str:
     cells = [_cell(row.run_label), _cell(row.backend), _cell(row.topic)]
     cells += [_cell(ratio_text(row.metrics[k])) for k, _ in _METRICS]
     acc = row.metrics['map50']
     cells.append(_cell(f'{acc.diff:+.4f}') if acc.diff is not None else '')
-    cells.append(_cell(method_text(row.metrics['median_ms'])))
+    if recorded:
+        cells += [_cell(_recorded_text(row, k)) for k in RECORDED_SHORT]
+    # a recording's row: the method of its recorded latency (its replay is not timed)
+    timed = 'median_ms' if row.recorded_outputs is None else 'recorded_pipeline_ms'
+    method = method_text(row.metrics[timed])
+    cells.append(_cell(method))
     return '| ' + ' | '.join(cells) + ' |'
 
 
@@ -92,6 +106,14 @@ def comparison_markdown(
 ) -> str:
     """The Markdown document of ``comparison`` and its ``gate`` (in memory; nothing is read)."""
     level = round(comparison.confidence * 100)
+    candidates = [r for r in comparison.rows if r.role == 'candidate']
+    # the recorded latency's columns, when a candidate or its baseline is a recording
+    recorded = any(
+        r.metrics[k].value is not None or r.metrics[k].baseline is not None
+        for r in candidates
+        for k in RECORDED_SHORT
+    )
+    extra = ''.join(f' {name} |' for name in RECORDED_SHORT.values()) if recorded else ''
     head = [
         _headline(gate, allow_inconclusive),
         '',
@@ -105,10 +127,10 @@ def comparison_markdown(
         'change]: between repeats when both runs have `--repeat` passes, else between blocks '
         'of frames (n.s.: the interval holds 1).',
         '',
-        '| run | backend | topic | median | p99 | mean | fps | mAP@0.5 Δ | method |',
-        '|---|---|---|---|---|---|---|---|---|',
+        f'| run | backend | topic | median | p99 | mean | fps | mAP@0.5 Δ |{extra} method |',
+        '|---|---|---|---|---|---|---|---|' + '---|' * (len(RECORDED_SHORT) * recorded + 1),
     ]
-    rows = [_row_line(r) for r in comparison.rows if r.role == 'candidate']
+    rows = [_row_line(r, recorded) for r in candidates]
     checks = [_gate_line(r) for r in gate]
     warnings = [f'- {_cell(w)}' for w in comparison.warnings]
 

@@ -8,7 +8,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from replaybench._version import __version__
-from replaybench.comparison.core import ACCURACY_METRICS, TAG_METRICS, TIMING_METRICS
+from replaybench.comparison.core import (
+    ACCURACY_METRICS,
+    RECORDED_METRICS,
+    TAG_METRICS,
+    TIMING_METRICS,
+)
 from replaybench.comparison.gate import gate_verdict, method_text
 from replaybench.comparison.repeats import MIN_SINGLE_PASS_S
 from replaybench.comparison.runs import CV_LIMIT, engine_text
@@ -69,6 +74,11 @@ CSV_COLUMNS: tuple[str, ...] = (
     'flags',
     # tag backends (appended, so that older readers keep their columns)
     *(m + s for m in TAG_METRICS for s in _ACCURACY_SUFFIXES),
+    # the recorded outputs' latency (``recorded`` backend; appended likewise)
+    *(m + s for m in RECORDED_METRICS for s in _TIMING_SUFFIXES),
+    'recorded_ci_method',
+    'recorded_outputs',
+    'recorded_latency_note',
 )
 
 
@@ -109,8 +119,11 @@ def csv_rows(comparison: Comparison, gate: Sequence[GateResult] = ()) -> list[di
             'gate': verdict,
             'gate_conditions': detail,
             'flags': '; '.join(row.flags),
+            'recorded_ci_method': method_text(row.metrics['recorded_pipeline_ms']) or None,
+            'recorded_outputs': row.recorded_outputs,
+            'recorded_latency_note': row.recorded_note or None,
         }
-        for metric in TIMING_METRICS:
+        for metric in (*TIMING_METRICS, *RECORDED_METRICS):
             m = row.metrics[metric]
             ci = m.ratio_ci
             record[metric] = m.value
@@ -255,6 +268,14 @@ def comparison_json(
             'min_frames': MIN_FRAMES,
             'cv_limit': CV_LIMIT,
             'accuracy': 'point estimates from run.json, no CI',
+            'recorded': (
+                "recorded_* metrics (recorded backend rows): the recorded outputs' pipeline "
+                '(output log time - image log time) and capture-to-output (output log time - '
+                'image header stamp) latency, median and p99 as in summary.csv; compared as '
+                'the timing metrics, between blocks of consecutive outputs in log-time order, '
+                f'output by output below {MIN_FRAMES}; null for a replayed row and for a '
+                'figure the run refused (recorded_latency_note)'
+            ),
         },
         'warnings': list(comparison.warnings),
         'runs': runs,

@@ -725,6 +725,8 @@ class ComparisonStatistics:
     min_frames: int = 0
     cv_limit: float = 0.0
     accuracy: str = ''
+    #: the recorded_* metrics (the ``recorded`` backend's latency from the recording)
+    recorded: str = ''
 
 
 @dataclass(frozen=True, slots=True)

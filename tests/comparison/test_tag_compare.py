@@ -49,7 +49,13 @@ def test_a_wrong_tag_size_fails_a_translation_gate_and_passes_recall_and_rotatio
     row = next(r for r in document['rows'] if r['role'] == 'candidate')
     assert row['metrics']['tag_recall']['value'] == pytest.approx(17 / 18)
     header = (tmp_path / 'cmp' / 'comparison.csv').read_text().splitlines()[0].split(',')
-    assert header[-3:] == ['tag_rot_err_deg', 'tag_rot_err_deg_baseline', 'tag_rot_err_deg_delta']
+    at = header.index('tag_rot_err_deg')
+    assert header[at : at + 3] == [
+        'tag_rot_err_deg',
+        'tag_rot_err_deg_baseline',
+        'tag_rot_err_deg_delta',
+    ]
+    assert header.index('flags') < at < header.index('recorded_pipeline_ms')
 
 
 def test_the_command_line_gate_exits_1_on_a_failed_tag_condition(

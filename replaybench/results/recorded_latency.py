@@ -27,7 +27,8 @@ number, a note) when the stamps cannot support them (``recorded_times``):
   clock is not the recorder's (simulated time, an unsynchronised camera); capture-to-output
   refused.
 
-A (backend, topic) figure is reported only when none of its matched outputs was refused for it
+The outputs are counted once, from the first pass, however many passes ``run --repeat`` makes:
+every pass replays the same recorded outputs. A (backend, topic) figure is reported only when none of its matched outputs was refused for it
 (``recorded_summary``): a clock that disagrees for some frames makes every frame doubtful. The
 median and p99 get 95 % block-bootstrap intervals as replayed latency does
 (``replaybench.results.intervals``), none below ``MIN_FRAMES`` outputs.
@@ -204,7 +205,8 @@ def recorded_summary(
     if not _is_recorded(records):
         return None
     ordered = sorted(records, key=lambda r: written(r.release_s, 'release_s'))
-    frames = [r for r in ordered if r.status == 'ok' and not r.warmup]
+    # each pass of --repeat replays the same recorded outputs: they count once, from the first
+    frames = [r for r in ordered if r.status == 'ok' and not r.warmup and r.repeat == 0]
     times = [recorded_times(r.log_time_ns, r.stamp_ns, r.output_log_time_ns) for r in frames]
     matched = [t for t in times if t.output_log_time_ns is not None]
     row: dict[str, Any] = dict.fromkeys(RECORDED_COLUMNS)

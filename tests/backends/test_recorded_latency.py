@@ -175,6 +175,18 @@ def test_known_log_times_give_exact_recorded_latencies(tmp_path, writer):
     assert summary['null'].latency_ms_p50 is not None
 
 
+def test_repeated_passes_count_each_recorded_output_once(tmp_path):
+    bag = _write_mcap(tmp_path / 'robot.mcap', _messages())
+    _, once, _ = _run(bag, tmp_path / 'once')
+    outcome = run_benchmark(
+        RunConfig(inputs=[bag], backends=['recorded', 'null'], out_dir=None, repeat=3)
+    )
+    thrice = {s.backend: s for s in outcome.run.summary_rows}
+    for column in RECORDED_COLUMNS:
+        assert getattr(thrice['recorded'], column) == getattr(once['recorded'], column), column
+    assert once['recorded'].recorded_outputs == sum(ms is not None for ms in PIPELINE_MS)
+
+
 def test_recorded_latency_is_in_summary_csv_and_a_valid_run_json(tmp_path):
     import jsonschema
 

@@ -17,6 +17,7 @@ from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
 from replaybench._version import __version__
 from replaybench.app.options import RunOptions, option_specs
+from replaybench.cli._values import SLOW, plain_value
 from replaybench.textsafe import visible, visible_lines
 
 if TYPE_CHECKING:
@@ -91,7 +92,13 @@ def _metavar(name: str, bare_type: str) -> str:
 
 class _Argument(TyperArgument):
     """A positional argument shown by its placeholder alone: ``BAG...``, not ``{bags}...``
-    followed by ``<list[Path]>``."""
+    followed by ``<list[Path]>``; a plain value read without typer's coercion (``_values``)."""
+
+    def process_value(self, ctx: Any, value: Any) -> Any:
+        found = plain_value(self, value)
+        if found is SLOW:
+            return super().process_value(ctx, value)
+        return found if self.callback is None else self.callback(ctx, self, found)
 
     def _usage_display_name(self) -> str:
         name = self.display_name_raw + ('...' if self.nargs != 1 else '')
@@ -105,15 +112,26 @@ class _Argument(TyperArgument):
 
 
 class _Option(TyperOption):
-    """An option whose bad value is named in the error, next to what was wrong with it."""
+    """An option whose bad value is named in the error, next to what was wrong with it; a
+    plain value read without typer's coercion (``replaybench.cli._values``)."""
 
     def process_value(self, ctx: Any, value: Any) -> Any:
+        found = plain_value(self, value)
+        if found is not SLOW:
+            return found if self.callback is None else self.callback(ctx, self, found)
         try:
             return super().process_value(ctx, value)
         except typer.BadParameter as err:
             if value is not None and repr(value) not in err.message:
                 err.message = f'{value!r}: {err.message}'
             raise
+
+
+def _read_plainly(option: Any) -> Any:
+    """The help option click makes per command, read as the others are (``_Option``)."""
+    if isinstance(option, TyperOption):
+        option.__class__ = _Option
+    return option
 
 
 class _Command(TyperCommand):
@@ -136,10 +154,22 @@ class _Command(TyperCommand):
                 if param.metavar is None and not param.is_flag:
                     param.metavar = _metavar(name, param.bare_type())
 
+    def get_help_option(self, ctx: Any) -> Any:
+        return _read_plainly(super().get_help_option(ctx))
+
 
 class _Group(TyperGroup):
     """The command group: a usage error is two lines on stderr, what is wrong (naming the value)
-    and the usage line, exit status 2; not click's four."""
+    and the usage line, exit status 2; not click's four. Its options (``--debug``) are read as
+    the commands' are."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        for param in self.params:
+            _read_plainly(param)
+
+    def get_help_option(self, ctx: Any) -> Any:
+        return _read_plainly(super().get_help_option(ctx))
 
     def main(  # type: ignore[override]
         self,

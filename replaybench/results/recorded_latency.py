@@ -28,10 +28,11 @@ number, a note) when the stamps cannot support them (``recorded_times``):
   refused.
 
 The outputs are counted once, from the first pass, however many passes ``run --repeat`` makes:
-every pass replays the same recorded outputs. A (backend, topic) figure is reported only when none of its matched outputs was refused for it
-(``recorded_summary``): a clock that disagrees for some frames makes every frame doubtful. The
-median and p99 get 95 % block-bootstrap intervals as replayed latency does
-(``replaybench.results.intervals``), none below ``MIN_FRAMES`` outputs.
+every pass replays the same recorded outputs. A (backend, topic) figure is reported only when
+none of its matched outputs was refused for it (``recorded_summary``): a clock that disagrees
+for some frames makes every frame doubtful. The median and p99 get 95 % block-bootstrap
+intervals as replayed latency does (``replaybench.results.intervals``), none below
+``MIN_FRAMES`` outputs.
 """
 
 from __future__ import annotations

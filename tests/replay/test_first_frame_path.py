@@ -1,7 +1,7 @@
 """Nothing that only the run record needs comes before the first frame: the machine is described
 after the passes (its load average taken before them), and a fresh ``replaybench run`` reaches
-its first frame without the record's types, OpenCV or a ROS type store (CameraInfo is read by
-hand, as images are).
+its first frame without the record's types, OpenCV, pydantic (typer's coercion) or a ROS type
+store (CameraInfo is read by hand, as images are).
 
 Order of events and imported modules are asserted, never a duration (the figure is
 benchmarks/first_frame.py's).
@@ -42,6 +42,7 @@ main()
 #: ROS 2 type store, which reading CameraInfo does not need
 _LATER = (
     'cv2',
+    'pydantic',  # typer's coercion: plain option values are read without it
     'replaybench.replay.record',
     'replaybench.results.model',
     'replaybench.results.stats',

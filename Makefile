@@ -89,7 +89,7 @@ gpu-wheels:
 	@echo 'tracked tree:' $$(git ls-files -z | xargs -0 du -cb | tail -1)
 
 # the GPU check on the CPU: small inputs, no wheels, GPU steps replaced or skipped with the reason
-gpu-check-dry: install
+gpu-check-dry:
 	benchmarks/gpu_check.sh --dry-run --out replaybench-runs/gpu-check-dry --work replaybench-runs/gpu-check-dry/work
 
 clean:

@@ -11,7 +11,8 @@ run holds ``onnx-cpu`` beside ``cuda``, so run.json's ``agreement`` compares the
 
 A step that fails or runs past its limit is logged with its exit status and the next one runs.
 Everything printed (``check.log``, one log per step), ``steps.json``, the summary and the run
-folders' JSON and CSV files are packed into ``gpu-check.tar.gz`` in ``--out`` ($OUT by default).
+folders' JSON and CSV files are packed into ``gpu-check.tar.gz`` in ``--out`` ($OUT by default),
+with copies of ``check.log``, ``steps.json`` and ``summary.md`` beside it: four files.
 
 ``--dry-run`` is the same script on a machine without a GPU: small inputs, no wheels, each GPU
 step replaced by its CPU counterpart (``hsv`` beside ``null`` for ``hsv`` beside ``hsv-cuda``,
@@ -25,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -42,6 +44,8 @@ ARCHIVE_LIMIT = 16 * 2**20
 #: the issue's budget for the steps (about 6 minutes; the whole call must end within 480 s)
 DEFAULT_BUDGET_S = 400.0
 HANG_TIMEOUT_S = 2.0
+#: copied into --out beside the archive (at most 8 files come back from a GPU machine)
+RETURNED = ('check.log', 'steps.json', 'summary.md')
 #: replaybench's core dependencies the GPU machine's python3 already has (its package list, Nov
 #: 2026); every other one is a pinned wheel of `make gpu-wheels` (tests/test_gpu_check.py)
 ON_GPU_MACHINE = frozenset(
@@ -262,7 +266,7 @@ def plan(config: Config) -> list[Step]:
         ),
         Step(
             'summary',
-            (*gpu_steps, 'summary', str(config.work), str(config.out / 'gpu-check')),
+            (*gpu_steps, 'summary', str(config.work), str(config.work / 'gpu-check')),
             60,
             always=True,
         ),
@@ -276,7 +280,11 @@ class Runner:
         self.config = config
         self.fail = fail
         self.hang = hang
-        self.folder = config.out / 'gpu-check'
+        # the logs stay beside the runs: what comes back from a GPU machine is a few files
+        # (the archive and copies of check.log, steps.json and summary.md in --out)
+        self.folder = config.work / 'gpu-check'
+        if self.folder.is_dir():
+            shutil.rmtree(self.folder)
         self.logs = self.folder / 'logs'
         self.logs.mkdir(parents=True, exist_ok=True)
         self.main_log = (self.folder / 'check.log').open('a', encoding='utf-8')
@@ -461,6 +469,9 @@ def main(argv: list[str] | None = None) -> int:
     (runner.folder / 'steps.json').write_text(json.dumps(record, indent=2) + '\n', encoding='utf-8')
     runner.main_log.close()
     archive = _pack(config, runner.folder)
+    for name in RETURNED:
+        if (runner.folder / name).is_file():
+            shutil.copyfile(runner.folder / name, config.out / name)
     size = archive.stat().st_size
     print(f'gpu_check: {archive} {size} bytes', flush=True)
     if size > ARCHIVE_LIMIT:

@@ -44,7 +44,7 @@ def dry_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
         timeout=300,
         check=False,
     )
-    steps = json.loads((out / 'gpu-check' / 'steps.json').read_text(encoding='utf-8'))
+    steps = json.loads((out / 'steps.json').read_text(encoding='utf-8'))
     return {'done': done, 'out': out, 'work': work, 'steps': steps}
 
 
@@ -67,6 +67,9 @@ def test_the_dry_run_packs_its_logs_and_the_runs_json_and_csv_into_one_archive_u
             assert f'gpu-check/runs/{run}/{name}' in names
     assert 'gpu-check/peak/peak.json' in names
     assert not [name for name in names if name.endswith(('.mcap', '.html'))]
+    # what comes back from a GPU machine: at most 8 files, here four, none in a folder
+    returned = sorted(path.name for path in dry_run['out'].rglob('*'))
+    assert returned == sorted([ARCHIVE, 'check.log', 'steps.json', 'summary.md'])
 
 
 def test_every_step_is_listed_in_order_with_its_status_and_why_it_was_skipped(dry_run):
@@ -85,7 +88,7 @@ def test_every_step_is_listed_in_order_with_its_status_and_why_it_was_skipped(dr
         assert steps[name]['status'] == 'ok', name
     assert steps['pytest-gpu']['status'] == 'ok'
     assert steps['summary']['status'] == 'ok'
-    log = (dry_run['out'] / 'gpu-check' / 'check.log').read_text(encoding='utf-8')
+    log = (dry_run['out'] / 'check.log').read_text(encoding='utf-8')
     assert '== [01] nvidia-smi: skipped (dry run: needs a GPU' in log
     counts = dry_run['steps']['counts']
     assert sum(counts.values()) == len(dry_run['steps']['steps'])
@@ -96,7 +99,7 @@ def test_a_failing_step_is_logged_with_its_exit_status_and_the_next_steps_still_
     assert steps['backends']['status'] == 'failed'
     assert steps['backends']['rc'] == 3
     assert steps['backends']['reason'] == '--fail'
-    log = dry_run['out'] / 'gpu-check' / 'logs' / steps['backends']['log']
+    log = dry_run['work'] / 'gpu-check' / 'logs' / steps['backends']['log']
     assert 'failing on purpose' in log.read_text(encoding='utf-8')
     assert steps['inputs']['status'] == 'ok'
     assert '-- backends: failed (exit 3)' in dry_run['done'].stdout
@@ -113,7 +116,7 @@ def test_a_step_past_its_limit_is_killed_and_logged_as_a_timeout_and_the_next_st
 
 def test_the_summary_holds_the_figures_read_from_the_run_folders(dry_run):
     summary = json.loads(
-        (dry_run['out'] / 'gpu-check' / 'summary.json').read_text(encoding='utf-8')
+        (dry_run['work'] / 'gpu-check' / 'summary.json').read_text(encoding='utf-8')
     )
     runs = {run['run']: run for run in summary['runs']}
     hsv = runs['hsv']
@@ -161,9 +164,12 @@ def test_on_a_gpu_machine_the_steps_install_the_wheels_offline_and_run_the_gpu_b
 
 
 def test_a_step_name_that_does_not_exist_is_refused_before_anything_runs(tmp_path, capsys):
-    assert main(['--dry-run', '--out', str(tmp_path), '--fail', 'no-such-step']) == 2
+    out, work = tmp_path / 'out', tmp_path / 'work'
+    args = ['--dry-run', '--out', str(out), '--work', str(work), '--fail', 'no-such-step']
+    assert main(args) == 2
     assert 'no step named no-such-step' in capsys.readouterr().err
-    assert not (tmp_path / 'gpu-check').exists()
+    assert not out.exists()
+    assert not work.exists()
 
 
 def test_every_core_dependency_is_on_the_gpu_machine_or_a_pinned_wheel_of_make_gpu_wheels():

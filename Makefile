@@ -13,7 +13,7 @@ BIN    := $(VENV)/bin
 CORE_STAMP := $(VENV)/.installed-core
 DEV_STAMP  := $(VENV)/.installed-dev
 
-.PHONY: install install-core run test lint typecheck pytest bench fuzz fixtures clean
+.PHONY: install install-core run test lint typecheck pytest bench fuzz fixtures gpu-wheels gpu-check-dry clean
 
 install: $(DEV_STAMP)
 
@@ -65,6 +65,32 @@ fuzz: install
 
 fixtures: install-core
 	$(BIN)/replaybench fixtures --out fixtures/bags
+
+# The GPU check (docs/gpu.md, "The GPU check"): the wheels the GPU machine lacks (Python 3.12,
+# x86_64, no registry there) and YOLOX-Nano, into the git-ignored .whl/ that the device call
+# carries. Exact pins, each one's needs named too (--no-deps): the core dependencies that machine
+# lacks, onnx2torch (engine torch) and jsonschema (the test suite checks every run.json).
+# Not carried, over the 64 MiB the tree may carry: onnxruntime-gpu 1.31.1 (243.7 MiB), so neither
+# `cuda --engine ort` nor `tensorrt`; ray 2.60.0 (75.6 MiB), so no Ray sweep cell.
+GPU_WHEELS := mcap==1.6.0 mcap-ros2-support==0.6.0 mcap-protobuf-support==0.6.0 \
+	rosbags==0.11.9 apsw==3.54.1.0 backports.zstd==1.8.0 zstandard==0.25.0 lz4==4.4.5 \
+	ruamel.yaml==0.19.1 onnx2torch==1.5.15 jsonschema==4.26.0 jsonschema-specifications==2025.9.1 \
+	referencing==0.37.0 rpds-py==2026.9.1
+GPU_PLATFORMS := $(foreach n,2_28 2_27 2_17,--platform manylinux_$(n)_x86_64) \
+	--platform manylinux2014_x86_64 --platform manylinux1_x86_64
+YOLOX := ../shared/real/models/yolox_nano.onnx
+
+gpu-wheels:
+	rm -rf .whl && mkdir -p .whl/models
+	$(PYTHON) -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
+		--implementation cp $(GPU_PLATFORMS) -d .whl $(GPU_WHEELS)
+	if [ -f $(YOLOX) ]; then cp $(YOLOX) .whl/models/; else echo "$(YOLOX) not found: the YOLOX-Nano steps will be skipped"; fi
+	du -sb .whl
+	@echo 'tracked tree:' $$(git ls-files -z | xargs -0 du -cb | tail -1)
+
+# the GPU check on the CPU: small inputs, no wheels, GPU steps replaced or skipped with the reason
+gpu-check-dry:
+	benchmarks/gpu_check.sh --dry-run --out replaybench-runs/gpu-check-dry --work replaybench-runs/gpu-check-dry/work
 
 clean:
 	rm -rf $(VENV) replaybench-runs .pytest_cache .mypy_cache .ruff_cache

@@ -270,6 +270,7 @@ def test_a_backend_of_x_ms_on_the_virtual_clock_peaks_near_1000_over_x_hz(
     assert len([t for t in result.trials if t.rate_hz == result.peak_hz and t.ok]) >= 2
 
 
+@pytest.mark.quiet  # the real clock: beside the parallel suite the machine's load moves the peak
 @pytest.mark.parametrize('busy_ms', [10.0, 20.0])
 def test_a_busy_wait_backend_of_x_ms_peaks_near_1000_over_x_hz(
     tmp_path: Path, busy_ms: float

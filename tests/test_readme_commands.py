@@ -393,9 +393,20 @@ def test_the_readme_ci_example_passes_the_same_code_and_fails_the_slower_backend
     assert len(runs) == 3
     assert all('--repeat ' in c.text and c.skip is None for c in runs)
     assert [c.expected for c in compares] == [(0,), (1,)]
-    results = _run_doc(ci, _workspace(tmp_path))
-    codes = [code for _, code, _, _ in results]
-    assert codes == [0, 0, 0, 0, 1], [(c.text, code, out) for c, code, out, _ in results]
+    # a wrong verdict (the same code failed, the slower one passed) fails at once; an
+    # inconclusive one (exit 3: the machine was too noisy for the data to decide, as the
+    # README says it may be) is tried again, at most three times in all
+    tries = []
+    for attempt in range(3):
+        results = _run_doc(ci, _workspace(tmp_path / str(attempt)))
+        codes = [code for _, code, _, _ in results]
+        tries.append([(c.text, code, out) for c, code, out, _ in results])
+        assert codes[:3] == [0, 0, 0], tries[-1]
+        assert codes[3] != 1, tries[-1]  # the same code never fails the gate
+        assert codes[4] != 0, tries[-1]  # a +30 % regression never passes it
+        if codes == [0, 0, 0, 0, 1]:
+            break
+    assert codes == [0, 0, 0, 0, 1], tries
 
 
 @pytest.mark.quiet

@@ -29,8 +29,14 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from replaybench.comparison.metric import MetricComparison
 from replaybench.results.blocks import change_interval, point_value
-from replaybench.results.recorded_latency import RECORDED_FIGURES, recorded_summary, recorded_times
+from replaybench.results.recorded_latency import (
+    RECORDED_FIGURES,
+    first_pass,
+    recorded_summary,
+    recorded_times,
+)
 from replaybench.results.records import written
 
 if TYPE_CHECKING:
@@ -42,7 +48,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     'RECORDED_METRICS',
-    'RecordedParts',
     'RecordedSeries',
     'recorded_metric_parts',
     'recorded_series',
@@ -90,12 +95,8 @@ def recorded_series(
     summary = recorded_summary(backend, topic, records, seed=seed)
     if summary is None:
         return None
-    measured = [r for r in records if r.status == 'ok' and not r.warmup]
-    # every pass of --repeat replays the same recording, so the same recorded latencies: the
-    # first pass holds them once (more passes would only repeat them, not add evidence)
-    first = min((r.repeat for r in measured), default=0)
-    once = [r for r in measured if r.repeat == first]
-    ordered = sorted(once, key=lambda r: (r.log_time_ns, r.input, r.seq))  # log-time order
+    # the first pass: more passes would only repeat the same recorded latencies
+    ordered = sorted(first_pass(records), key=lambda r: (r.log_time_ns, r.input, r.seq))
     times = [recorded_times(r.log_time_ns, r.stamp_ns, r.output_log_time_ns) for r in ordered]
     figures: dict[str, npt.NDArray[np.float64] | None] = {}
     for figure in RECORDED_FIGURES:
@@ -106,22 +107,6 @@ def recorded_series(
         figures[figure] = np.asarray([written(v, figure) for v in values], dtype=np.float64)
     outputs = sum(t.output_log_time_ns is not None for t in times)
     return RecordedSeries(outputs, figures, summary)
-
-
-class RecordedParts(NamedTuple):
-    """What ``MetricComparison`` is made of for one recorded metric (core.py builds it)."""
-
-    value: float | None
-    value_ci: tuple[float, float] | None
-    baseline: float | None
-    ratio: float | None
-    ratio_ci: tuple[float, float] | None
-    diff: float | None
-    diff_ci: tuple[float, float] | None
-    typical_ratio: float | None
-    typical_diff: float | None
-    method: str | None
-    blocks: tuple[int, int] | None
 
 
 def _value(
@@ -143,7 +128,7 @@ def recorded_metric_parts(
     *,
     paired: bool,
     confidence: float,
-) -> RecordedParts:
+) -> MetricComparison:
     """One recorded metric of a row (``own``) against its baseline row (``base``; ``paired``:
     the row is a candidate). The baseline's value is given for a candidate even when the row
     itself has none (a replayed backend against a recording: the two latencies side by side);
@@ -155,24 +140,24 @@ def recorded_metric_parts(
         low, high = own.summary.get(f'{column}_ci_low'), own.summary.get(f'{column}_ci_high')
         if low is not None and high is not None:
             value_ci = (float(low), float(high))
-    none = RecordedParts(value, value_ci, *(None,) * 9)
     if not paired:
-        return none
+        return MetricComparison(metric, value, value_ci)
     theirs, base_value = _value(metric, base)
     if mine is None or theirs is None or value is None or base_value is None:
-        return none._replace(baseline=base_value)
+        return MetricComparison(metric, value, value_ci, baseline=base_value)
     change = change_interval(stat, theirs, mine, confidence=confidence)
     ratio = value / base_value if base_value > 0 else None
-    return RecordedParts(
+    return MetricComparison(
+        metric,
         value,
         value_ci,
-        base_value,
-        ratio,
-        change.ratio_ci if ratio is not None else None,
-        value - base_value,
-        change.diff_ci,
-        change.ratio,
-        change.diff,
-        change.method,
-        change.blocks,
+        baseline=base_value,
+        ratio=ratio,
+        ratio_ci=change.ratio_ci if ratio is not None else None,
+        diff=value - base_value,
+        diff_ci=change.diff_ci,
+        typical_ratio=change.ratio,
+        typical_diff=change.diff,
+        method=change.method,
+        blocks=change.blocks,
     )

@@ -17,8 +17,7 @@ import numpy as np
 from replaybench.errors import BackendError, DecodeError, ReplaybenchError
 from replaybench.fiducials.camera import camera_model
 from replaybench.fiducials.pose import TagSizes, parse_tag_sizes, solve_tag_pose
-from replaybench.fiducials.types import TagDetection, TagResult
-from replaybench.types import Detection, StageTimes
+from replaybench.fiducials.types import TagDetection, TagResult, tag_box
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping
@@ -27,7 +26,7 @@ if TYPE_CHECKING:
 
     from replaybench.fiducials.camera import CameraModel
     from replaybench.fiducials.types import Corners
-    from replaybench.types import CameraInfo, Frame
+    from replaybench.types import CameraInfo, Detection, Frame, StageTimes
 
 __all__ = [
     'DEFAULT_FAMILY',
@@ -248,10 +247,7 @@ class TagAssembler:
                 options.family, tag.tag_id, (cx, cy), tag.corners, pose, size, tag.score
             )
             tags.append(detection)
-            # Detection boxes put the origin at the top-left pixel's corner: centres at +0.5
-            x0, y0 = (float(v) + 0.5 for v in pts.min(axis=0))
-            x1, y1 = (float(v) + 0.5 for v in pts.max(axis=0))
-            boxes.append(Detection(tag.tag_id, detection.label, tag.score, x0, y0, x1, y1))
+            boxes.append(tag_box(detection))
         if note:
             self.frames_without_pose += 1
         frame_id = '' if isinstance(camera, str) else camera.frame_id or frame.frame_id

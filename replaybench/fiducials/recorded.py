@@ -8,8 +8,7 @@ from typing import TYPE_CHECKING
 
 from replaybench.decode.recorded import RecordedMessage
 from replaybench.fiducials.msgs import decode_tag_array
-from replaybench.fiducials.types import TagResult
-from replaybench.types import Detection
+from replaybench.fiducials.types import TagResult, tag_box
 
 if TYPE_CHECKING:
     from replaybench.types import RawMessage
@@ -26,12 +25,7 @@ def read_tag_array_output(raw: RawMessage) -> RecordedMessage:
     found = decode_tag_array(raw)
     usable = [t for t in found.tags if all(math.isfinite(v) for c in t.corners for v in c)]
     usable.sort(key=lambda t: (t.tag_id, t.corners))
-    boxes = []
-    for tag in usable:
-        xs = [x for x, _ in tag.corners]
-        ys = [y for _, y in tag.corners]
-        x0, y0, x1, y1 = min(xs) + 0.5, min(ys) + 0.5, max(xs) + 0.5, max(ys) + 0.5
-        boxes.append(Detection(tag.tag_id, tag.label, tag.score, x0, y0, x1, y1))
+    boxes = [tag_box(tag) for tag in usable]
     posed = any(t.pose is not None for t in usable)
     note = ''
     if usable and not all(t.pose is not None for t in usable):

@@ -18,9 +18,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from replaybench.types import BackendResult
+from replaybench.types import BackendResult, Detection
 
-__all__ = ['Corners', 'TagDetection', 'TagPose', 'TagResult', 'tag_frame_name']
+__all__ = ['Corners', 'TagDetection', 'TagPose', 'TagResult', 'tag_box', 'tag_frame_name']
 
 #: Four (x, y) pixel corners in the canonical order (see the module's description).
 Corners = tuple[tuple[float, float], tuple[float, float], tuple[float, float], tuple[float, float]]
@@ -54,6 +54,16 @@ class TagDetection(NamedTuple):
     def label(self) -> str:
         """The tag as a class label and TF child frame: ``family:id`` (``tag36h11:14``)."""
         return tag_frame_name(self.family, self.tag_id)
+
+
+def tag_box(tag: TagDetection) -> Detection:
+    """The tag as a Detection2DArray consumer sees it: its corners' bounding box, labelled
+    ``family:id``. Detection boxes put the origin at the top-left pixel's corner, tag corners
+    at its centre: +0.5."""
+    xs = [float(x) for x, _ in tag.corners]
+    ys = [float(y) for _, y in tag.corners]
+    x0, y0, x1, y1 = min(xs) + 0.5, min(ys) + 0.5, max(xs) + 0.5, max(ys) + 0.5
+    return Detection(tag.tag_id, tag.label, tag.score, x0, y0, x1, y1)
 
 
 def tag_frame_name(family: str, tag_id: int) -> str:

@@ -64,6 +64,7 @@ __all__ = [
     'RECORDED_COLUMNS',
     'RECORDED_FIGURES',
     'RecordedTimes',
+    'first_pass',
     'recorded_summary',
     'recorded_times',
     'with_recorded_latency',
@@ -198,6 +199,14 @@ def _refusal(figure: str, refused: dict[str, int], matched: int) -> str:
     return f'{figure} not reported: ' + '; '.join(parts)
 
 
+def first_pass(records: Sequence[FrameRecord]) -> list[FrameRecord]:
+    """The measured frames of the first pass: each pass of ``--repeat`` replays the same
+    recorded outputs, so they count once."""
+    measured = [r for r in records if r.status == 'ok' and not r.warmup]
+    first = min((r.repeat for r in measured), default=0)
+    return [r for r in measured if r.repeat == first]
+
+
 def recorded_summary(
     backend: str, topic: str, records: Sequence[FrameRecord], *, seed: int = 0
 ) -> dict[str, Any] | None:
@@ -205,9 +214,7 @@ def recorded_summary(
     it replays no recorded outputs (a replayed backend)."""
     if not _is_recorded(records):
         return None
-    ordered = sorted(records, key=lambda r: written(r.release_s, 'release_s'))
-    # each pass of --repeat replays the same recorded outputs: they count once, from the first
-    frames = [r for r in ordered if r.status == 'ok' and not r.warmup and r.repeat == 0]
+    frames = sorted(first_pass(records), key=lambda r: written(r.release_s, 'release_s'))
     times = [recorded_times(r.log_time_ns, r.stamp_ns, r.output_log_time_ns) for r in frames]
     matched = [t for t in times if t.output_log_time_ns is not None]
     row: dict[str, Any] = dict.fromkeys(RECORDED_COLUMNS)

@@ -240,6 +240,7 @@ class DetectionsWriter:
         # CameraInfo copied before the passes, serialised when the file is written (the ROS 2
         # type store it needs is not loaded before the first frame): channel id, time, info
         self._infos: list[tuple[int, int, CameraInfo]] = []
+        self._info_channels: set[int] = set()
         self._finished = False
         self._stage: BinaryIO = self.stage_path.open('w+b')
 
@@ -273,12 +274,13 @@ class DetectionsWriter:
             msg = f'{self.path} is already finished'
             raise ValueError(msg)
         channel_id = self._channel(topic, msgtype, schema, rank)
-        if self._infos and any(channel_id == info[0] for info in self._infos):
+        if channel_id in self._info_channels:
             self._stage_infos()  # a channel's messages keep their order of arrival
         self._stage_message(channel_id, log_time_ns, data)
 
     def _stage_infos(self) -> None:
         infos, self._infos = self._infos, []
+        self._info_channels.clear()
         for channel_id, log_time_ns, ci in infos:
             self._stage_message(channel_id, log_time_ns, serialize_camera_info(ci))
 
@@ -327,7 +329,9 @@ class DetectionsWriter:
         if self._finished:
             msg = f'{self.path} is already finished'
             raise ValueError(msg)
-        self._infos.append((self._channel(topic, CAMERA_INFO, None, _SOURCE), log_time_ns, ci))
+        channel_id = self._channel(topic, CAMERA_INFO, None, _SOURCE)
+        self._info_channels.add(channel_id)
+        self._infos.append((channel_id, log_time_ns, ci))
 
     def add(
         self,

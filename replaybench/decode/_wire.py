@@ -203,3 +203,110 @@ def parse_camera_info(buf: memoryview, serialization: str) -> CameraInfoFields:
     return CameraInfoFields(
         stamp_ns, frame_id, height, width, distortion_model, d, k, r, p, binning_x, binning_y, roi
     )
+
+
+class BoxFields(NamedTuple):
+    """One vision_msgs/Detection2D: its box and its first hypothesis (``class_id`` None and
+    ``score`` 1.0 without one)."""
+
+    cx: float
+    cy: float
+    size_x: float
+    size_y: float
+    class_id: str | None
+    score: float
+
+
+class DetectionArrayFields(NamedTuple):
+    """The fields of a vision_msgs/Detection2DArray that ground truth needs."""
+
+    stamp_ns: int
+    frame_id: str
+    boxes: tuple[BoxFields, ...]
+
+
+class _Cdr:
+    """A strict CDR cursor over the body (after the encapsulation header): every field aligned
+    to its size, strings NUL-terminated UTF-8, sequence counts that fit in the bytes left, at
+    most 3 bytes of padding after the message (as rosbags' deserializer checks)."""
+
+    __slots__ = ('body', 'f64', 'pos', 'u32')
+
+    def __init__(self, buf: memoryview) -> None:
+        order = '<' if buf[1] == 1 else '>'
+        self.body = buf[4:]
+        self.pos = 0
+        self.u32 = struct.Struct(f'{order}I')
+        self.f64 = struct.Struct(f'{order}d')
+
+    def count(self, minimum: int = 1) -> int:
+        self.pos = (self.pos + 3) & -4
+        (n,) = self.u32.unpack_from(self.body, self.pos)
+        self.pos += 4
+        if self.pos + n * minimum > len(self.body):
+            raise IndexError
+        return int(n)
+
+    def stamp(self) -> int:
+        self.pos = (self.pos + 3) & -4
+        sec, nsec = struct.unpack_from(self.u32.format[0] + 'iI', self.body, self.pos)
+        self.pos += 8
+        return int(sec) * 1_000_000_000 + int(nsec)
+
+    def string(self) -> str:
+        n = self.count(0)
+        end = self.pos + n
+        if n < 1 or end > len(self.body) or self.body[end - 1] != 0:
+            raise IndexError
+        text = bytes(self.body[self.pos : end - 1]).decode()
+        self.pos = end
+        return text
+
+    def floats(self, count: int) -> tuple[float, ...]:
+        self.pos = (self.pos + 7) & -8
+        values = struct.unpack_from(f'{self.u32.format[0]}{count}d', self.body, self.pos)
+        self.pos += 8 * count
+        return values
+
+    def skip_floats(self, count: int) -> None:
+        self.pos = ((self.pos + 7) & -8) + 8 * count
+        if self.pos > len(self.body):
+            raise IndexError
+
+    def finish(self) -> None:
+        if self.pos + 3 < len(self.body):
+            raise IndexError
+
+
+def _box(cur: _Cdr) -> BoxFields:
+    cur.stamp()  # the detection's own header
+    cur.string()
+    class_id: str | None = None
+    score = 1.0
+    for i in range(cur.count()):
+        name = cur.string()  # ObjectHypothesis.class_id
+        (value,) = cur.floats(1)
+        cur.skip_floats(7 + 36)  # PoseWithCovariance: position, orientation, covariance
+        if i == 0:
+            class_id, score = name, value
+    cx, cy, _theta, size_x, size_y = cur.floats(5)
+    cur.string()  # id
+    return BoxFields(cx, cy, size_x, size_y, class_id, score)
+
+
+def parse_detection_array(buf: memoryview) -> DetectionArrayFields:
+    """Read a vision_msgs 4.x Detection2DArray in CDR (little or big endian) as strictly as
+    rosbags' deserializer: a message it refuses raises ``DecodeError`` here."""
+    if len(buf) < 4 or buf[0] != 0 or buf[1] > 1:
+        msg = f'not a plain CDR message (encapsulation header {bytes(buf[:4]).hex()})'
+        raise DecodeError(msg)
+    cur = _Cdr(buf)
+    try:
+        stamp_ns = cur.stamp()
+        frame_id = cur.string()
+        boxes = tuple(_box(cur) for _ in range(cur.count()))
+        cur.finish()
+    except (struct.error, IndexError, UnicodeDecodeError) as err:
+        msg = f'malformed vision_msgs/Detection2DArray message ({len(buf)} bytes)'
+        raise DecodeError(msg) from err
+    return DetectionArrayFields(stamp_ns, frame_id, boxes)

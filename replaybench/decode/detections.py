@@ -7,6 +7,7 @@ import functools
 import math
 from typing import TYPE_CHECKING, Any, NamedTuple
 
+from replaybench.decode._wire import as_bytes_view, parse_detection_array
 from replaybench.decode.kinds import message_kind
 from replaybench.errors import DecodeError
 from replaybench.types import Detection
@@ -81,8 +82,6 @@ def _noetic_store(tracking: bool) -> Any:
 def _deserialize(msg: RawMessage) -> Any:
     from replaybench.msgs import typestore
 
-    if msg.serialization == 'cdr':
-        return typestore().deserialize_cdr(msg.data, DETECTION2DARRAY)
     try:
         return typestore(ros1=True).deserialize_ros1(msg.data, DETECTION2DARRAY)
     except Exception as first:  # the layout replaybench writes failed: try noetic's own
@@ -92,15 +91,41 @@ def _deserialize(msg: RawMessage) -> Any:
         raise first from None
 
 
+def _decode_cdr(msg: RawMessage) -> GroundTruth:
+    """vision_msgs 4.x in CDR, read by hand (``parse_detection_array``): the ROS 2 type store's
+    import would cost a bag with ground truth more than the rest of a run's start."""
+    try:
+        fields = parse_detection_array(as_bytes_view(msg.data))
+    except DecodeError as err:
+        text = f'invalid {DETECTION2DARRAY} (cdr) on {msg.topic}: {err}'
+        raise DecodeError(text) from err
+    decoded = [
+        Detection(
+            -1,
+            '' if b.class_id is None else b.class_id,
+            b.score,
+            b.cx - b.size_x / 2,
+            b.cy - b.size_y / 2,
+            b.cx + b.size_x / 2,
+            b.cy + b.size_y / 2,
+        )
+        for b in fields.boxes
+    ]
+    detections = tuple(d for d in decoded if _finite(d))
+    return GroundTruth(fields.stamp_ns, fields.frame_id, detections, len(decoded) - len(detections))
+
+
 def decode_detections(msg: RawMessage) -> GroundTruth:
     """Decode a vision_msgs/Detection2DArray.
 
-    cdr: vision_msgs 4.x. ros1: the layout ``replaybench.msgs`` registers, else noetic's own
-    (int64 class id, with or without the tracking fields).
+    cdr: vision_msgs 4.x, read by hand. ros1: the layout ``replaybench.msgs`` registers, else
+    noetic's own (int64 class id, with or without the tracking fields).
     """
     if message_kind(msg.msgtype) != 'detections' or msg.serialization not in {'cdr', 'ros1'}:
         text = f'{msg.msgtype} ({msg.serialization}) is not a Detection2DArray message'
         raise DecodeError(text)
+    if msg.serialization == 'cdr':
+        return _decode_cdr(msg)
     try:
         m = _deserialize(msg)
         decoded = [_detection(d) for d in m.detections]

@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
+import math
+import subprocess
+import sys
+
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from replaybench.decode import decode_detections
 from replaybench.errors import DecodeError
@@ -186,3 +192,159 @@ def test_genuine_noetic_detections_with_an_integer_id_decode(tracking):
     gt = decode_detections(RawMessage('/gt', DETECTION2DARRAY, 'ros1', 0, 0, data))
     assert gt.stamp_ns == 3_000_000_004
     assert gt.detections == (Detection(-1, '41', 0.5, 8.0, 17.0, 12.0, 23.0),)
+
+
+# -- CDR read by hand, against rosbags' deserialiser ------------------------------------------
+
+_ANY_FLOAT = st.floats(width=64)  # NaN and inf included: such boxes are left out
+_HYPOTHESES = st.lists(st.tuples(st.text(max_size=6), _ANY_FLOAT), max_size=3)
+_DETECTION = st.fixed_dictionaries(
+    {
+        'frame_id': st.text(max_size=5),
+        'stamp': st.integers(0, 2**31 * 1_000_000_000 - 1),
+        'results': _HYPOTHESES,
+        'box': st.lists(_ANY_FLOAT, min_size=5, max_size=5),  # cx, cy, theta, size_x, size_y
+        'covariance': st.lists(_ANY_FLOAT, min_size=36, max_size=36),
+        'id': st.text(max_size=5),
+    }
+)
+
+
+def _cdr_array(stamp_ns: int, frame_id: str, detections, little_endian: bool) -> bytes:
+    store = msgs.typestore()
+    t = store.types
+    items = []
+    for d in detections:
+        pose = pose_with_covariance(store)
+        pose = t['geometry_msgs/msg/PoseWithCovariance'](
+            pose=pose.pose, covariance=np.array(d['covariance'], dtype=np.float64)
+        )
+        cx, cy, theta, w, h = d['box']
+        center = t['vision_msgs/msg/Pose2D'](
+            position=t['vision_msgs/msg/Point2D'](x=cx, y=cy), theta=theta
+        )
+        results = [
+            t['vision_msgs/msg/ObjectHypothesisWithPose'](
+                hypothesis=t['vision_msgs/msg/ObjectHypothesis'](class_id=label, score=score),
+                pose=pose,
+            )
+            for label, score in d['results']
+        ]
+        items.append(
+            t['vision_msgs/msg/Detection2D'](
+                header=header(store, False, d['stamp'], d['frame_id']),
+                results=results,
+                bbox=t['vision_msgs/msg/BoundingBox2D'](center=center, size_x=w, size_y=h),
+                id=d['id'],
+            )
+        )
+    message = t[DETECTION2DARRAY](header=header(store, False, stamp_ns, frame_id), detections=items)
+    return bytes(store.serialize_cdr(message, DETECTION2DARRAY, little_endian=little_endian))
+
+
+def _as_rosbags_reads_it(data: bytes):
+    """(stamp_ns, frame_id, boxes) from rosbags' deserialiser, boxes with a NaN or inf left out;
+    None where it refuses the message."""
+    try:
+        m = msgs.typestore().deserialize_cdr(data, DETECTION2DARRAY)
+    except Exception:  # noqa: BLE001 - any refusal
+        return None
+    boxes = []
+    for d in m.detections:
+        cx, cy = d.bbox.center.position.x, d.bbox.center.position.y
+        w, h = d.bbox.size_x, d.bbox.size_y
+        label, score = '', 1.0
+        if d.results:
+            label, score = d.results[0].hypothesis.class_id, d.results[0].hypothesis.score
+        box = Detection(-1, label, score, cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2)
+        if all(math.isfinite(v) for v in box[2:]):
+            boxes.append(box)
+    stamp = m.header.stamp
+    return stamp.sec * 1_000_000_000 + stamp.nanosec, m.header.frame_id, tuple(boxes)
+
+
+def _as_decoded(data: bytes):
+    try:
+        gt = decode_detections(RawMessage('/gt', DETECTION2DARRAY, 'cdr', 0, 0, data))
+    except DecodeError:
+        return None
+    return gt.stamp_ns, gt.frame_id, gt.detections
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    frame_id=st.text(max_size=9),
+    stamp=st.integers(0, 2**31 * 1_000_000_000 - 1),
+    detections=st.lists(_DETECTION, max_size=4),
+    little_endian=st.booleans(),
+)
+def test_cdr_detection_arrays_read_as_the_rosbags_deserialiser_reads_them(
+    frame_id, stamp, detections, little_endian
+):
+    data = _cdr_array(stamp, frame_id, detections, little_endian)
+    expected = _as_rosbags_reads_it(data)
+    assert expected is not None
+    assert _as_decoded(data) == expected
+    assert len(expected[2]) <= len(detections)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    detections=st.lists(_DETECTION, min_size=1, max_size=3),
+    little_endian=st.booleans(),
+    edits=st.lists(st.tuples(st.integers(0, 10_000), st.integers(0, 255)), max_size=3),
+    cut=st.one_of(st.none(), st.integers(0, 10_000)),
+    tail=st.binary(max_size=6),
+)
+def test_a_corrupted_cdr_detection_array_is_refused_or_read_exactly_as_rosbags_reads_it(
+    detections, little_endian, edits, cut, tail
+):
+    data = bytearray(_cdr_array(7, 'cam', detections, little_endian))
+    for at, value in edits:
+        data[at % len(data)] = value
+    if cut is not None:
+        data = data[: cut % (len(data) + 1)]
+    data += tail
+    assert _as_decoded(bytes(data)) == _as_rosbags_reads_it(bytes(data))
+
+
+@pytest.mark.parametrize(
+    ('found', 'replaced'),
+    [
+        (b'person\x00', b'person!'),  # a string without its terminating NUL
+        (b'person', b'\xfferson'),  # a class id that is not UTF-8
+        (b'cam\x00', b'cam!'),
+        (b'track\x00', b'track!'),
+    ],
+)
+def test_a_cdr_detection_array_with_a_broken_string_is_refused_as_rosbags_refuses_it(
+    found, replaced
+):
+    box = {
+        'frame_id': 'cam', 'stamp': 1, 'results': [('person', 0.5)],
+        'box': [10.0, 20.0, 0.0, 4.0, 6.0], 'covariance': [0.0] * 36, 'id': 'track',
+    }  # fmt: skip
+    data = _cdr_array(7, 'cam', [box], True)
+    expected = _as_rosbags_reads_it(data)
+    assert expected is not None
+    assert _as_decoded(data) == expected
+    broken = data.replace(found, replaced, 1)
+    assert broken != data
+    assert _as_rosbags_reads_it(broken) is None
+    assert _as_decoded(broken) is None
+
+
+def test_a_cdr_detection_array_is_read_without_the_ros2_type_store():
+    data = _cdr_array(9, 'cam', [], True)
+    code = (
+        'import sys\n'
+        'from replaybench.decode import decode_detections\n'
+        'from replaybench.types import RawMessage\n'
+        f'gt = decode_detections(RawMessage("/gt", {DETECTION2DARRAY!r}, "cdr", 0, 0, {data!r}))\n'
+        'assert gt.stamp_ns == 9, gt\n'
+        'print(sorted(m for m in sys.modules if m.startswith("rosbags.typesys")))\n'
+    )
+    done = subprocess.run(
+        [sys.executable, '-c', code], capture_output=True, text=True, check=True, timeout=60
+    )
+    assert done.stdout.strip() == '[]'

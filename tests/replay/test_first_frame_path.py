@@ -1,7 +1,7 @@
 """Nothing that only the run record needs comes before the first frame: the machine is described
 after the passes (its load average taken before them), and a fresh ``replaybench run`` reaches
 its first frame without the record's types, OpenCV, pydantic (typer's coercion) or a ROS type
-store (CameraInfo is read by hand, as images are).
+store (CameraInfo and Detection2DArray ground truth are read by hand, as images are).
 
 Order of events and imported modules are asserted, never a duration (the figure is
 benchmarks/first_frame.py's).
@@ -14,6 +14,8 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 from replaybench.backends.null import NullBackend
 from replaybench.replay.runner import RunConfig, run_benchmark
@@ -39,7 +41,7 @@ main()
 """
 
 #: modules that the run record or the machine's description need, not the first frame; and the
-#: ROS 2 type store, which reading CameraInfo does not need
+#: ROS 2 type store, which reading CameraInfo and ground truth does not need
 _LATER = (
     'cv2',
     'pydantic',  # typer's coercion: plain option values are read without it
@@ -53,8 +55,7 @@ _LATER = (
 
 
 def _camera_bag(path: Path) -> Path:
-    """Five rgb8 frames, each with its CameraInfo, and no ground truth (whose Detection2DArray
-    messages are read with the ROS 2 type store)."""
+    """Five rgb8 frames, each with its CameraInfo, and no ground truth."""
     import numpy as np
     from mcap.writer import Writer
 
@@ -93,10 +94,17 @@ def _camera_bag(path: Path) -> Path:
     return path
 
 
+@pytest.mark.parametrize(
+    ('bag_name', 'info_topic'),
+    [
+        ('camera.mcap', '/cam/camera_info'),  # written here: no ground truth
+        ('rgb8_raw.mcap', '/camera/camera_info'),  # with ground truth on /ground_truth/detections
+    ],
+)
 def test_a_fresh_run_reaches_its_first_frame_before_importing_what_only_the_record_needs(
-    tmp_path,
+    tmp_path, bag_name, info_topic
 ):
-    bag = _camera_bag(tmp_path / 'camera.mcap')
+    bag = RAW if bag_name == RAW.name else _camera_bag(tmp_path / bag_name)
     env = {**os.environ, 'PYTHONPATH': str(REPO)}
     done = subprocess.run(
         [
@@ -110,7 +118,10 @@ def test_a_fresh_run_reaches_its_first_frame_before_importing_what_only_the_reco
     assert json.loads(line.removeprefix('FIRST ')) == []
     run = json.loads((tmp_path / 'r' / 'run.json').read_text(encoding='utf-8'))
     assert run['environment']['packages']['opencv']['version']  # described, after the passes
-    assert run['inputs'][0]['topics'][0]['camera_info_topic'] == '/cam/camera_info'
+    assert run['inputs'][0]['topics'][0]['camera_info_topic'] == info_topic
+    if bag == RAW:  # the truth was read (by hand) and scored
+        assert run['inputs'][0]['ground_truth_frames'] == 10
+        assert run['summary'][0]['recall50'] == 0.0  # the null backend finds none of it
 
 
 class _Logged(NullBackend):

@@ -206,14 +206,14 @@ def parse_camera_info(buf: memoryview, serialization: str) -> CameraInfoFields:
 
 
 class BoxFields(NamedTuple):
-    """One vision_msgs/Detection2D: its box and its first hypothesis (``class_id`` None and
+    """One vision_msgs/Detection2D: its box and its first hypothesis (``class_id`` '' and
     ``score`` 1.0 without one)."""
 
     cx: float
     cy: float
     size_x: float
     size_y: float
-    class_id: str | None
+    class_id: str
     score: float
 
 
@@ -230,18 +230,16 @@ class _Cdr:
     to its size, strings NUL-terminated UTF-8, sequence counts that fit in the bytes left, at
     most 3 bytes of padding after the message (as rosbags' deserializer checks)."""
 
-    __slots__ = ('body', 'f64', 'pos', 'u32')
+    __slots__ = ('body', 'lay', 'pos')
 
-    def __init__(self, buf: memoryview) -> None:
-        order = '<' if buf[1] == 1 else '>'
-        self.body = buf[4:]
+    def __init__(self, buf: memoryview, lay: _Layout) -> None:
+        self.body = buf[lay.start :]
+        self.lay = lay
         self.pos = 0
-        self.u32 = struct.Struct(f'{order}I')
-        self.f64 = struct.Struct(f'{order}d')
 
     def count(self, minimum: int = 1) -> int:
         self.pos = (self.pos + 3) & -4
-        (n,) = self.u32.unpack_from(self.body, self.pos)
+        (n,) = self.lay.u32.unpack_from(self.body, self.pos)
         self.pos += 4
         if self.pos + n * minimum > len(self.body):
             raise IndexError
@@ -249,7 +247,7 @@ class _Cdr:
 
     def stamp(self) -> int:
         self.pos = (self.pos + 3) & -4
-        sec, nsec = struct.unpack_from(self.u32.format[0] + 'iI', self.body, self.pos)
+        sec, nsec = self.lay.stamp.unpack_from(self.body, self.pos)
         self.pos += 8
         return int(sec) * 1_000_000_000 + int(nsec)
 
@@ -262,16 +260,19 @@ class _Cdr:
         self.pos = end
         return text
 
-    def floats(self, count: int) -> tuple[float, ...]:
+    def floats(self, count: int, *, skip: bool = False) -> tuple[float, ...]:
+        """``count`` float64s (aligned to 8), or none read when ``skip``."""
         self.pos = (self.pos + 7) & -8
-        values = struct.unpack_from(f'{self.u32.format[0]}{count}d', self.body, self.pos)
-        self.pos += 8 * count
-        return values
-
-    def skip_floats(self, count: int) -> None:
-        self.pos = ((self.pos + 7) & -8) + 8 * count
-        if self.pos > len(self.body):
+        end = self.pos + 8 * count
+        if end > len(self.body):
             raise IndexError
+        values = (
+            ()
+            if skip
+            else struct.unpack_from(f'{self.lay.u32.format[0]}{count}d', self.body, self.pos)
+        )
+        self.pos = end
+        return values
 
     def finish(self) -> None:
         if self.pos + 3 < len(self.body):
@@ -281,12 +282,11 @@ class _Cdr:
 def _box(cur: _Cdr) -> BoxFields:
     cur.stamp()  # the detection's own header
     cur.string()
-    class_id: str | None = None
-    score = 1.0
+    class_id, score = '', 1.0
     for i in range(cur.count()):
         name = cur.string()  # ObjectHypothesis.class_id
         (value,) = cur.floats(1)
-        cur.skip_floats(7 + 36)  # PoseWithCovariance: position, orientation, covariance
+        cur.floats(7 + 36, skip=True)  # PoseWithCovariance: position, orientation, covariance
         if i == 0:
             class_id, score = name, value
     cx, cy, _theta, size_x, size_y = cur.floats(5)
@@ -297,10 +297,7 @@ def _box(cur: _Cdr) -> BoxFields:
 def parse_detection_array(buf: memoryview) -> DetectionArrayFields:
     """Read a vision_msgs 4.x Detection2DArray in CDR (little or big endian) as strictly as
     rosbags' deserializer: a message it refuses raises ``DecodeError`` here."""
-    if len(buf) < 4 or buf[0] != 0 or buf[1] > 1:
-        msg = f'not a plain CDR message (encapsulation header {bytes(buf[:4]).hex()})'
-        raise DecodeError(msg)
-    cur = _Cdr(buf)
+    cur = _Cdr(buf, _layout(buf, 'cdr'))
     try:
         stamp_ns = cur.stamp()
         frame_id = cur.string()

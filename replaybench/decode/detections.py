@@ -7,7 +7,12 @@ import functools
 import math
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from replaybench.decode._wire import as_bytes_view, parse_detection_array
+from replaybench.decode._wire import (
+    BoxFields,
+    DetectionArrayFields,
+    as_bytes_view,
+    parse_detection_array,
+)
 from replaybench.decode.kinds import message_kind
 from replaybench.errors import DecodeError
 from replaybench.types import Detection
@@ -29,21 +34,23 @@ class GroundTruth(NamedTuple):
     nonfinite: int = 0  #: detections left out because a coordinate or the score is NaN or inf
 
 
-def _detection(d: Any) -> Detection:
+def _box_fields(d: Any) -> BoxFields:
+    """A deserialised ROS 1 Detection2D's box and first hypothesis (its ``id``: a string as
+    ``replaybench.msgs`` registers it, an int64 in noetic's own layout)."""
     bbox = d.bbox
-    center = bbox.center
-    position = getattr(center, 'position', center)  # 4.x: Pose2D.position; ROS 1: Pose2D.x/y
-    cx, cy = float(position.x), float(position.y)
-    half_w, half_h = float(bbox.size_x) / 2, float(bbox.size_y) / 2
     label, score = '', 1.0
     if len(d.results):
         result = d.results[0]
-        hypothesis = getattr(result, 'hypothesis', None)
-        if hypothesis is not None:  # 4.x: ObjectHypothesis class_id (string) + score
-            label, score = str(hypothesis.class_id), float(hypothesis.score)
-        else:  # ROS 1: ObjectHypothesisWithPose id (int64) + score
-            label, score = str(result.id), float(result.score)
-    return Detection(-1, label, score, cx - half_w, cy - half_h, cx + half_w, cy + half_h)
+        label, score = str(result.id), float(result.score)
+    size_x, size_y = float(bbox.size_x), float(bbox.size_y)
+    return BoxFields(float(bbox.center.x), float(bbox.center.y), size_x, size_y, label, score)
+
+
+def _detection(b: BoxFields) -> Detection:
+    half_w, half_h = b.size_x / 2, b.size_y / 2
+    return Detection(
+        -1, b.class_id, b.score, b.cx - half_w, b.cy - half_h, b.cx + half_w, b.cy + half_h
+    )
 
 
 # Genuine ROS 1 noetic vision_msgs: int64 class id; later releases add tracking fields.
@@ -91,51 +98,37 @@ def _deserialize(msg: RawMessage) -> Any:
         raise first from None
 
 
-def _decode_cdr(msg: RawMessage) -> GroundTruth:
-    """vision_msgs 4.x in CDR, read by hand (``parse_detection_array``): the ROS 2 type store's
-    import would cost a bag with ground truth more than the rest of a run's start."""
-    try:
-        fields = parse_detection_array(as_bytes_view(msg.data))
-    except DecodeError as err:
-        text = f'invalid {DETECTION2DARRAY} (cdr) on {msg.topic}: {err}'
-        raise DecodeError(text) from err
-    decoded = [
-        Detection(
-            -1,
-            '' if b.class_id is None else b.class_id,
-            b.score,
-            b.cx - b.size_x / 2,
-            b.cy - b.size_y / 2,
-            b.cx + b.size_x / 2,
-            b.cy + b.size_y / 2,
-        )
-        for b in fields.boxes
-    ]
-    detections = tuple(d for d in decoded if _finite(d))
-    return GroundTruth(fields.stamp_ns, fields.frame_id, detections, len(decoded) - len(detections))
+def _read_ros1(msg: RawMessage) -> DetectionArrayFields:
+    m = _deserialize(msg)
+    stamp = m.header.stamp
+    stamp_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return DetectionArrayFields(
+        stamp_ns, m.header.frame_id, tuple(_box_fields(d) for d in m.detections)
+    )
 
 
 def decode_detections(msg: RawMessage) -> GroundTruth:
     """Decode a vision_msgs/Detection2DArray.
 
-    cdr: vision_msgs 4.x, read by hand. ros1: the layout ``replaybench.msgs`` registers, else
-    noetic's own (int64 class id, with or without the tracking fields).
+    cdr: vision_msgs 4.x, read by hand (``parse_detection_array``: the ROS 2 type store's import
+    would cost a bag with ground truth more than the rest of a run's start). ros1: the layout
+    ``replaybench.msgs`` registers, else noetic's own (int64 class id, with or without the
+    tracking fields).
     """
     if message_kind(msg.msgtype) != 'detections' or msg.serialization not in {'cdr', 'ros1'}:
         text = f'{msg.msgtype} ({msg.serialization}) is not a Detection2DArray message'
         raise DecodeError(text)
-    if msg.serialization == 'cdr':
-        return _decode_cdr(msg)
     try:
-        m = _deserialize(msg)
-        decoded = [_detection(d) for d in m.detections]
+        if msg.serialization == 'cdr':
+            fields = parse_detection_array(as_bytes_view(msg.data))
+        else:
+            fields = _read_ros1(msg)
     except Exception as err:
         text = f'invalid {DETECTION2DARRAY} ({msg.serialization}) on {msg.topic}: {err}'
         raise DecodeError(text) from err
+    decoded = [_detection(b) for b in fields.boxes]
     detections = tuple(d for d in decoded if _finite(d))
-    stamp = m.header.stamp
-    stamp_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-    return GroundTruth(stamp_ns, m.header.frame_id, detections, len(decoded) - len(detections))
+    return GroundTruth(fields.stamp_ns, fields.frame_id, detections, len(decoded) - len(detections))
 
 
 def _finite(d: Detection) -> bool:

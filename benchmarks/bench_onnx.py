@@ -18,12 +18,10 @@ Run alone: ``python -m benchmarks.bench_onnx [--quick] [--out benchmarks/results
 
 from __future__ import annotations
 
-import argparse
 import csv
 import os
 import statistics
 import sys
-import tempfile
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -35,10 +33,10 @@ from benchmarks.core import (
     ItemResult,
     Measurement,
     Sampler,
-    Settings,
     interleaved,
     pin_thread_env,
     ratio,
+    run_alone,
 )
 
 if TYPE_CHECKING:
@@ -283,55 +281,17 @@ def run(ctx: Context) -> ItemResult:
     return ItemResult('f', title, measurements, checks, notes)
 
 
-def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog='python -m benchmarks.bench_onnx',
-        description='onnx-cpu end to end vs a bare session.run (YOLOX-Nano, 2 threads).',
-    )
-    parser.add_argument('--quick', action='store_true', help='few frames, two rounds')
-    parser.add_argument('--repeats', type=int, default=None, help='rounds kept (default 5)')
-    parser.add_argument('--out', type=Path, default=DEFAULT_OUT, help='where onnx.json goes')
-    return parser.parse_args(argv)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run item f alone, print the figures and write them as JSON."""
     pin_thread_env()
-    import dataclasses
-
-    from benchmarks.core import fix_threads
-    from replaybench.results.atomic import write_json_atomic
-    from replaybench.results.machine import environment
-
-    args = _parse(argv)
-    settings = Settings.tiny() if args.quick else Settings.full()
-    if args.repeats is not None:
-        settings = dataclasses.replace(settings, repeats=args.repeats)
-    threads = fix_threads()
-    with tempfile.TemporaryDirectory(prefix='replaybench-bench-onnx-') as tmp:
-        result = run(Context(settings, Path(tmp), {}))
-    if result.skipped:
-        print(f'item f skipped: {result.skipped}')
-        return 0
-    for m in result.measurements:
-        print(f'{m.name:55s} median {m.median:8.3f} {m.unit}  ({m.min:.3f} .. {m.max:.3f})')
-    for note in result.notes:
-        print(note)
-    for c in result.checks:
-        verdict = {True: 'PASS', False: 'FAIL', None: 'info'}[c.passed]
-        target = '' if c.target is None else f' (target {c.op} {c.target:.2f}x)'
-        print(f'{c.name}: {c.value:.3f}x [{c.low:.3f} .. {c.high:.3f}]{target} {verdict}')
-    document = {
-        'item': result.as_dict(),
-        'threads': threads,
-        'settings': dataclasses.asdict(settings),
-        'environment': environment(),
-        'command': [sys.executable, *sys.argv],
-    }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(args.out, document)
-    print(f'wrote {args.out}')
-    return 0
+    return run_alone(
+        run,
+        prog='python -m benchmarks.bench_onnx',
+        description='onnx-cpu end to end vs a bare session.run (YOLOX-Nano, 2 threads).',
+        out=DEFAULT_OUT,
+        argv=argv,
+        width=55,
+    )
 
 
 if __name__ == '__main__':

@@ -19,11 +19,9 @@ Run alone: ``python -m benchmarks.bench_tags [--quick] [--out benchmarks/results
 
 from __future__ import annotations
 
-import argparse
 import csv
 import importlib.util
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -33,10 +31,10 @@ from benchmarks.core import (
     Context,
     ItemResult,
     Sampler,
-    Settings,
     interleaved,
     pin_thread_env,
     ratio,
+    run_alone,
 )
 from replaybench.fiducials.camera import UNDISTORT_CRITERIA
 
@@ -163,44 +161,13 @@ def run(ctx: Context) -> ItemResult:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run item t alone, print the figures and write them as JSON."""
     pin_thread_env()
-    import dataclasses
-
-    from benchmarks.core import fix_threads
-    from replaybench.results.atomic import write_json_atomic
-    from replaybench.results.machine import environment
-
-    parser = argparse.ArgumentParser(prog='python -m benchmarks.bench_tags')
-    parser.add_argument('--quick', action='store_true', help='few frames, two rounds')
-    parser.add_argument('--repeats', type=int, default=None, help='rounds kept (default 5)')
-    parser.add_argument('--out', type=Path, default=DEFAULT_OUT, help='where tags.json goes')
-    args = parser.parse_args(argv)
-    settings = Settings.tiny() if args.quick else Settings.full()
-    if args.repeats is not None:
-        settings = dataclasses.replace(settings, repeats=args.repeats)
-    threads = fix_threads()
-    with tempfile.TemporaryDirectory(prefix='replaybench-bench-tags-') as tmp:
-        result = run(Context(settings, Path(tmp), {}))
-    if result.skipped:
-        print(f'item t skipped: {result.skipped}')
-        return 0
-    for m in result.measurements:
-        print(f'{m.name:45s} median {m.median:8.3f} {m.unit}  ({m.min:.3f} .. {m.max:.3f})')
-    for note in result.notes:
-        print(note)
-    for c in result.checks:
-        verdict = {True: 'PASS', False: 'FAIL', None: 'info'}[c.passed]
-        print(f'{c.name}: {c.value:.3f}x [{c.low:.3f} .. {c.high:.3f}] (<= {TARGET}) {verdict}')
-    document: dict[str, Any] = {
-        'item': result.as_dict(),
-        'threads': threads,
-        'settings': dataclasses.asdict(settings),
-        'environment': environment(),
-        'command': [sys.executable, *sys.argv],
-    }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(args.out, document)
-    print(f'wrote {args.out}')
-    return 0
+    return run_alone(
+        run,
+        prog='python -m benchmarks.bench_tags',
+        description='apriltag replay vs a bare loop of the same library calls.',
+        out=DEFAULT_OUT,
+        argv=argv,
+    )
 
 
 if __name__ == '__main__':

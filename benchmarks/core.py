@@ -33,6 +33,7 @@ __all__ = [
     'per_second',
     'pin_thread_env',
     'ratio',
+    'run_alone',
 ]
 
 #: Thread-pool variables pinned to 1 before numpy / OpenCV load.
@@ -322,3 +323,60 @@ class ItemResult(NamedTuple):
             'measurements': [m.as_dict() for m in self.measurements],
             'checks': [c.as_dict() for c in self.checks],
         }
+
+
+def run_alone(
+    run: Callable[[Context], ItemResult],
+    *,
+    prog: str,
+    description: str,
+    out: Path,
+    argv: Sequence[str] | None,
+    width: int = 45,
+) -> int:
+    """Run one item outside the suite (``python -m benchmarks.X [--quick] [--repeats N]
+    [--out PATH]``): print its figures and write them with the threads, settings, machine and
+    command as JSON. Call ``pin_thread_env`` before importing numpy."""
+    import argparse
+    import dataclasses
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    from replaybench.results.atomic import write_json_atomic
+    from replaybench.results.machine import environment
+
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    parser.add_argument('--quick', action='store_true', help='few frames, two rounds')
+    parser.add_argument('--repeats', type=int, default=None, help='rounds kept (default 5)')
+    parser.add_argument('--out', type=Path, default=out, help=f'where {out.name} goes')
+    args = parser.parse_args(argv)
+    settings = Settings.tiny() if args.quick else Settings.full()
+    if args.repeats is not None:
+        settings = dataclasses.replace(settings, repeats=args.repeats)
+    threads = fix_threads()
+    name = prog.rsplit('.', 1)[-1].replace('_', '-')
+    with tempfile.TemporaryDirectory(prefix=f'replaybench-{name}-') as tmp:
+        result = run(Context(settings, Path(tmp), {}))
+    if result.skipped:
+        print(f'item {result.item} skipped: {result.skipped}')
+        return 0
+    for m in result.measurements:
+        print(f'{m.name:{width}s} median {m.median:8.3f} {m.unit}  ({m.min:.3f} .. {m.max:.3f})')
+    for note in result.notes:
+        print(note)
+    for c in result.checks:
+        verdict = {True: 'PASS', False: 'FAIL', None: 'info'}[c.passed]
+        target = '' if c.target is None else f' (target {c.op} {c.target:.2f}x)'
+        print(f'{c.name}: {c.value:.3f}x [{c.low:.3f} .. {c.high:.3f}]{target} {verdict}')
+    document: dict[str, Any] = {
+        'item': result.as_dict(),
+        'threads': threads,
+        'settings': dataclasses.asdict(settings),
+        'environment': environment(),
+        'command': [sys.executable, *sys.argv],
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(args.out, document)
+    print(f'wrote {args.out}')
+    return 0

@@ -32,6 +32,8 @@ from replaybench.results.tags import score_frame, tag_accuracy
 from replaybench.sources import open_source
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
+
     from replaybench.fixtures.live import LiveTiming
 
 REPO = Path(__file__).resolve().parents[2]
@@ -254,31 +256,37 @@ def test_an_image_topic_that_is_not_a_label_mask_is_refused_with_one_line_and_ex
     assert lines == [expected]
 
 
+def _bag_with_masks(path: Path, masks: list[np.ndarray], encoding: str) -> Path:
+    """64x48 scene frames on /camera/image_raw and, 5 ms after each, ``masks[i]`` (in
+    ``encoding``) on /seg/mask."""
+    from replaybench.fixtures.scene import Scene
+    from replaybench.fixtures.writer import FixtureMessage, write_ros2_mcap
+    from replaybench.msgs import IMAGE, serialize_image
+
+    scene = Scene((64, 48), 0, 3)
+
+    def messages() -> Iterator[FixtureMessage]:
+        for i, labels in enumerate(masks):
+            stamp = 1_700_000_000 * 10**9 + i * 10**8
+            bgr, _ = scene.render(i)
+            yield FixtureMessage(
+                stamp, '/camera/image_raw', IMAGE, serialize_image(stamp, 'cam', bgr, 'bgr8')
+            )
+            data = serialize_image(stamp, 'cam', labels, encoding)
+            yield FixtureMessage(stamp + 5_000_000, '/seg/mask', IMAGE, data)
+
+    return write_ros2_mcap(path, messages())
+
+
 def test_a_mono16_mask_is_read_and_a_mask_with_ids_above_255_is_left_out_with_a_note(
     tmp_path: Path,
 ) -> None:
-    from mcap.writer import Writer
-
-    from replaybench.fixtures.scene import Scene
-    from replaybench.msgs import IMAGE, ros2msg_schema, serialize_image
-
-    scene = Scene((64, 48), 0, 3)
-    bag = tmp_path / 'mono16.mcap'
-    with bag.open('wb') as f:
-        writer = Writer(f)
-        writer.start(profile='ros2', library='tests')
-        schema = writer.register_schema(IMAGE, 'ros2msg', ros2msg_schema(IMAGE).encode())
-        camera = writer.register_channel('/camera/image_raw', 'cdr', schema)
-        masks = writer.register_channel('/seg/mask', 'cdr', schema)
-        for i in range(4):
-            stamp = 1_700_000_000 * 10**9 + i * 10**8
-            bgr, _ = scene.render(i)
-            writer.add_message(camera, stamp, serialize_image(stamp, 'cam', bgr, 'bgr8'), stamp)
-            labels = np.full((48, 64), 2, dtype=np.uint16)
-            labels[0, 0] = 300 if i == 3 else 1
-            data = serialize_image(stamp, 'cam', labels, 'mono16')
-            writer.add_message(masks, stamp + 5_000_000, data, stamp + 5_000_000)
-        writer.finish()
+    masks = []
+    for i in range(4):
+        labels = np.full((48, 64), 2, dtype=np.uint16)
+        labels[0, 0] = 300 if i == 3 else 1
+        masks.append(labels)
+    bag = _bag_with_masks(tmp_path / 'mono16.mcap', masks, 'mono16')
     outcome = run_benchmark(
         RunConfig(
             inputs=[bag],
@@ -302,26 +310,8 @@ def test_a_mono16_mask_is_read_and_a_mask_with_ids_above_255_is_left_out_with_a_
 def test_a_recorded_mask_of_another_size_than_its_image_stops_the_backend_with_one_line(
     tmp_path: Path,
 ) -> None:
-    from mcap.writer import Writer
-
-    from replaybench.fixtures.scene import Scene
-    from replaybench.msgs import IMAGE, ros2msg_schema, serialize_image
-
-    scene = Scene((64, 48), 0, 3)
-    bag = tmp_path / 'small_masks.mcap'
-    with bag.open('wb') as f:
-        writer = Writer(f)
-        writer.start(profile='ros2', library='tests')
-        schema = writer.register_schema(IMAGE, 'ros2msg', ros2msg_schema(IMAGE).encode())
-        camera = writer.register_channel('/camera/image_raw', 'cdr', schema)
-        masks = writer.register_channel('/seg/mask', 'cdr', schema)
-        for i in range(2):
-            stamp = 1_700_000_000 * 10**9 + i * 10**8
-            bgr, _ = scene.render(i)
-            writer.add_message(camera, stamp, serialize_image(stamp, 'cam', bgr, 'bgr8'), stamp)
-            half = serialize_image(stamp, 'cam', np.ones((24, 32), np.uint8), 'mono8')
-            writer.add_message(masks, stamp + 5_000_000, half, stamp + 5_000_000)
-        writer.finish()
+    half = np.ones((24, 32), np.uint8)
+    bag = _bag_with_masks(tmp_path / 'small_masks.mcap', [half, half], 'mono8')
     proc = subprocess.run(
         [
             sys.executable,

@@ -31,12 +31,18 @@ if TYPE_CHECKING:
 
 __all__ = [
     'BACKEND_OPTION_NAMES',
+    'TAG_REFINEMENTS',
     'RunOption',
     'RunOptions',
     'check_gpu_options',
     'option_specs',
     'run_options',
 ]
+
+
+#: ``--tag-refine``: every tag backend's corner refinements (aruco: none, subpix, contour,
+#: apriltag; apriltag: edges, none); each backend refuses the ones it does not have.
+TAG_REFINEMENTS = ('none', 'subpix', 'contour', 'apriltag', 'edges')
 
 
 @dataclass(frozen=True, slots=True)
@@ -249,6 +255,15 @@ class RunOptions:
     max_tags: int | None = _opt(
         None, '--max-tags', 'At most N tags a frame (64).', low=1, peak=True
     )
+    tag_refine: str | None = _opt(
+        None,
+        '--tag-refine',
+        'Corner refinement of the tag detectors: aruco: subpix (default), apriltag, contour, '
+        'none; apriltag: edges (default), none.',
+        choices=TAG_REFINEMENTS,
+        peak=True,
+        metavar='METHOD',
+    )
 
     def backend_options(self) -> BackendOptions:
         """The options every backend of the run is given (checked by ``run_options``)."""
@@ -263,6 +278,7 @@ class RunOptions:
                 tag_sizes=self.tag_sizes,
                 decimation=self.tag_decimation,
                 max_tags=self.max_tags,
+                refine=self.tag_refine,
             ),
         )
 
@@ -324,7 +340,7 @@ def _check(spec: RunOption, value: Any) -> None:
         elif spec.low is not None and not value >= spec.low:
             msg = f'{spec.flag} must be at least {spec.low:g}, not {value!r}'
             raise UsageError(msg)
-    if spec.choices and value not in spec.choices:
+    if spec.choices and value is not None and value not in spec.choices:
         msg = f'unknown {spec.flag} {value!r}: use {" or ".join(spec.choices)}'
         raise UsageError(msg)
 

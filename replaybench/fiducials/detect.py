@@ -14,9 +14,15 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from replaybench.errors import BackendError, DecodeError, ReplaybenchError
+from replaybench.errors import BackendError, DecodeError, UsageError
+from replaybench.fiducials.bagsizes import BAG_SIZE_KEYS
 from replaybench.fiducials.camera import camera_model
-from replaybench.fiducials.pose import TagSizes, parse_tag_sizes, solve_tag_pose
+from replaybench.fiducials.pose import (
+    DEFAULT_TAG_SIZE,
+    TagSizes,
+    parse_tag_sizes,
+    solve_tag_pose,
+)
 from replaybench.fiducials.types import TagDetection, TagResult, tag_box
 
 if TYPE_CHECKING:
@@ -58,6 +64,8 @@ class TagOptions:
     max_tags: int = DEFAULT_MAX_TAGS
     threads: int = 1
     refine: str = 'apriltag'
+    #: where ``sizes`` came from: the run's options, the bag's metadata or the default
+    sizes_from: str = 'the default'
 
     def describe(self) -> dict[str, Any]:
         """The options as run.json records them."""
@@ -69,6 +77,7 @@ class TagOptions:
             'max_tags': self.max_tags,
             'threads': self.threads,
             'refine': self.refine,
+            'tag_sizes_from': self.sizes_from,
         }
 
 
@@ -106,8 +115,9 @@ def tag_options(
     """TagOptions from a ``--config`` TOML file and ``extra`` (which wins), checked; a
     ``BackendError`` naming the backend and the key for a value that does not fit.
     ``decimation``: the library's own default (AprilTag 3: 2; OpenCV's ArUco: 1, none)."""
+    bag = {k: str(v) for k, v in extra.items() if k in BAG_SIZE_KEYS}
     given = _from_toml(config, backend) if config is not None else {}
-    given.update(extra)
+    given.update({k: v for k, v in extra.items() if k not in BAG_SIZE_KEYS})
     unknown = sorted(set(given) - set(TAG_OPTION_KEYS))
     if unknown:
         msg = f'{backend}: unknown option {unknown[0]!r} (known: {", ".join(TAG_OPTION_KEYS)})'
@@ -117,11 +127,7 @@ def tag_options(
     if known and family not in known:
         msg = f'{backend}: unknown tag family {family!r} (known: {", ".join(known)})'
         raise BackendError(msg)
-    try:
-        sizes = parse_tag_sizes(given.get('tag_size'), given.get('tag_sizes'))
-    except ReplaybenchError as err:
-        msg = f'{backend}: {err}'
-        raise BackendError(msg) from None
+    sizes, sizes_from = _sizes(backend, given, bag)
     default_decimation = decimation
     decimation = _number(backend, 'decimation', given.get('decimation', str(default_decimation)))
     if not decimation >= 1:
@@ -134,9 +140,36 @@ def tag_options(
     refine = given.get('refine', next(iter(refinements), 'apriltag')).strip().lower()
     allowed = tuple(refinements)
     if refine not in allowed:
-        msg = f'{backend}: refine must be one of {", ".join(allowed)}, got {refine!r}'
+        msg = (
+            f'{backend}: refine (--tag-refine) must be one of {", ".join(allowed)}, got {refine!r}'
+        )
         raise BackendError(msg)
-    return TagOptions(family, sizes, decimation, int(max_tags), max(1, threads or 1), refine)
+    return TagOptions(
+        family, sizes, decimation, int(max_tags), max(1, threads or 1), refine, sizes_from
+    )
+
+
+def _sizes(backend: str, given: Mapping[str, str], bag: Mapping[str, str]) -> tuple[TagSizes, str]:
+    """The tag sizes and where they came from: the options (``tag_size`` / ``tag_sizes``
+    given), else the bag's ``replaybench.tags`` metadata (``bag_*`` keys the run filled in),
+    else the default; a ``BackendError`` for sizes that do not parse, or inputs that record
+    different ones when the options give none."""
+    try:
+        if 'tag_size' in given or 'tag_sizes' in given:
+            sizes = parse_tag_sizes(given.get('tag_size'), given.get('tag_sizes'))
+            return sizes, 'the options (--tag-size / --tag-sizes)'
+        if 'bag_sizes_conflict' in bag:
+            msg = f'{bag["bag_sizes_conflict"]}: give --tag-size / --tag-sizes'
+            raise BackendError(msg)
+        if 'bag_tag_size' in bag or 'bag_tag_sizes' in bag:
+            sizes = parse_tag_sizes(bag.get('bag_tag_size') or None, bag.get('bag_tag_sizes'))
+            return sizes, f'the bag ({bag.get("bag_sizes_from", "its metadata")})'
+    except UsageError as err:
+        msg = f'{backend}: {err}'
+        raise BackendError(msg) from None
+    why = bag.get('bag_sizes_from')
+    default = f'the default ({DEFAULT_TAG_SIZE:g} m)'
+    return TagSizes(), f'{default}: {why}' if why else default
 
 
 def tag_extra(
@@ -146,6 +179,7 @@ def tag_extra(
     tag_sizes: str | None = None,
     decimation: float | None = None,
     max_tags: int | None = None,
+    refine: str | None = None,
 ) -> dict[str, str]:
     """The ``BackendOptions.extra`` of the command line's tag options (those given)."""
     given = {
@@ -154,6 +188,7 @@ def tag_extra(
         'tag_sizes': tag_sizes,
         'decimation': decimation,
         'max_tags': max_tags,
+        'refine': refine,
     }
     return {key: str(value) for key, value in given.items() if value is not None}
 

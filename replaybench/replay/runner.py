@@ -177,7 +177,7 @@ def run_benchmark(
     limits.enter_context(thread_limits(config.threads))
     try:
         with folder if folder is not None else contextlib.nullcontext():
-            made = make_backends(config.backends, config.options, factory)
+            made = make_backends(config.backends, _with_bag_sizes(config), factory)
             recorded = any(backend_traits(b).uses_recorded_detections for _, b in made)
             for index, path in enumerate(config.inputs):
                 inp = open_input(
@@ -211,6 +211,17 @@ def run_benchmark(
             inp.source.close()
         limits.close()
     return outcome._replace(run_dir=config.out_dir)
+
+
+def _with_bag_sizes(config: RunConfig) -> BackendOptions:
+    """The backend options with the tag sizes the inputs record (``BAG_SIZE_KEYS``; the tag
+    backends use them when the options give none, docs/fiducials.md)."""
+    from dataclasses import replace
+
+    from replaybench.fiducials.bagsizes import bag_size_keys
+
+    keys = bag_size_keys([Path(p) for p in config.inputs])
+    return replace(config.options, tag_options={**config.options.tag_options, **keys})
 
 
 def _check_config(config: RunConfig, *, check_available: bool) -> None:

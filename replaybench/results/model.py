@@ -385,6 +385,22 @@ class SegmentationAgreementRow:
 
 
 @dataclass(frozen=True, slots=True)
+class TagSizeHint:
+    """One tag id whose distances one scale factor explains (replaybench.results.tags):
+    ``scale`` the median of detected / true distance over its ``detections``, all within
+    ``spread_pct`` of it; ``size_m`` the size its poses were solved with, ``suggested_size_m``
+    the size that scale implies; ``line`` the sentence the terminal prints."""
+
+    tag_id: int = 0
+    detections: int = 0
+    scale: float = 1.0
+    spread_pct: float = 0.0
+    size_m: float = 0.0
+    suggested_size_m: float = 0.0
+    line: str = ''
+
+
+@dataclass(frozen=True, slots=True)
 class TagAccuracy:
     """Tag accuracy of one (backend, topic) against tag ground truth (replaybench.results.tags).
 
@@ -407,6 +423,8 @@ class TagAccuracy:
     rot_err_deg_max: float | None = None
     trans_err_m_max: float | None = None
     poses: int = 0
+    #: ids whose distances are all off by one factor: a wrong tag size (``TagSizeHint``)
+    size_hints: tuple[TagSizeHint, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)

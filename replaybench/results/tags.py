@@ -12,6 +12,12 @@ is on a real tag but decoded another id), a **phantom** otherwise. Over the matc
 
 Poses count only where both have one (a frame without CameraInfo has none). ``recall`` is
 matched / truth tags. Everything is a point estimate: no interval.
+
+A wrong tag size scales a tag's distance and nothing else. Per tag id with at least
+``SIZE_HINT_MIN`` posed detections, when the ratios of detected to true distance all lie
+within ``SIZE_HINT_SPREAD`` of their median and the median is more than ``SIZE_HINT_OFF`` from 1,
+the id gets a ``TagSizeHint`` ("tag 14: distances are 1.37x the truth: is its size 0.16 m
+rather than 0.22 m?"), in run.json's ``tag_accuracy.size_hints`` and on the terminal.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ import numpy as np
 
 from replaybench.fiducials.pose import rotation_error_deg
 from replaybench.results.columns import TAG_SUMMARY_COLUMNS
-from replaybench.results.model import TagAccuracy
+from replaybench.results.model import TagAccuracy, TagSizeHint
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
@@ -33,11 +39,15 @@ if TYPE_CHECKING:
     from replaybench.results.model import RunResult
 
 __all__ = [
+    'SIZE_HINT_MIN',
+    'SIZE_HINT_OFF',
+    'SIZE_HINT_SPREAD',
     'TAG_FRAME_COLUMNS',
     'TAG_SUMMARY_COLUMNS',
     'FrameTagScore',
     'TagAccuracy',
     'score_frame',
+    'size_hints',
     'summary_columns',
     'tag_accuracy',
     'tag_lines',
@@ -56,6 +66,14 @@ TAG_FRAME_COLUMNS: tuple[str, ...] = (
 )
 
 
+#: A size hint needs this many posed detections of the id, ...
+SIZE_HINT_MIN = 3
+#: ... their distance ratios within this fraction of the median, ...
+SIZE_HINT_SPREAD = 0.03
+#: ... and the median this far from 1 (the poses' own noise is under 1 % on the fixtures).
+SIZE_HINT_OFF = 0.05
+
+
 @dataclass(frozen=True, slots=True)
 class FrameTagScore:
     """One frame's tags against its truth; the per-tag errors kept for the summary."""
@@ -69,6 +87,8 @@ class FrameTagScore:
     trans_err_m: tuple[float, ...]
     trans_err_rel: tuple[float, ...]
     rot_err_deg: tuple[float, ...]
+    #: per matched tag with both poses: (id, detected / true distance, size solved with)
+    scales: tuple[tuple[int, float, float], ...] = ()
 
     def columns(self) -> dict[str, Any]:
         """The frame's TAG_FRAME_COLUMNS values."""
@@ -114,6 +134,7 @@ def score_frame(found: Sequence[TagDetection], truth: Sequence[TagDetection]) ->
     trans: list[float] = []
     rel: list[float] = []
     rot: list[float] = []
+    scales: list[tuple[int, float, float]] = []
     matched = 0
     for gt in truth:
         candidates = [
@@ -137,6 +158,9 @@ def score_frame(found: Sequence[TagDetection], truth: Sequence[TagDetection]) ->
             rng = math.hypot(*gt.pose.position)
             if rng > 0:
                 rel.append(gap / rng)
+                if det.size_m is not None:
+                    found_rng = math.hypot(*det.pose.position)
+                    scales.append((det.tag_id, found_rng / rng, det.size_m))
             rot.append(rotation_error_deg(det.pose, gt.pose))
     wrong = sum(1 for i in left if any(_inside(found[i].center, gt.corners) for gt in truth))
     return FrameTagScore(
@@ -149,7 +173,40 @@ def score_frame(found: Sequence[TagDetection], truth: Sequence[TagDetection]) ->
         tuple(trans),
         tuple(rel),
         tuple(rot),
+        tuple(scales),
     )
+
+
+def _size_text(value: float) -> str:
+    return f'{float(f"{value:.2g}"):g}'
+
+
+def size_hints(scores: Iterable[FrameTagScore]) -> tuple[TagSizeHint, ...]:
+    """The ids whose distances one factor explains (see the module's description), by id."""
+    by_id: dict[int, list[tuple[float, float]]] = {}
+    for score in scores:
+        for tag_id, ratio, size in score.scales:
+            by_id.setdefault(tag_id, []).append((ratio, size))
+    hints = []
+    for tag_id, seen in sorted(by_id.items()):
+        sizes = {size for _, size in seen}
+        if len(seen) < SIZE_HINT_MIN or len(sizes) != 1:
+            continue
+        ratios = [r for r, _ in seen]
+        scale = float(np.median(ratios))
+        spread = max(abs(r / scale - 1) for r in ratios)
+        if spread > SIZE_HINT_SPREAD or abs(scale - 1) <= SIZE_HINT_OFF:
+            continue
+        (size,) = sizes
+        suggested = size / scale
+        line = (
+            f'tag {tag_id}: distances are {scale:.2f}x the truth: is its size '
+            f'{_size_text(suggested)} m rather than {_size_text(size)} m?'
+        )
+        hints.append(
+            TagSizeHint(tag_id, len(seen), scale, spread * 100, size, round(suggested, 6), line)
+        )
+    return tuple(hints)
 
 
 def tag_accuracy(scores: Iterable[FrameTagScore]) -> TagAccuracy:
@@ -177,6 +234,7 @@ def tag_accuracy(scores: Iterable[FrameTagScore]) -> TagAccuracy:
         rot_err_deg_max=max(rot) if rot else None,
         trans_err_m_max=max(trans) if trans else None,
         poses=len(rot),
+        size_hints=size_hints(frames),
     )
 
 
@@ -201,8 +259,17 @@ def _f(value: float | None, spec: str) -> str:
 
 
 def tag_lines(run: RunResult) -> list[str]:
-    """One line per (backend, topic) with tag accuracy, for the terminal."""
+    """For the terminal: one line per tag backend saying which tag sizes it used and where
+    they came from; one per (backend, topic) with tag accuracy, and its size hints."""
     lines = []
+    for entry in run.backends:
+        where = entry.info.get('tag_sizes_from')
+        if where is None:
+            continue
+        per_id = entry.info.get('tag_sizes_m') or {}
+        ids = ', '.join(f'{k}={v:g}' for k, v in per_id.items())
+        sizes = f'{entry.info.get("tag_size_m", 0):g} m' + (f' ({ids})' if ids else '')
+        lines.append(f'tags: {entry.name}: tag sizes {sizes} from {where}')
     for row in run.summary_rows:
         acc = row.tag_accuracy
         if acc is None:
@@ -214,4 +281,5 @@ def tag_lines(run: RunResult) -> list[str]:
             f'{_f(acc.trans_err_m, ".4f")} m ({_f(acc.trans_err_pct, ".2f")} % of range), '
             f'rotation {_f(acc.rot_err_deg, ".2f")} deg (p95 {_f(acc.rot_err_deg_p95, ".2f")})'
         )
+        lines += [f'tags: {row.backend} {row.topic}: {hint.line}' for hint in acc.size_hints]
     return lines

@@ -147,11 +147,12 @@ def _duckie_frames(folder: Path) -> list[tuple[int, Frame]]:
     """(in-plane angle in degrees, frame with the photos' CameraInfo) of each photo."""
     import cv2
     import numpy as np
-    import yaml
+    from ruamel.yaml import YAML
 
     from replaybench.types import CameraInfo, Frame
 
-    spec = yaml.safe_load((folder / 'test_info.yaml').read_text(encoding='utf-8'))['rotation_test']
+    spec = YAML(typ='safe').load((folder / 'test_info.yaml').read_text(encoding='utf-8'))
+    spec = spec['rotation_test']
     k = tuple(float(v) for v in spec['K'])
     width, height = int(spec['width']), int(spec['height'])
     info = CameraInfo(
@@ -165,7 +166,7 @@ def _duckie_frames(folder: Path) -> list[tuple[int, Frame]]:
         (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
         (k[0], 0.0, k[2], 0.0, 0.0, k[4], k[5], 0.0, 0.0, 0.0, 1.0, 0.0),
     )
-    out = []
+    out: list[tuple[int, Frame]] = []
     for name in spec['files']:
         angle = int(name.removeprefix('test_image_rotation_').removesuffix('.png'))
         image = cv2.imread(str(folder / name), cv2.IMREAD_GRAYSCALE)

@@ -56,6 +56,7 @@ CHANGED: dict[str, Any] = {
     'tag_sizes': '14=0.2,3=0.1',
     'tag_decimation': 1.0,
     'max_tags': 8,
+    'tag_refine': 'none',
 }
 
 

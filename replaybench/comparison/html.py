@@ -14,7 +14,7 @@ from replaybench.comparison.core import (
 )
 from replaybench.comparison.gate import gate_verdict, method_text
 from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match
-from replaybench.report.svg import colour, nice_ticks, step_cdf
+from replaybench.report.svg import Label, colour, fit_label, nice_ticks, step_cdf
 from replaybench.results.blocks import BLOCK_FRAMES, MAX_BLOCKS, MIN_BLOCKS
 from replaybench.results.bootstrap import MIN_FRAMES
 from replaybench.textsafe import visible
@@ -330,7 +330,7 @@ def _summary(comparison: Comparison) -> str:
             else ''
         )
         cells = [
-            f'<td class="run">{_swatch(colour(row.run))}{_e(row.run_label)}</td>',
+            f'<td class="run">{_swatch(colour(row.run))}{_label_html(comparison, row)}</td>',
             f'<td>{_e(row.backend)}{versus}</td>',
             f'<td><code>{_e(row.topic)}</code></td>',
             f'<td>{_e(role)}</td>',
@@ -367,7 +367,7 @@ def _summary(comparison: Comparison) -> str:
 
 
 class _Bar(NamedTuple):
-    label: str
+    label: Label
     fill: str
     opacity: float
     value: float | None
@@ -381,7 +381,8 @@ def _n(value: float) -> str:
 
 def _interval_chart(bars: Sequence[_Bar], *, title: str, x_label: str, width: int = 720) -> str:
     """Horizontal bars with confidence-interval whiskers."""
-    label_w = min(300, max(60, int(max((len(b.label) for b in bars), default=4) * 6.6) + 12))
+    longest = max((len(str(b.label)) for b in bars), default=4)
+    label_w = min(300, max(60, int(longest * 6.6) + 12))
     left, right, top = label_w + 8, 80, 32
     bar_h, gap = 16, 6
     plot_h = max(1, len(bars)) * (bar_h + gap) + gap
@@ -414,11 +415,7 @@ def _interval_chart(bars: Sequence[_Bar], *, title: str, x_label: str, width: in
     for i, bar in enumerate(bars):
         y = top + gap + i * (bar_h + gap)
         mid = y + bar_h / 2
-        shown = (
-            bar.label
-            if len(bar.label) * 6.6 <= label_w
-            else bar.label[: int(label_w / 6.6) - 1] + '…'
-        )
+        shown = fit_label(bar.label, int(label_w / 6.6))
         parts.append(
             f'<text x="{left - 6}" y="{_n(mid + 4)}" text-anchor="end" fill="#222">'
             f'<title>{_e(bar.label)}</title>{_e(shown)}</text>',
@@ -454,6 +451,26 @@ def _interval_chart(bars: Sequence[_Bar], *, title: str, x_label: str, width: in
     return ''.join(parts)
 
 
+def _run_label(comparison: Comparison, row: Row, tail: str = '') -> Label:
+    """``row``'s run label then ``tail``, as a chart ``Label``: its machine is the middle."""
+    head, machine, rest = comparison.runs[row.run].label_parts
+    if not (head or machine or rest):
+        head = row.run_label
+    return Label(head, machine, rest + tail)
+
+
+#: The most characters of a run label in the summary table (the Runs table has it whole).
+_CELL_LABEL = 44
+
+
+def _label_html(comparison: Comparison, row: Row) -> str:
+    """The run label of a summary row: its machine shortened first, the whole as its tooltip."""
+    shown = fit_label(_run_label(comparison, row), _CELL_LABEL)
+    if shown == row.run_label:
+        return _e(shown)
+    return f'<span title="{_e(row.run_label)}">{_e(shown)}</span>'
+
+
 def _groups(comparison: Comparison) -> dict[tuple[str, str], list[Row]]:
     groups: dict[tuple[str, str], list[Row]] = {}
     for row in comparison.rows:
@@ -467,8 +484,10 @@ def _charts(comparison: Comparison) -> str:
     parts = ['<h2 id="latency">Latency per backend and topic</h2>']
     for (backend, topic), rows in _groups(comparison).items():
 
-        def name(row: Row, backend: str = backend) -> str:
-            return row.run_label if row.backend == backend else f'{row.run_label} · {row.backend}'
+        def name(row: Row, kind: str = '', backend: str = backend) -> Label:
+            """The row's run label, its machine the part shortened first in a chart."""
+            tail = kind if row.backend == backend else f' · {row.backend}{kind}'
+            return _run_label(comparison, row, tail=tail)
 
         def values(row: Row) -> list[float]:
             # a recording's row: its recorded pipeline latency (its replay is not timed)
@@ -482,8 +501,9 @@ def _charts(comparison: Comparison) -> str:
             key = (row.run, row.backend, row.topic)
             return key in comparison.recorded_latencies and not comparison.latencies[key].size
 
-        def label(row: Row) -> str:
-            return f'{name(row)} · recorded pipeline' if recorded(row) else name(row)
+        def label(row: Row, tag: str = '') -> Label:
+            found = name(row, ' · recorded pipeline' if recorded(row) else '')
+            return found._replace(head=tag + found.head)
 
         series = [(label(r), colour(r.run), values(r)) for r in rows]
         cdf = step_cdf(series, title=f'Latency CDF · {backend} · {topic}', x_label='latency (ms)')
@@ -498,7 +518,7 @@ def _charts(comparison: Comparison) -> str:
             for metric, tag, opacity in pairs:
                 m = r.metrics[metric]
                 bars.append(
-                    _Bar(f'{tag} · {label(r)}', colour(r.run), opacity, m.value, m.value_ci)
+                    _Bar(label(r, f'{tag} · '), colour(r.run), opacity, m.value, m.value_ci)
                 )
         whiskers = _interval_chart(
             bars,

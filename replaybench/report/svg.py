@@ -27,6 +27,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     'PALETTE',
+    'Label',
     'Marks',
     'Rule',
     'Segment',
@@ -34,6 +35,7 @@ __all__ = [
     'bar_chart',
     'colour',
     'downsample',
+    'fit_label',
     'line_chart',
     'nice_ticks',
     'stacked_bar_chart',
@@ -47,13 +49,47 @@ _GRID = '#e4e4e4'
 _TEXT = '#222'
 
 
+class Label(NamedTuple):
+    """A chart label in three parts, shown as ``head + middle + tail``. Where it is too long
+    for its place, ``middle`` (a machine's name, say) is shortened first, so that the head
+    (the run, the backend) and the tail (the kind of series) stay whole; the full text is the
+    label's tooltip."""
+
+    head: str
+    middle: str = ''
+    tail: str = ''
+
+    def __str__(self) -> str:
+        return self.head + self.middle + self.tail
+
+
+def fit_label(label: str | Label, limit: int) -> str:
+    """``label`` in at most ``limit`` characters: whole when it fits; else a ``Label``'s middle
+    shortened (down to '…'), then the end of its head; plain text, or a tail too long itself,
+    is cut in its middle, so that its start and its end (what the series is) stay."""
+    text = str(label)
+    limit = max(limit, 3)
+    if len(text) <= limit:
+        return text
+    if isinstance(label, Label):
+        room = limit - len(label.head) - len(label.tail) - 1
+        if label.middle and room >= 0:
+            return f'{label.head}{label.middle[:room].rstrip()}…{label.tail}'
+        keep = limit - len(label.tail) - 1
+        if keep >= min(len(label.head), 8):
+            return f'{label.head[:keep].rstrip()}…{label.tail}'
+    tail = (limit - 1) // 2
+    return f'{text[: limit - 1 - tail].rstrip()}…{text[len(text) - tail :].lstrip()}'
+
+
 class Series(NamedTuple):
     """One polyline; points whose x or y is not finite are left out.
 
     ``style``: ``'line'`` (a polyline), ``'dots'`` (a circle per point) or ``'line+dots'``.
+    ``name`` is shortened to fit the legend (``fit_label``), its full text the tooltip.
     """
 
-    name: str
+    name: str | Label
     colour: str
     xs: Values
     ys: Values
@@ -80,7 +116,7 @@ class Marks(NamedTuple):
 class Segment(NamedTuple):
     """One segment kind of a stacked bar chart: a value (or None) per bar."""
 
-    name: str
+    name: str | Label
     colour: str
     values: Sequence[float | None]
 
@@ -235,34 +271,42 @@ def downsample(
     return x[chosen], y[chosen]
 
 
-def _legend(entries: Sequence[tuple[str, str]], x0: float, y0: float, width: float) -> list[str]:
-    """Legend swatches laid out left to right, wrapping at ``width``; returns SVG parts."""
+#: The most characters of a legend entry (longer ones: ``fit_label``).
+_LEGEND_CHARS = 48
+
+
+def _legend(
+    entries: Sequence[tuple[str | Label, str]], x0: float, y0: float, width: float
+) -> list[str]:
+    """Legend swatches laid out left to right, wrapping at ``width``; returns SVG parts. An
+    entry too long is shortened (``fit_label``), its full text its tooltip."""
     parts: list[str] = []
     x, y = x0, y0
     for name, fill in entries:
-        label = name if len(name) <= 48 else name[:47] + '…'
+        label = fit_label(name, _LEGEND_CHARS)
         item_w = 18 + len(label) * _CHAR_W + 16
         if x > x0 and x + item_w > x0 + width:
             x, y = x0, y + 18
+        tip = f'<title>{_e(name)}</title>' if label != str(name) else ''
         parts.append(
             f'<rect x="{_n(x)}" y="{_n(y - 9)}" width="12" height="10" rx="2" fill="{_e(fill)}"/>'
-            f'<text x="{_n(x + 17)}" y="{_n(y)}" fill="{_TEXT}">{_e(label)}</text>',
+            f'<text x="{_n(x + 17)}" y="{_n(y)}" fill="{_TEXT}">{tip}{_e(label)}</text>',
         )
         x += item_w
     return parts
 
 
-def _top(entries: Sequence[tuple[str, str]], width: int) -> int:
+def _top(entries: Sequence[tuple[str | Label, str]], width: int) -> int:
     """Y of the plot area: below the title and the legend rows."""
     if not entries:
         return 32
     return 40 + 18 * (_legend_rows(entries, width - 24) - 1) + 16
 
 
-def _legend_rows(entries: Sequence[tuple[str, str]], width: float) -> int:
+def _legend_rows(entries: Sequence[tuple[str | Label, str]], width: float) -> int:
     rows, x = 1, 0.0
     for name, _ in entries:
-        item_w = 18 + min(len(name), 48) * _CHAR_W + 16
+        item_w = 18 + len(fit_label(name, _LEGEND_CHARS)) * _CHAR_W + 16
         if x > 0 and x + item_w > width:
             rows, x = rows + 1, 0.0
         x += item_w
@@ -321,7 +365,7 @@ def line_chart(
     all_x += [r.value for r in rules if r.axis == 'x' and math.isfinite(r.value)]
     all_y += [r.value for r in rules if r.axis != 'x' and math.isfinite(r.value)]
 
-    entries = [(s.name, s.colour) for s in series]
+    entries: list[tuple[str | Label, str]] = [(s.name, s.colour) for s in series]
     entries += [(m.name, m.colour) for m in marks if m.name]
     if spans and span_label:
         entries.append((span_label, '#d9d9d9'))
@@ -455,7 +499,7 @@ def line_chart(
 
 
 def step_cdf(
-    series: Sequence[tuple[str, str, Sequence[float]]],
+    series: Sequence[tuple[str | Label, str, Sequence[float]]],
     *,
     title: str,
     x_label: str,
@@ -497,7 +541,7 @@ def step_cdf(
 
 
 def _hbars(
-    labels: Sequence[str],
+    labels: Sequence[str | Label],
     segments: Sequence[Segment],
     bar_colours: Sequence[str] | None,
     *,
@@ -508,9 +552,12 @@ def _hbars(
 ) -> str:
     n = len(labels)
     show_legend = bar_colours is None
-    entries = [(s.name, s.colour) for s in segments] if show_legend else []
+    entries: list[tuple[str | Label, str]] = (
+        [(s.name, s.colour) for s in segments] if show_legend else []
+    )
     top = _top(entries, width)
-    label_w = min(260, max(60, int(max((len(t) for t in labels), default=4) * _CHAR_W) + 12))
+    longest = max((len(str(t)) for t in labels), default=4)
+    label_w = min(260, max(60, int(longest * _CHAR_W) + 12))
     left, right = label_w + 8, 72
     bar_h, gap = 18, 8
     plot_h = max(1, n) * (bar_h + gap) + gap
@@ -538,8 +585,7 @@ def _hbars(
         )
     for i, label in enumerate(labels):
         y = top + gap + i * (bar_h + gap)
-        fits = len(label) * _CHAR_W <= label_w
-        shown = label if fits else label[: int(label_w / _CHAR_W) - 1] + '…'
+        shown = fit_label(label, int(label_w / _CHAR_W))
         parts.append(
             f'<text x="{left - 6}" y="{_n(y + bar_h / 2 + 4)}" text-anchor="end" fill="{_TEXT}">'
             f'<title>{_e(label)}</title>{_e(shown)}</text>',
@@ -571,7 +617,7 @@ def _hbars(
 
 
 def bar_chart(
-    labels: Sequence[str],
+    labels: Sequence[str | Label],
     values: Sequence[float | None],
     colours: Sequence[str],
     *,
@@ -593,7 +639,7 @@ def bar_chart(
 
 
 def stacked_bar_chart(
-    labels: Sequence[str],
+    labels: Sequence[str | Label],
     segments: Sequence[Segment],
     *,
     title: str,

@@ -17,6 +17,7 @@ from replaybench.report.masks import mask_of
 from replaybench.report.recorded import recorded_latency_html
 from replaybench.report.samples import sample_relpath
 from replaybench.report.svg import (
+    TREND_POINTS,
     Marks,
     Rule,
     Segment,
@@ -623,6 +624,7 @@ def _latency_timeline(
         span_label='warm-up' if warm else '',
         marks=marks,
         note=note,
+        min_points=TREND_POINTS,
     )
 
 
@@ -675,6 +677,7 @@ def _detections_timeline(
         note='Each point is the mean over the frames of one pixel column.'
         if longest > _CHART_PIXELS
         else '',
+        min_points=TREND_POINTS,
     )
 
 
@@ -984,6 +987,7 @@ def _resources(run: RunResult, colours: Mapping[str, str]) -> str:
                     note='Each point is the mean over the samples of one pixel column.'
                     if longest > _CHART_PIXELS
                     else '',
+                    min_points=TREND_POINTS,
                 ),
             )
     return (

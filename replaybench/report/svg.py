@@ -27,6 +27,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     'PALETTE',
+    'TREND_POINTS',
     'Label',
     'Marks',
     'Rule',
@@ -313,6 +314,53 @@ def _legend_rows(entries: Sequence[tuple[str | Label, str]], width: float) -> in
     return rows
 
 
+#: The fewest points of a series over time that can show a trend: with fewer, a chart over
+#: time says what it has in words (``line_chart``'s ``min_points``).
+TREND_POINTS = 3
+
+
+def _figure(value: float) -> str:
+    return f'{value:.4g}'
+
+
+def _at(value: float) -> str:
+    """An x value in words: at most 3 decimals (seconds to the millisecond, hertz)."""
+    text = f'{value:.3f}'.rstrip('0').rstrip('.')
+    return '0' if text in ('', '-0') else text
+
+
+def _in_words(
+    data: Sequence[tuple[Series, npt.NDArray[np.float64], npt.NDArray[np.float64]]],
+    *,
+    title: str,
+    x_label: str,
+    y_label: str,
+    width: int,
+    min_points: int,
+) -> str:
+    """A chart's box holding, instead of axes, what its few points are."""
+    lines = [
+        f'Too few points to show a trend: fewer than {min_points} per series.',
+        f'{y_label} at {x_label}:',
+    ]
+    for s, x, y in data:
+        if not x.size:
+            lines.append(f'{fit_label(s.name, 40)}: no point')
+            continue
+        shown = ', '.join(f'{_figure(b)} at {_at(a)}' for a, b in zip(x, y, strict=True))
+        count = f'{x.size} point' + ('' if x.size == 1 else 's')
+        lines.append(f'{fit_label(s.name, 40)}: {count}: {shown}')
+    per_line = int((width - 24) / _CHAR_W)
+    lines = [fit_label(line, per_line) for line in lines]
+    height = 32 + 20 * len(lines) + 8
+    parts = [_open(width, height, title)]
+    for i, line in enumerate(lines):
+        fill = '#666' if i < 2 else _TEXT
+        parts.append(f'<text x="12" y="{_n(48 + 20 * i)}" fill="{fill}">{_e(line)}</text>')
+    parts.append('</svg>')
+    return ''.join(parts)
+
+
 def _open(width: int, height: int, title: str) -> str:
     return (
         f'<svg class="chart" viewBox="0 0 {width} {height}" width="{width}" height="{height}" '
@@ -340,8 +388,13 @@ def line_chart(
     note: str = '',
     mean_per_pixel: bool = False,
     rules: Sequence[Rule] = (),
+    min_points: int = 0,
 ) -> str:
     """A chart of one polyline per series, with axes, ticks, grid and legend.
+
+    With ``min_points`` (a chart over time: ``TREND_POINTS``), where no series has that many
+    points the chart says in words what the points are, instead of drawing axes around one
+    or two dots.
 
     ``spans`` are shaded x-intervals (e.g. warm-up); ``marks`` are rows of short ticks below
     the x axis (e.g. dropped frames); ``rules`` are labelled reference lines (a threshold, a
@@ -350,6 +403,15 @@ def line_chart(
     envelope, or to the column means with ``mean_per_pixel``.
     """
     data = [(s, *_finite(s.xs, s.ys)) for s in series]
+    if min_points and data and all(x.size < min_points for _, x, _ in data):
+        return _in_words(
+            data,
+            title=title,
+            x_label=x_label,
+            y_label=y_label,
+            width=width,
+            min_points=min_points,
+        )
     all_x: list[float] = []
     for _, x, _ in data:
         if x.size:

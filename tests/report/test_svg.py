@@ -180,3 +180,25 @@ def test_a_legend_and_a_bar_label_show_the_kind_and_keep_the_whole_name_as_toolt
     assert f'<title>{str(label).replace("&", "&amp;").replace("<", "&lt;")}' in bars.replace(
         '&gt;', '>'
     )
+
+
+def test_a_chart_over_time_with_too_few_points_says_what_they_are_in_words() -> None:
+    few = [
+        Series('hsv', '#123456', [0.05], [199.0]),
+        Series('null', '#654321', [0.0004, 0.1], [12.5, float('nan')]),
+    ]
+    chart = line_chart(
+        few, title='CPU use over time', x_label='time (s)', y_label='CPU (%)', min_points=3
+    )
+    assert 'Too few points to show a trend: fewer than 3 per series.' in chart
+    assert '>hsv: 1 point: 199 at 0.05</text>' in chart
+    assert '>null: 1 point: 12.5 at 0</text>' in chart  # the NaN is no point
+    assert '<circle' not in chart
+    assert '<polyline' not in chart
+    # one series with enough points: the chart is drawn, the short one as its dot
+    enough = [*few, Series('onnx', '#000000', [0.0, 0.1, 0.2], [1.0, 2.0, 3.0])]
+    drawn = line_chart(enough, title='t', x_label='x', y_label='y', min_points=3)
+    assert 'Too few points' not in drawn
+    assert '<polyline' in drawn
+    # without min_points (a chart not over time), one point is drawn as before
+    assert '<circle' in line_chart(few[:1], title='t', x_label='x', y_label='y')

@@ -54,7 +54,9 @@ td.n,th.n{text-align:right;white-space:nowrap}
 td.flags{color:#8a4b00;font-size:12px}
 tr.flagrow td{border-top:none;padding-top:0}
 table.summary tr:has(+ tr.flagrow) td{border-bottom:none}
-td.run{min-width:160px;max-width:260px}
+td.run{min-width:120px;max-width:200px;overflow-wrap:anywhere}
+td.n .ci{white-space:normal}
+td.flags{white-space:normal;overflow-wrap:anywhere}
 tr.base td{background:#fafafa}
 .ci{color:var(--muted);font-size:12px;display:block}
 .swatch{display:inline-block;width:10px;height:10px;border-radius:2px;margin-right:6px}
@@ -304,7 +306,30 @@ def _accuracy_cell(m: MetricComparison, role: str) -> str:
     return f'<td class="n">{value}<span class="ci">Δ {m.diff:+.4f} (no CI)</span></td>'
 
 
+#: The main accuracy figure of each task, read first: boxes, tags, masks.
+_MAIN_ACCURACY: tuple[str, ...] = ('map50', 'tag_recall', 'miou')
+#: The timing figures read first (the mean is under More figures).
+_MAIN_TIMING: tuple[str, ...] = ('median_ms', 'p99_ms', 'fps')
+#: A recording's main latency, read first where a row has one.
+_MAIN_RECORDED: tuple[str, ...] = ('recorded_pipeline_ms',)
+
+
+def _cells(row: Row, metrics: Sequence[str]) -> list[str]:
+    role = row.role
+    out = []
+    for m in metrics:
+        if m in TIMING_METRICS:
+            out.append(_timing_cell(row.metrics[m], role))
+        elif m in RECORDED_METRICS:
+            out.append(_recorded_cell(row.metrics[m], role))
+        else:
+            out.append(_accuracy_cell(row.metrics[m], role))
+    return out
+
+
 def _summary(comparison: Comparison) -> str:
+    """The figures read first (n, median, p99, FPS, the task's main accuracy, a recording's
+    pipeline latency), narrow enough for a laptop's screen; the others under More figures."""
     accuracy = [
         m
         for m in (*ACCURACY_METRICS, *TAG_METRICS)
@@ -316,12 +341,21 @@ def _summary(comparison: Comparison) -> str:
         if any(r.metrics[m].value is not None or r.metrics[m].baseline is not None
                for r in comparison.rows)
     ]  # fmt: skip
-    head = ['run', 'backend', 'topic', 'role', 'n']
-    head += [_NAMES[m] for m in (*TIMING_METRICS, *accuracy, *recorded)]
+    main = [
+        *_MAIN_TIMING,
+        *(m for m in _MAIN_ACCURACY if m in accuracy),
+        *(m for m in _MAIN_RECORDED if m in recorded),
+    ]
+    more = [m for m in (*TIMING_METRICS, *accuracy, *recorded) if m not in main]
+    where = ['run', 'backend', 'topic', 'role']
+    head = [*where, 'n', *(_NAMES[m] for m in main)]
     th = ''.join(
         f'<th class="n">{_e(h)}</th>' if i >= 4 else f'<th>{_e(h)}</th>' for i, h in enumerate(head)
     )
-    body = []
+    more_th = ''.join(f'<th>{_e(h)}</th>' for h in where) + ''.join(
+        f'<th class="n">{_e(_NAMES[m])}</th>' for m in more
+    )
+    body, more_body = [], []
     for row in comparison.rows:
         role = row.role
         versus = (
@@ -329,16 +363,13 @@ def _summary(comparison: Comparison) -> str:
             if role == 'candidate' and row.baseline_backend != row.backend
             else ''
         )
-        cells = [
+        first = [
             f'<td class="run">{_swatch(colour(row.run))}{_label_html(comparison, row)}</td>',
             f'<td>{_e(row.backend)}{versus}</td>',
-            f'<td><code>{_e(row.topic)}</code></td>',
+            f'<td><code>{_e(row.topic).replace("/", "/<wbr>")}</code></td>',
             f'<td>{_e(role)}</td>',
-            f'<td class="n">{row.measured}</td>',
         ]
-        cells += [_timing_cell(row.metrics[m], role) for m in TIMING_METRICS]
-        cells += [_accuracy_cell(row.metrics[m], role) for m in accuracy]
-        cells += [_recorded_cell(row.metrics[m], role) for m in recorded]
+        cells = [*first, f'<td class="n">{row.measured}</td>', *_cells(row, main)]
         css = 'base' if role == 'baseline' else ''
         body.append(f'<tr class="{css}">{"".join(cells)}</tr>')
         if row.flags:
@@ -347,9 +378,18 @@ def _summary(comparison: Comparison) -> str:
                 f'<tr class="{css} flagrow"><td></td><td class="flags" colspan="{len(head) - 1}">'
                 f'⚑ {flags}</td></tr>'
             )
+        more_body.append(f'<tr class="{css}">{"".join([*first, *_cells(row, more)])}</tr>')
+    names = ', '.join(_NAMES[m] for m in more)
+    details = (
+        f'<details id="summary-more"><summary>More figures: {_e(names)}'
+        '</summary><div class="table-wrap"><table class="summary-more"><thead><tr>'
+        f'{more_th}</tr></thead><tbody>{"".join(more_body)}</tbody></table></div></details>'
+        if more
+        else ''
+    )
     return (
         '<h2 id="summary">Summary</h2><div class="table-wrap"><table class="summary"><thead><tr>'
-        f'{th}</tr></thead><tbody>{"".join(body)}</tbody></table></div>'
+        f'{th}</tr></thead><tbody>{"".join(body)}</tbody></table></div>{details}'
         '<p class="muted">Candidate rows: value, ratio to the baseline row (candidate / '
         'baseline, whole runs), the typical ratio between blocks of frames (frames below '
         f'{MIN_FRAMES}) and its {round(comparison.confidence * 100)}% CI, which the gate '

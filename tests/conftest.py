@@ -53,6 +53,10 @@ LONG_CPU_MODEL = (
 )
 
 
+#: The test folders whose modules all run on the machine of the long name: the renderings.
+LONG_NAME_FOLDERS = frozenset({'report', 'comparison'})
+
+
 @pytest.fixture(scope='module')
 def long_machine_name() -> Iterator[tuple[str, str]]:
     """While the module runs, the machine every run describes (run.json ``environment``:
@@ -61,3 +65,14 @@ def long_machine_name() -> Iterator[tuple[str, str]]:
         patch.setattr(machine, '_hostname', lambda: LONG_HOSTNAME)
         patch.setattr(machine, '_cpu_model', lambda: LONG_CPU_MODEL)
         yield LONG_HOSTNAME, LONG_CPU_MODEL
+
+
+@pytest.fixture(scope='module', autouse=True)
+def _renderings_on_a_long_named_machine(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Every module of tests/report/ and tests/comparison/ runs under ``long_machine_name``
+    (an autouse fixture comes before the module's own, so its run folders have the name)."""
+    if request.path.parent.name not in LONG_NAME_FOLDERS:
+        yield
+        return
+    request.getfixturevalue('long_machine_name')
+    yield

@@ -91,12 +91,6 @@ def _records(
     return records
 
 
-@pytest.fixture(scope='module', autouse=True)
-def _long_machine_name(long_machine_name: tuple[str, str]) -> tuple[str, str]:
-    """Every report test runs on a machine with a long, odd name (tests/conftest.py)."""
-    return long_machine_name
-
-
 @pytest.fixture
 def make_run(tmp_path: Path) -> MakeRun:
     counter = iter(range(1000))

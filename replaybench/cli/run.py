@@ -28,6 +28,9 @@ if TYPE_CHECKING:
 
 __all__: list[str] = []
 
+#: After a figure of the terminal's table that was recorded in the bag, not measured here.
+RECORDED_MARK = '*'
+
 
 def _print_summary(summaries: list[Summary]) -> None:
     header: tuple[str, ...] = (
@@ -48,10 +51,28 @@ def _print_summary(summaries: list[Summary]) -> None:
     # segmentation backends: their mIoU against the ground-truth masks
     segmented = any(s.segmentation is not None for s in summaries)
     header += ('mIoU',) if segmented else ()
+    from replaybench.results.recorded_latency import replays_recording
+
     rows = []
+    recorded = False
     for s in summaries:
         # private (anonymous) memory, not the RSS that counts the memory-mapped input
         private = s.private_mb_peak
+        # a recording: its output rate and pipeline latency from the bag, marked (how fast the
+        # bag was read is no detector's speed)
+        speed = (
+            (fmt(s.throughput_fps, 1), fmt(s.latency_ms_p50), fmt(s.latency_ms_p99))
+            if not replays_recording(s)
+            else tuple(
+                f'{fmt(v, d)}{RECORDED_MARK}' if v is not None else '-'
+                for v, d in (
+                    (s.recorded_output_hz, 1),
+                    (s.pipeline_ms_p50, 2),
+                    (s.pipeline_ms_p99, 2),
+                )
+            )
+        )
+        recorded = recorded or replays_recording(s)
         rows.append(
             (
                 visible(s.backend),
@@ -59,9 +80,7 @@ def _print_summary(summaries: list[Summary]) -> None:
                 str(s.measured),
                 str(s.dropped),
                 str(s.skipped),
-                fmt(s.throughput_fps, 1),
-                fmt(s.latency_ms_p50),
-                fmt(s.latency_ms_p99),
+                *speed,
                 fmt(s.detections_per_frame),
                 fmt(s.precision50, 3),
                 fmt(s.recall50, 3),
@@ -77,6 +96,11 @@ def _print_summary(summaries: list[Summary]) -> None:
                 c.ljust(w) if i < 2 else c.rjust(w)
                 for i, (c, w) in enumerate(zip(row, widths, strict=True))
             )
+        )
+    if recorded:
+        typer.echo(
+            f'{RECORDED_MARK} recorded: the output rate (Hz) and pipeline latency of the node that '
+            'ran on the robot, from the bag; not a replay on this machine'
         )
 
 

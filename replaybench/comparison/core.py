@@ -397,6 +397,7 @@ def compare_runs(
             own = reps(run.index, backend, topic)
             base_series = series[baseline][ref, topic] if ref is not None else None
             metrics: dict[str, MetricComparison] = {}
+            base_rec = recorded[baseline].get((ref, topic)) if ref is not None else None
             for metric in TIMING_METRICS:
                 value = getattr(summary, _SUMMARY[metric])
                 base_value = (
@@ -404,6 +405,13 @@ def compare_runs(
                     if base_series is not None
                     else None
                 )
+                if metric == 'fps' and (rec is not None or base_rec is not None):
+                    # a recording's FPS is how fast the bag was read, no detector's speed: it
+                    # has none here, and no row's FPS is a ratio to it
+                    metrics[metric] = _timing(
+                        metric, None if rec is not None else value, own, None, None, confidence
+                    )
+                    continue
                 change = None
                 if paired and base_series is not None:
                     # both runs of --repeat: between passes (repeats.py); else between blocks
@@ -424,7 +432,6 @@ def compare_runs(
                 metrics[metric] = _accuracy_metric(
                     metric, acc.get(metric), base_acc.get(metric), paired
                 )
-            base_rec = recorded[baseline].get((ref, topic)) if ref is not None else None
             for metric in RECORDED_METRICS:
                 metrics[metric] = recorded_metric_parts(
                     metric, rec, base_rec, paired=paired, confidence=confidence

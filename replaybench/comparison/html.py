@@ -14,7 +14,7 @@ from replaybench.comparison.core import (
 )
 from replaybench.comparison.gate import gate_verdict, method_text
 from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match
-from replaybench.report.svg import colour, nice_ticks, step_cdf
+from replaybench.report.svg import Label, colour, fit_label, nice_ticks, step_cdf
 from replaybench.results.blocks import BLOCK_FRAMES, MAX_BLOCKS, MIN_BLOCKS
 from replaybench.results.bootstrap import MIN_FRAMES
 from replaybench.textsafe import visible
@@ -54,7 +54,9 @@ td.n,th.n{text-align:right;white-space:nowrap}
 td.flags{color:#8a4b00;font-size:12px}
 tr.flagrow td{border-top:none;padding-top:0}
 table.summary tr:has(+ tr.flagrow) td{border-bottom:none}
-td.run{min-width:160px;max-width:260px}
+td.run{min-width:120px;max-width:200px;overflow-wrap:anywhere}
+td.n .ci{white-space:normal}
+td.flags{white-space:normal;overflow-wrap:anywhere}
 tr.base td{background:#fafafa}
 .ci{color:var(--muted);font-size:12px;display:block}
 .swatch{display:inline-block;width:10px;height:10px;border-radius:2px;margin-right:6px}
@@ -304,7 +306,30 @@ def _accuracy_cell(m: MetricComparison, role: str) -> str:
     return f'<td class="n">{value}<span class="ci">Δ {m.diff:+.4f} (no CI)</span></td>'
 
 
+#: The main accuracy figure of each task, read first: boxes, tags, masks.
+_MAIN_ACCURACY: tuple[str, ...] = ('map50', 'tag_recall', 'miou')
+#: The timing figures read first (the mean is under More figures).
+_MAIN_TIMING: tuple[str, ...] = ('median_ms', 'p99_ms', 'fps')
+#: A recording's main latency, read first where a row has one.
+_MAIN_RECORDED: tuple[str, ...] = ('recorded_pipeline_ms',)
+
+
+def _cells(row: Row, metrics: Sequence[str]) -> list[str]:
+    role = row.role
+    out = []
+    for m in metrics:
+        if m in TIMING_METRICS:
+            out.append(_timing_cell(row.metrics[m], role))
+        elif m in RECORDED_METRICS:
+            out.append(_recorded_cell(row.metrics[m], role))
+        else:
+            out.append(_accuracy_cell(row.metrics[m], role))
+    return out
+
+
 def _summary(comparison: Comparison) -> str:
+    """The figures read first (n, median, p99, FPS, the task's main accuracy, a recording's
+    pipeline latency), narrow enough for a laptop's screen; the others under More figures."""
     accuracy = [
         m
         for m in (*ACCURACY_METRICS, *TAG_METRICS)
@@ -316,12 +341,21 @@ def _summary(comparison: Comparison) -> str:
         if any(r.metrics[m].value is not None or r.metrics[m].baseline is not None
                for r in comparison.rows)
     ]  # fmt: skip
-    head = ['run', 'backend', 'topic', 'role', 'n']
-    head += [_NAMES[m] for m in (*TIMING_METRICS, *accuracy, *recorded)]
+    main = [
+        *_MAIN_TIMING,
+        *(m for m in _MAIN_ACCURACY if m in accuracy),
+        *(m for m in _MAIN_RECORDED if m in recorded),
+    ]
+    more = [m for m in (*TIMING_METRICS, *accuracy, *recorded) if m not in main]
+    where = ['run', 'backend', 'topic', 'role']
+    head = [*where, 'n', *(_NAMES[m] for m in main)]
     th = ''.join(
         f'<th class="n">{_e(h)}</th>' if i >= 4 else f'<th>{_e(h)}</th>' for i, h in enumerate(head)
     )
-    body = []
+    more_th = ''.join(f'<th>{_e(h)}</th>' for h in where) + ''.join(
+        f'<th class="n">{_e(_NAMES[m])}</th>' for m in more
+    )
+    body, more_body = [], []
     for row in comparison.rows:
         role = row.role
         versus = (
@@ -329,16 +363,13 @@ def _summary(comparison: Comparison) -> str:
             if role == 'candidate' and row.baseline_backend != row.backend
             else ''
         )
-        cells = [
-            f'<td class="run">{_swatch(colour(row.run))}{_e(row.run_label)}</td>',
+        first = [
+            f'<td class="run">{_swatch(colour(row.run))}{_label_html(comparison, row)}</td>',
             f'<td>{_e(row.backend)}{versus}</td>',
-            f'<td><code>{_e(row.topic)}</code></td>',
+            f'<td><code>{_e(row.topic).replace("/", "/<wbr>")}</code></td>',
             f'<td>{_e(role)}</td>',
-            f'<td class="n">{row.measured}</td>',
         ]
-        cells += [_timing_cell(row.metrics[m], role) for m in TIMING_METRICS]
-        cells += [_accuracy_cell(row.metrics[m], role) for m in accuracy]
-        cells += [_recorded_cell(row.metrics[m], role) for m in recorded]
+        cells = [*first, f'<td class="n">{row.measured}</td>', *_cells(row, main)]
         css = 'base' if role == 'baseline' else ''
         body.append(f'<tr class="{css}">{"".join(cells)}</tr>')
         if row.flags:
@@ -347,9 +378,18 @@ def _summary(comparison: Comparison) -> str:
                 f'<tr class="{css} flagrow"><td></td><td class="flags" colspan="{len(head) - 1}">'
                 f'⚑ {flags}</td></tr>'
             )
+        more_body.append(f'<tr class="{css}">{"".join([*first, *_cells(row, more)])}</tr>')
+    names = ', '.join(_NAMES[m] for m in more)
+    details = (
+        f'<details id="summary-more"><summary>More figures: {_e(names)}'
+        '</summary><div class="table-wrap"><table class="summary-more"><thead><tr>'
+        f'{more_th}</tr></thead><tbody>{"".join(more_body)}</tbody></table></div></details>'
+        if more
+        else ''
+    )
     return (
         '<h2 id="summary">Summary</h2><div class="table-wrap"><table class="summary"><thead><tr>'
-        f'{th}</tr></thead><tbody>{"".join(body)}</tbody></table></div>'
+        f'{th}</tr></thead><tbody>{"".join(body)}</tbody></table></div>{details}'
         '<p class="muted">Candidate rows: value, ratio to the baseline row (candidate / '
         'baseline, whole runs), the typical ratio between blocks of frames (frames below '
         f'{MIN_FRAMES}) and its {round(comparison.confidence * 100)}% CI, which the gate '
@@ -367,7 +407,7 @@ def _summary(comparison: Comparison) -> str:
 
 
 class _Bar(NamedTuple):
-    label: str
+    label: Label
     fill: str
     opacity: float
     value: float | None
@@ -381,7 +421,8 @@ def _n(value: float) -> str:
 
 def _interval_chart(bars: Sequence[_Bar], *, title: str, x_label: str, width: int = 720) -> str:
     """Horizontal bars with confidence-interval whiskers."""
-    label_w = min(300, max(60, int(max((len(b.label) for b in bars), default=4) * 6.6) + 12))
+    longest = max((len(str(b.label)) for b in bars), default=4)
+    label_w = min(300, max(60, int(longest * 6.6) + 12))
     left, right, top = label_w + 8, 80, 32
     bar_h, gap = 16, 6
     plot_h = max(1, len(bars)) * (bar_h + gap) + gap
@@ -414,11 +455,7 @@ def _interval_chart(bars: Sequence[_Bar], *, title: str, x_label: str, width: in
     for i, bar in enumerate(bars):
         y = top + gap + i * (bar_h + gap)
         mid = y + bar_h / 2
-        shown = (
-            bar.label
-            if len(bar.label) * 6.6 <= label_w
-            else bar.label[: int(label_w / 6.6) - 1] + '…'
-        )
+        shown = fit_label(bar.label, int(label_w / 6.6))
         parts.append(
             f'<text x="{left - 6}" y="{_n(mid + 4)}" text-anchor="end" fill="#222">'
             f'<title>{_e(bar.label)}</title>{_e(shown)}</text>',
@@ -454,6 +491,26 @@ def _interval_chart(bars: Sequence[_Bar], *, title: str, x_label: str, width: in
     return ''.join(parts)
 
 
+def _run_label(comparison: Comparison, row: Row, tail: str = '') -> Label:
+    """``row``'s run label then ``tail``, as a chart ``Label``: its machine is the middle."""
+    head, machine, rest = comparison.runs[row.run].label_parts
+    if not (head or machine or rest):
+        head = row.run_label
+    return Label(head, machine, rest + tail)
+
+
+#: The most characters of a run label in the summary table (the Runs table has it whole).
+_CELL_LABEL = 44
+
+
+def _label_html(comparison: Comparison, row: Row) -> str:
+    """The run label of a summary row: its machine shortened first, the whole as its tooltip."""
+    shown = fit_label(_run_label(comparison, row), _CELL_LABEL)
+    if shown == row.run_label:
+        return _e(shown)
+    return f'<span title="{_e(row.run_label)}">{_e(shown)}</span>'
+
+
 def _groups(comparison: Comparison) -> dict[tuple[str, str], list[Row]]:
     groups: dict[tuple[str, str], list[Row]] = {}
     for row in comparison.rows:
@@ -467,8 +524,10 @@ def _charts(comparison: Comparison) -> str:
     parts = ['<h2 id="latency">Latency per backend and topic</h2>']
     for (backend, topic), rows in _groups(comparison).items():
 
-        def name(row: Row, backend: str = backend) -> str:
-            return row.run_label if row.backend == backend else f'{row.run_label} · {row.backend}'
+        def name(row: Row, kind: str = '', backend: str = backend) -> Label:
+            """The row's run label, its machine the part shortened first in a chart."""
+            tail = kind if row.backend == backend else f' · {row.backend}{kind}'
+            return _run_label(comparison, row, tail=tail)
 
         def values(row: Row) -> list[float]:
             # a recording's row: its recorded pipeline latency (its replay is not timed)
@@ -482,8 +541,9 @@ def _charts(comparison: Comparison) -> str:
             key = (row.run, row.backend, row.topic)
             return key in comparison.recorded_latencies and not comparison.latencies[key].size
 
-        def label(row: Row) -> str:
-            return f'{name(row)} · recorded pipeline' if recorded(row) else name(row)
+        def label(row: Row, tag: str = '') -> Label:
+            found = name(row, ' · recorded pipeline' if recorded(row) else '')
+            return found._replace(head=tag + found.head)
 
         series = [(label(r), colour(r.run), values(r)) for r in rows]
         cdf = step_cdf(series, title=f'Latency CDF · {backend} · {topic}', x_label='latency (ms)')
@@ -498,7 +558,7 @@ def _charts(comparison: Comparison) -> str:
             for metric, tag, opacity in pairs:
                 m = r.metrics[metric]
                 bars.append(
-                    _Bar(f'{tag} · {label(r)}', colour(r.run), opacity, m.value, m.value_ci)
+                    _Bar(label(r, f'{tag} · '), colour(r.run), opacity, m.value, m.value_ci)
                 )
         whiskers = _interval_chart(
             bars,

@@ -76,6 +76,9 @@ class RunInfo:
     settings: dict[str, Any]
     #: backend label -> run.json ``backends[].info`` (empty dict when absent)
     backend_info: dict[str, dict[str, Any]]
+    #: ``label`` in three parts (``''.join`` of them is ``label``): the folder and `` (``, the
+    #: machine, and ``)`` with any ``#n``; a chart shortens the machine first
+    label_parts: tuple[str, str, str] = ('', '', '')
 
     @property
     def machine(self) -> str:
@@ -144,24 +147,29 @@ def _folder(path: Path) -> str:
     return path.name or path.resolve().name or str(path)
 
 
-def _labels(infos: Sequence[RunInfo]) -> list[str]:
-    def label(name: str, info: RunInfo) -> str:
-        machine = info.machine
-        return f'{name} ({machine})' if machine else name
+def _labels(infos: Sequence[RunInfo]) -> list[tuple[str, str, str]]:
+    """Each run's label in its three parts (``RunInfo.label_parts``): unique together."""
 
-    labels = [label(_folder(i.dir), i) for i in infos]
+    def label(name: str, info: RunInfo) -> tuple[str, str, str]:
+        machine = info.machine
+        return (f'{name} (', machine, ')') if machine else (name, '', '')
+
+    parts = [label(_folder(i.dir), i) for i in infos]
+    labels = [''.join(p) for p in parts]
     if len(set(labels)) < len(labels):
-        labels = [
+        parts = [
             label(f'{_folder(i.dir.resolve().parent)}/{_folder(i.dir)}', i)
             if labels.count(text) > 1
-            else text
-            for i, text in zip(infos, labels, strict=True)
+            else p
+            for i, p, text in zip(infos, parts, labels, strict=True)
         ]
+        labels = [''.join(p) for p in parts]
     seen: dict[str, int] = {}
     unique = []
-    for text in labels:
+    for (head, machine, tail), text in zip(parts, labels, strict=True):
         seen[text] = seen.get(text, 0) + 1
-        unique.append(text if labels.count(text) == 1 else f'{text} #{seen[text]}')
+        suffix = '' if labels.count(text) == 1 else f' #{seen[text]}'
+        unique.append((head, machine, tail + suffix))
     return unique
 
 
@@ -172,7 +180,10 @@ def load_runs(run_dirs: Sequence[str | Path | RunData]) -> list[RunInfo]:
         _info(index, d if isinstance(d, RunData) else load_run(Path(d)))
         for index, d in enumerate(run_dirs)
     ]
-    return [replace(i, label=label) for i, label in zip(infos, _labels(infos), strict=True)]
+    return [
+        replace(i, label=''.join(parts), label_parts=parts)
+        for i, parts in zip(infos, _labels(infos), strict=True)
+    ]
 
 
 def inputs_match(info: RunInfo, baseline: RunInfo) -> bool | None:

@@ -2,7 +2,10 @@
 and how well the two agree, in one table narrow enough for a laptop screen.
 
 * **Fastest**: the highest throughput (summary ``throughput_fps``) among the backends that
-  detect; ``null`` (the harness alone) is a reference and is only named when it ran alone. Its
+  detect; ``null`` (the harness alone) is a reference and is only named when it ran alone. A
+  backend replaying recorded outputs (``recorded``) never competes: its FPS is how fast the bag
+  was read, not how fast the robot's node ran (``results.recorded_latency.replays_recording``);
+  with no replayed backend, no backend is the fastest. Its
   FPS, p50 and p99 latency come with the 95 % block-bootstrap intervals of its summary row, the
   ones run.json and summary.csv hold (``replaybench.results.intervals``, which also gives
   ``replaybench compare`` a row's own interval: the same intervals everywhere; none below
@@ -23,6 +26,7 @@ import numpy as np
 
 from replaybench.results.bootstrap import CONFIDENCE
 from replaybench.results.intervals import measured_series, row_intervals
+from replaybench.results.recorded_latency import replays_recording
 from replaybench.textsafe import visible
 
 if TYPE_CHECKING:
@@ -54,6 +58,8 @@ class TopicHeadline:
 
     topic: str
     fastest: str | None
+    #: the topic's rows replay recorded outputs only (none is timed here)
+    recorded_only: bool
     fps: float | None
     fps_ci: Interval | None
     fps_all: float | None  # the fastest backend's FPS summed over every topic (several topics)
@@ -131,14 +137,15 @@ def topic_headlines(
     fps_all: dict[str, float] = {}
     for row in rows:
         fps = _num(row.throughput_fps)
-        if fps is not None:
+        if fps is not None and not replays_recording(row):
             fps_all[row.backend] = fps_all.get(row.backend, 0.0) + fps
     groups: dict[tuple[str, str], list[FrameRecord]] = {}
     for record in frames:
         groups.setdefault((record.backend, record.topic), []).append(record)
     out = []
     for topic, topic_rows in by_topic.items():
-        timed = [r for r in topic_rows if _num(r.throughput_fps) is not None]
+        replayed = [r for r in topic_rows if not replays_recording(r)]
+        timed = [r for r in replayed if _num(r.throughput_fps) is not None]
         detectors = [r for r in timed if names.get(r.backend, '') not in REFERENCE_BACKENDS]
         pool = detectors or timed
         fastest = max(pool, key=lambda r: _num(r.throughput_fps) or 0.0, default=None)
@@ -156,6 +163,7 @@ def topic_headlines(
             TopicHeadline(
                 topic=topic,
                 fastest=fast_name,
+                recorded_only=not replayed,
                 fps=_num(fastest.throughput_fps) if fastest is not None else None,
                 fps_ci=fps_ci,
                 fps_all=fps_all.get(fast_name) if fast_name and len(by_topic) > 1 else None,
@@ -242,7 +250,9 @@ def headline_html(run: RunResult, rows: Sequence[SummaryRow], frames: Sequence[F
             fps += f'<br><span class="muted">of {_e(_fmt(head.fps_all, 1))} in all</span>'
         cells = [
             f'<td><code>{_e(head.topic).replace("/", "/<wbr>")}</code></td>',
-            f'<td>{_e(head.fastest or "–")}</td>',
+            f'<td>{_e(head.fastest or "–")}</td>'
+            if head.fastest or not head.recorded_only
+            else '<td><span class="muted">none replayed: recorded outputs only</span></td>',
             f'<td class="n">{fps}</td>',
             f'<td class="n">{p50}</td>',
             f'<td class="n">{p99}</td>',
@@ -271,6 +281,14 @@ def headline_html(run: RunResult, rows: Sequence[SummaryRow], frames: Sequence[F
             'null, the harness alone, is left out of "fastest" unless it ran alone.'
         )
     ]
+    recordings = ', '.join(dict.fromkeys(r.backend for r in rows if replays_recording(r)))
+    if recordings:
+        notes[0] += (
+            f' {recordings}: the outputs recorded in the bag, which never compete on speed (the '
+            'rate such a backend is replayed at is how fast the bag was read, not how fast the '
+            "robot's node ran; its recorded output rate and latency are in the Summary and "
+            'under Recorded latency).'
+        )
     if scored:
         notes[0] += (
             ' mAP@0.5 against the ground truth; agreement: share of each backend’s detections '

@@ -17,6 +17,7 @@ from replaybench.report.masks import mask_of
 from replaybench.report.recorded import recorded_latency_html
 from replaybench.report.samples import sample_relpath
 from replaybench.report.svg import (
+    TREND_POINTS,
     Marks,
     Rule,
     Segment,
@@ -34,7 +35,7 @@ from replaybench.results.folder import load_run
 from replaybench.results.intervals import with_intervals
 from replaybench.results.io import read_peak_result, to_json
 from replaybench.results.model import PEAK_SCHEMA_VERSION, ResourceSummary, SummaryRow
-from replaybench.results.recorded_latency import with_recorded_latency
+from replaybench.results.recorded_latency import replays_recording, with_recorded_latency
 from replaybench.results.repeats import one_timeline
 from replaybench.results.stats import summarize
 from replaybench.textsafe import visible, visible_lines
@@ -364,65 +365,144 @@ def _accuracy_value(row: SummaryRow, key: str) -> float | None:
     return value
 
 
-def _summary_table(rows: Sequence[SummaryRow], colours: Mapping[str, str]) -> str:
-    accuracy = any(r.accuracy is not None or r.map50 is not None for r in rows)
-    head = [
-        ('backend', ''),
-        ('topic', ''),
-        ('measured', 'n'),
-        ('dropped', 'n'),
-        ('skipped', 'n'),
-        ('FPS', 'n'),
-        ('p50 ms', 'n'),
-        ('p95 ms', 'n'),
-        ('p99 ms', 'n'),
-        ('max ms', 'n'),
-        ('jitter ms', 'n'),
-        ('det/frame', 'n'),
+def _map50(row: SummaryRow) -> float | None:
+    return _accuracy_value(row, 'map50')
+
+
+def _tag_recall(row: SummaryRow) -> float | None:
+    return row.tag_accuracy.recall if row.tag_accuracy is not None else row.tag_recall
+
+
+def _miou(row: SummaryRow) -> float | None:
+    return row.miou
+
+
+#: The main accuracy figure of each task, the one a reader looks for first: boxes' mAP@0.5,
+#: tags' recall, masks' mIoU (title, figure of a row).
+_MAIN_ACCURACY: tuple[tuple[str, Callable[[SummaryRow], float | None]], ...] = (
+    ('mAP@0.5', _map50),
+    ('tag recall', _tag_recall),
+    ('mIoU', _miou),
+)
+
+_RECORDED_TIP = (
+    "recorded: the robot's node, from the bag (output rate; pipeline latency, output log time "
+    '− image log time), not a replay on this machine'
+)
+
+
+def _recorded_cell(value: float | None, low: Any, high: Any, fmt: Callable[[Any], str]) -> str:
+    """A ``recorded`` row's figure, marked as recorded (its replay is not timed)."""
+    cell = f'<td class="n recorded" title="{_e(_RECORDED_TIP)}">{_e(fmt(value))}'
+    if _num(low) is not None and _num(high) is not None:
+        cell += f'<br><span class="muted ci">{_e(fmt(low))}–{_e(fmt(high))}</span>'
+    return cell + '<br><span class="muted">recorded</span></td>'
+
+
+def _speed_cells(row: SummaryRow) -> list[str]:
+    """FPS, p50 and p99 of a row: replayed, or for a recording its recorded output rate and
+    pipeline latency, marked so (how fast the bag was read is no detector's speed)."""
+    if replays_recording(row):
+        return [
+            _recorded_cell(row.recorded_output_hz, None, None, _fmt_fps),
+            _recorded_cell(
+                row.pipeline_ms_p50,
+                row.pipeline_ms_p50_ci_low,
+                row.pipeline_ms_p50_ci_high,
+                _fmt_ms,
+            ),
+            _recorded_cell(
+                row.pipeline_ms_p99,
+                row.pipeline_ms_p99_ci_low,
+                row.pipeline_ms_p99_ci_high,
+                _fmt_ms,
+            ),
+        ]
+    return [
+        _with_ci(
+            row.throughput_fps, row.throughput_fps_ci_low, row.throughput_fps_ci_high, _fmt_fps
+        ),
+        _with_ci(
+            row.latency_ms_p50, row.latency_ms_p50_ci_low, row.latency_ms_p50_ci_high, _fmt_ms
+        ),
+        _with_ci(
+            row.latency_ms_p99, row.latency_ms_p99_ci_low, row.latency_ms_p99_ci_high, _fmt_ms
+        ),
     ]
+
+
+def _topic_html(topic: str) -> str:
+    """A topic name that may break after each '/' (narrow columns)."""
+    return f'<code>{_e(topic).replace("/", "/<wbr>")}</code>'
+
+
+def _summary_table(rows: Sequence[SummaryRow], colours: Mapping[str, str]) -> str:
+    """The figures read first (frames, drops, FPS, p50, p99, the task's main accuracy), narrow
+    enough for a laptop's screen; the others in a table that opens below it."""
+    accuracy = any(r.accuracy is not None or r.map50 is not None for r in rows)
+    main = [(t, get) for t, get in _MAIN_ACCURACY if any(get(r) is not None for r in rows)]
+    head = ['backend', 'topic', 'measured', 'dropped', 'FPS', 'p50 ms', 'p99 ms']
+    head += [title for title, _ in main]
+    more_head = ['backend', 'topic', 'skipped', 'p95 ms', 'max ms', 'jitter ms', 'det/frame']
     if accuracy:
-        head += [('P@0.5', 'n'), ('R@0.5', 'n'), ('mAP@0.5', 'n'), ('mAP@0.5:0.95', 'n')]
-    th = ''.join(
-        f'<th class="{c}">{_e(name)}</th>' if c else f'<th>{_e(name)}</th>' for name, c in head
-    )
-    body = []
+        more_head += ['P@0.5', 'R@0.5', 'mAP@0.5:0.95']
+
+    def th(names: Sequence[str]) -> str:
+        return ''.join(
+            f'<th class="n">{_e(n)}</th>' if i >= 2 else f'<th>{_e(n)}</th>'
+            for i, n in enumerate(names)
+        )
+
+    body, more = [], []
     for row in rows:
         backend = row.backend or '?'
         swatch = f'<span class="swatch" style="background:{colours.get(backend, "#777")}"></span>'
+        where = [f'<td>{swatch}{_e(backend)}</td>', f'<td>{_topic_html(row.topic or "?")}</td>']
         cells = [
-            f'<td>{swatch}{_e(backend)}</td>',
-            f'<td><code>{_e(row.topic or "?")}</code></td>',
+            *where,
             f'<td class="n">{_e(_fmt_value(row.measured))}</td>',
             f'<td class="n">{_e(_fmt_value(row.dropped))}</td>',
-            f'<td class="n">{_e(_fmt_value(row.skipped))}</td>',
-            _with_ci(
-                row.throughput_fps, row.throughput_fps_ci_low, row.throughput_fps_ci_high, _fmt_fps
-            ),
-            _with_ci(
-                row.latency_ms_p50, row.latency_ms_p50_ci_low, row.latency_ms_p50_ci_high, _fmt_ms
-            ),
-            f'<td class="n">{_e(_fmt_ms(row.latency_ms_p95))}</td>',
-            _with_ci(
-                row.latency_ms_p99, row.latency_ms_p99_ci_low, row.latency_ms_p99_ci_high, _fmt_ms
-            ),
+            *_speed_cells(row),
+            *(f'<td class="n">{_e(_fmt(get(row), 3))}</td>' for _, get in main),
         ]
-        cells.append(f'<td class="n">{_e(_fmt_ms(row.latency_ms_max))}</td>')
-        cells.append(f'<td class="n">{_e(_fmt_ms(row.jitter_ms))}</td>')
-        cells.append(f'<td class="n">{_e(_fmt(row.detections_per_frame))}</td>')
-        if accuracy:
-            cells.extend(
-                f'<td class="n">{_e(_fmt(_accuracy_value(row, key), 3))}</td>'
-                for key in ('precision50', 'recall50', 'map50', 'map50_95')
-            )
         body.append(f'<tr>{"".join(cells)}</tr>')
+        recorded = replays_recording(row)
+        extra = [
+            *where,
+            f'<td class="n">{_e(_fmt_value(row.skipped))}</td>',
+            *(
+                f'<td class="n">{_e("–" if recorded else _fmt_ms(v))}</td>'
+                for v in (row.latency_ms_p95, row.latency_ms_max, row.jitter_ms)
+            ),
+            f'<td class="n">{_e(_fmt(row.detections_per_frame))}</td>',
+        ]
+        if accuracy:
+            extra.extend(
+                f'<td class="n">{_e(_fmt(_accuracy_value(row, key), 3))}</td>'
+                for key in ('precision50', 'recall50', 'map50_95')
+            )
+        more.append(f'<tr>{"".join(extra)}</tr>')
+    notes = (
+        'Statistics cover measured frames only (processed, after warm-up). '
+        'FPS: measured frames per second of processing window. Under FPS, p50 and p99: the 95 % '
+        'interval (block bootstrap of the measured frames, as in replaybench compare; none under '
+        '20 measured frames).'
+    )
+    if any(replays_recording(r) for r in rows):
+        notes += (
+            ' Marked recorded: a backend replaying the outputs recorded in the bag; its FPS is the '
+            "rate the robot's node published at and its p50 and p99 are its recorded pipeline "
+            'latency (output log time − image log time), not figures of this machine.'
+        )
     return (
-        f'<div class="table-wrap"><table id="summary-table"><thead><tr>{th}</tr></thead>'
+        f'<div class="table-wrap"><table id="summary-table"><thead><tr>{th(head)}</tr></thead>'
         f'<tbody>{"".join(body)}</tbody></table></div>'
-        '<p class="muted">Statistics cover measured frames only (processed, after warm-up). '
-        'FPS: measured frames per second of processing window; jitter: mean absolute '
-        'difference of consecutive latencies. Under FPS, p50 and p99: the 95 % interval '
-        '(block bootstrap of the measured frames, as in replaybench compare; none under 20 '
-        'measured frames).</p>'
+        f'<p class="muted">{_e(notes)}</p>'
+        f'<details id="summary-more"><summary>More figures: {_e(", ".join(more_head[2:]))}'
+        f'</summary><div class="table-wrap"><table id="summary-more-table"><thead><tr>'
+        f'{th(more_head)}</tr></thead><tbody>{"".join(more)}</tbody></table></div>'
+        '<p class="muted">jitter: mean absolute difference of consecutive latencies.</p>'
+        '</details>'
     )
 
 
@@ -544,6 +624,7 @@ def _latency_timeline(
         span_label='warm-up' if warm else '',
         marks=marks,
         note=note,
+        min_points=TREND_POINTS,
     )
 
 
@@ -596,6 +677,7 @@ def _detections_timeline(
         note='Each point is the mean over the frames of one pixel column.'
         if longest > _CHART_PIXELS
         else '',
+        min_points=TREND_POINTS,
     )
 
 
@@ -609,6 +691,10 @@ def _throughput_chart(
     colours: Mapping[str, str],
     many_topics: bool,
 ) -> str:
+    """Replayed rows only: a recording's rate of reading the bag is no detector's speed."""
+    rows = [r for r in rows if not replays_recording(r)]
+    if not rows:
+        return ''
     return bar_chart(
         [_group_label(r, many_topics) for r in rows],
         [_num(r.throughput_fps) for r in rows],
@@ -619,6 +705,10 @@ def _throughput_chart(
 
 
 def _stage_chart(rows: Sequence[SummaryRow], many_topics: bool) -> str:
+    """Replayed rows only (a recording's stages did not run here)."""
+    rows = [r for r in rows if not replays_recording(r)]
+    if not rows:
+        return ''
     segments = []
     for key, name, fill in _STAGES:
         values = [_num(getattr(r, key)) for r in rows]
@@ -668,6 +758,14 @@ def _plots(
         parts.append(
             f'<div class="charts">{_throughput_chart(rows, colours, many_topics)}'
             f'{_stage_chart(rows, many_topics)}</div>',
+        )
+    recordings = list(dict.fromkeys(r.backend for r in rows if replays_recording(r)))
+    if recordings:
+        parts.append(
+            f'<p class="muted">Not charted here: {_e(", ".join(recordings))}, the outputs '
+            'recorded in the bag. Their replay is no detector running on this machine: the '
+            'rate they were read at is how fast the bag was read. Their recorded output rate '
+            'and latency are in the Summary and under Recorded latency.</p>'
         )
     parts.append('<h2 id="detections">Detections</h2>')
     for topic in topics:
@@ -889,6 +987,7 @@ def _resources(run: RunResult, colours: Mapping[str, str]) -> str:
                     note='Each point is the mean over the samples of one pixel column.'
                     if longest > _CHART_PIXELS
                     else '',
+                    min_points=TREND_POINTS,
                 ),
             )
     return (

@@ -27,6 +27,8 @@ if TYPE_CHECKING:
 
 __all__ = [
     'PALETTE',
+    'TREND_POINTS',
+    'Label',
     'Marks',
     'Rule',
     'Segment',
@@ -34,6 +36,7 @@ __all__ = [
     'bar_chart',
     'colour',
     'downsample',
+    'fit_label',
     'line_chart',
     'nice_ticks',
     'stacked_bar_chart',
@@ -47,13 +50,47 @@ _GRID = '#e4e4e4'
 _TEXT = '#222'
 
 
+class Label(NamedTuple):
+    """A chart label in three parts, shown as ``head + middle + tail``. Where it is too long
+    for its place, ``middle`` (a machine's name, say) is shortened first, so that the head
+    (the run, the backend) and the tail (the kind of series) stay whole; the full text is the
+    label's tooltip."""
+
+    head: str
+    middle: str = ''
+    tail: str = ''
+
+    def __str__(self) -> str:
+        return self.head + self.middle + self.tail
+
+
+def fit_label(label: str | Label, limit: int) -> str:
+    """``label`` in at most ``limit`` characters: whole when it fits; else a ``Label``'s middle
+    shortened (down to '…'), then the end of its head; plain text, or a tail too long itself,
+    is cut in its middle, so that its start and its end (what the series is) stay."""
+    text = str(label)
+    limit = max(limit, 3)
+    if len(text) <= limit:
+        return text
+    if isinstance(label, Label):
+        room = limit - len(label.head) - len(label.tail) - 1
+        if label.middle and room >= 0:
+            return f'{label.head}{label.middle[:room].rstrip()}…{label.tail}'
+        keep = limit - len(label.tail) - 1
+        if keep >= min(len(label.head), 8):
+            return f'{label.head[:keep].rstrip()}…{label.tail}'
+    tail = (limit - 1) // 2
+    return f'{text[: limit - 1 - tail].rstrip()}…{text[len(text) - tail :].lstrip()}'
+
+
 class Series(NamedTuple):
     """One polyline; points whose x or y is not finite are left out.
 
     ``style``: ``'line'`` (a polyline), ``'dots'`` (a circle per point) or ``'line+dots'``.
+    ``name`` is shortened to fit the legend (``fit_label``), its full text the tooltip.
     """
 
-    name: str
+    name: str | Label
     colour: str
     xs: Values
     ys: Values
@@ -80,7 +117,7 @@ class Marks(NamedTuple):
 class Segment(NamedTuple):
     """One segment kind of a stacked bar chart: a value (or None) per bar."""
 
-    name: str
+    name: str | Label
     colour: str
     values: Sequence[float | None]
 
@@ -235,38 +272,93 @@ def downsample(
     return x[chosen], y[chosen]
 
 
-def _legend(entries: Sequence[tuple[str, str]], x0: float, y0: float, width: float) -> list[str]:
-    """Legend swatches laid out left to right, wrapping at ``width``; returns SVG parts."""
+#: The most characters of a legend entry (longer ones: ``fit_label``).
+_LEGEND_CHARS = 48
+
+
+def _legend(
+    entries: Sequence[tuple[str | Label, str]], x0: float, y0: float, width: float
+) -> list[str]:
+    """Legend swatches laid out left to right, wrapping at ``width``; returns SVG parts. An
+    entry too long is shortened (``fit_label``), its full text its tooltip."""
     parts: list[str] = []
     x, y = x0, y0
     for name, fill in entries:
-        label = name if len(name) <= 48 else name[:47] + '…'
+        label = fit_label(name, _LEGEND_CHARS)
         item_w = 18 + len(label) * _CHAR_W + 16
         if x > x0 and x + item_w > x0 + width:
             x, y = x0, y + 18
+        tip = f'<title>{_e(name)}</title>' if label != str(name) else ''
         parts.append(
             f'<rect x="{_n(x)}" y="{_n(y - 9)}" width="12" height="10" rx="2" fill="{_e(fill)}"/>'
-            f'<text x="{_n(x + 17)}" y="{_n(y)}" fill="{_TEXT}">{_e(label)}</text>',
+            f'<text x="{_n(x + 17)}" y="{_n(y)}" fill="{_TEXT}">{tip}{_e(label)}</text>',
         )
         x += item_w
     return parts
 
 
-def _top(entries: Sequence[tuple[str, str]], width: int) -> int:
+def _top(entries: Sequence[tuple[str | Label, str]], width: int) -> int:
     """Y of the plot area: below the title and the legend rows."""
     if not entries:
         return 32
     return 40 + 18 * (_legend_rows(entries, width - 24) - 1) + 16
 
 
-def _legend_rows(entries: Sequence[tuple[str, str]], width: float) -> int:
+def _legend_rows(entries: Sequence[tuple[str | Label, str]], width: float) -> int:
     rows, x = 1, 0.0
     for name, _ in entries:
-        item_w = 18 + min(len(name), 48) * _CHAR_W + 16
+        item_w = 18 + len(fit_label(name, _LEGEND_CHARS)) * _CHAR_W + 16
         if x > 0 and x + item_w > width:
             rows, x = rows + 1, 0.0
         x += item_w
     return rows
+
+
+#: The fewest points of a series over time that can show a trend: with fewer, a chart over
+#: time says what it has in words (``line_chart``'s ``min_points``).
+TREND_POINTS = 3
+
+
+def _figure(value: float) -> str:
+    return f'{value:.4g}'
+
+
+def _at(value: float) -> str:
+    """An x value in words: at most 3 decimals (seconds to the millisecond, hertz)."""
+    text = f'{value:.3f}'.rstrip('0').rstrip('.')
+    return '0' if text in ('', '-0') else text
+
+
+def _in_words(
+    data: Sequence[tuple[Series, npt.NDArray[np.float64], npt.NDArray[np.float64]]],
+    *,
+    title: str,
+    x_label: str,
+    y_label: str,
+    width: int,
+    min_points: int,
+) -> str:
+    """A chart's box holding, instead of axes, what its few points are."""
+    lines = [
+        f'Too few points to show a trend: fewer than {min_points} per series.',
+        f'{y_label} at {x_label}:',
+    ]
+    for s, x, y in data:
+        if not x.size:
+            lines.append(f'{fit_label(s.name, 40)}: no point')
+            continue
+        shown = ', '.join(f'{_figure(b)} at {_at(a)}' for a, b in zip(x, y, strict=True))
+        count = f'{x.size} point' + ('' if x.size == 1 else 's')
+        lines.append(f'{fit_label(s.name, 40)}: {count}: {shown}')
+    per_line = int((width - 24) / _CHAR_W)
+    lines = [fit_label(line, per_line) for line in lines]
+    height = 32 + 20 * len(lines) + 8
+    parts = [_open(width, height, title)]
+    for i, line in enumerate(lines):
+        fill = '#666' if i < 2 else _TEXT
+        parts.append(f'<text x="12" y="{_n(48 + 20 * i)}" fill="{fill}">{_e(line)}</text>')
+    parts.append('</svg>')
+    return ''.join(parts)
 
 
 def _open(width: int, height: int, title: str) -> str:
@@ -296,8 +388,13 @@ def line_chart(
     note: str = '',
     mean_per_pixel: bool = False,
     rules: Sequence[Rule] = (),
+    min_points: int = 0,
 ) -> str:
     """A chart of one polyline per series, with axes, ticks, grid and legend.
+
+    With ``min_points`` (a chart over time: ``TREND_POINTS``), where no series has that many
+    points the chart says in words what the points are, instead of drawing axes around one
+    or two dots.
 
     ``spans`` are shaded x-intervals (e.g. warm-up); ``marks`` are rows of short ticks below
     the x axis (e.g. dropped frames); ``rules`` are labelled reference lines (a threshold, a
@@ -306,6 +403,15 @@ def line_chart(
     envelope, or to the column means with ``mean_per_pixel``.
     """
     data = [(s, *_finite(s.xs, s.ys)) for s in series]
+    if min_points and data and all(x.size < min_points for _, x, _ in data):
+        return _in_words(
+            data,
+            title=title,
+            x_label=x_label,
+            y_label=y_label,
+            width=width,
+            min_points=min_points,
+        )
     all_x: list[float] = []
     for _, x, _ in data:
         if x.size:
@@ -321,7 +427,7 @@ def line_chart(
     all_x += [r.value for r in rules if r.axis == 'x' and math.isfinite(r.value)]
     all_y += [r.value for r in rules if r.axis != 'x' and math.isfinite(r.value)]
 
-    entries = [(s.name, s.colour) for s in series]
+    entries: list[tuple[str | Label, str]] = [(s.name, s.colour) for s in series]
     entries += [(m.name, m.colour) for m in marks if m.name]
     if spans and span_label:
         entries.append((span_label, '#d9d9d9'))
@@ -455,7 +561,7 @@ def line_chart(
 
 
 def step_cdf(
-    series: Sequence[tuple[str, str, Sequence[float]]],
+    series: Sequence[tuple[str | Label, str, Sequence[float]]],
     *,
     title: str,
     x_label: str,
@@ -497,7 +603,7 @@ def step_cdf(
 
 
 def _hbars(
-    labels: Sequence[str],
+    labels: Sequence[str | Label],
     segments: Sequence[Segment],
     bar_colours: Sequence[str] | None,
     *,
@@ -508,9 +614,12 @@ def _hbars(
 ) -> str:
     n = len(labels)
     show_legend = bar_colours is None
-    entries = [(s.name, s.colour) for s in segments] if show_legend else []
+    entries: list[tuple[str | Label, str]] = (
+        [(s.name, s.colour) for s in segments] if show_legend else []
+    )
     top = _top(entries, width)
-    label_w = min(260, max(60, int(max((len(t) for t in labels), default=4) * _CHAR_W) + 12))
+    longest = max((len(str(t)) for t in labels), default=4)
+    label_w = min(260, max(60, int(longest * _CHAR_W) + 12))
     left, right = label_w + 8, 72
     bar_h, gap = 18, 8
     plot_h = max(1, n) * (bar_h + gap) + gap
@@ -538,8 +647,7 @@ def _hbars(
         )
     for i, label in enumerate(labels):
         y = top + gap + i * (bar_h + gap)
-        fits = len(label) * _CHAR_W <= label_w
-        shown = label if fits else label[: int(label_w / _CHAR_W) - 1] + '…'
+        shown = fit_label(label, int(label_w / _CHAR_W))
         parts.append(
             f'<text x="{left - 6}" y="{_n(y + bar_h / 2 + 4)}" text-anchor="end" fill="{_TEXT}">'
             f'<title>{_e(label)}</title>{_e(shown)}</text>',
@@ -571,7 +679,7 @@ def _hbars(
 
 
 def bar_chart(
-    labels: Sequence[str],
+    labels: Sequence[str | Label],
     values: Sequence[float | None],
     colours: Sequence[str],
     *,
@@ -593,7 +701,7 @@ def bar_chart(
 
 
 def stacked_bar_chart(
-    labels: Sequence[str],
+    labels: Sequence[str | Label],
     segments: Sequence[Segment],
     *,
     title: str,

@@ -43,7 +43,7 @@ td.cell.failed{background:#ffebee}
 td.cell.flagged{outline:2px dashed #e0b000;outline-offset:-3px}
 .n{white-space:nowrap}
 .ci{color:var(--muted);font-size:12px}
-.where{color:var(--muted);font-size:12px}
+.where{color:var(--muted);font-size:12px;overflow-wrap:anywhere}
 .flags{color:#8a4b00;font-size:12px}
 .error{color:#c62828;font-size:12px}
 .table-wrap{overflow-x:auto}
@@ -72,12 +72,21 @@ def _column(entry: Mapping[str, Any]) -> str:
     return f'{entry["backend"]} {params}'.strip()
 
 
+#: Backends that replay the outputs recorded in the bag: their FPS is how fast the bag was
+#: read, no detector's speed, so they never get "best FPS" (and show no FPS).
+_RECORDINGS = frozenset({'recorded'})
+
+
 def _best(entries: Sequence[Mapping[str, Any]], metric: str) -> set[int]:
-    """Indices of the cells with the highest ``metric`` (of at least two with a value)."""
+    """Indices of the cells with the highest ``metric`` (of at least two with a value); FPS
+    among the replayed backends only."""
     scored = [
         (e['metrics'][metric], e['index'])
         for e in entries
-        if e['status'] == 'complete' and e.get('metrics') and e['metrics'].get(metric) is not None
+        if e['status'] == 'complete'
+        and e.get('metrics')
+        and e['metrics'].get(metric) is not None
+        and not (metric == 'fps' and e['backend'] in _RECORDINGS)
     ]
     if len(scored) < 2:
         return set()
@@ -101,9 +110,13 @@ def _cell_html(entry: Mapping[str, Any], best_fps: bool, best_map: bool) -> str:
         parts.append(' <span class="badge best">best mAP</span>')
     m = entry.get('metrics')
     if m:
+        fps = (
+            '<div class="where">recorded outputs: no replay speed</div>'
+            if entry['backend'] in _RECORDINGS
+            else f'<div class="n">{_num(m.get("fps"), 1)} FPS{_ci(m.get("fps_ci"), 1)}</div>'
+        )
         parts.append(
-            f'<div class="n">{_num(m.get("fps"), 1)} FPS{_ci(m.get("fps_ci"), 1)}</div>'
-            f'<div class="n">p50 {_num(m.get("p50_ms"))} ms{_ci(m.get("p50_ci"))}</div>'
+            fps + f'<div class="n">p50 {_num(m.get("p50_ms"))} ms{_ci(m.get("p50_ci"))}</div>'
             f'<div class="n">p99 {_num(m.get("p99_ms"))} ms{_ci(m.get("p99_ci"))}</div>'
             f'<div class="n">mAP@0.5 {_num(m.get("map50"), 3)} · {m.get("frames")} frames</div>'
         )

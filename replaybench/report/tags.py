@@ -57,6 +57,7 @@ def tag_accuracy_html(rows: Sequence[SummaryRow]) -> str:
         '<p class="muted">Against the tag ground truth (docs/fiducials.md): a truth tag is matched '
         'by a detected tag of its id whose centre lies inside it; errors over the matched tags, '
         'poses where both have one. Point estimates, no interval.</p>'
+        '<div class="table-wrap">'
         f'<table id="tag-accuracy"><thead><tr><th>backend</th><th>topic</th>{head}</tr></thead>'
-        f'<tbody>{"".join(body)}</tbody></table>'
+        f'<tbody>{"".join(body)}</tbody></table></div>'
     )

@@ -67,6 +67,10 @@ def _cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+def _hostname() -> str | None:
+    return platform.node() or None
+
+
 def _memory_total_bytes() -> int | None:
     text = _read_text('/proc/meminfo')
     if text:
@@ -137,7 +141,7 @@ def environment() -> dict[str, Any]:
     snapshot = load_snapshot().values
     load = list(snapshot) if snapshot is not None else None
     return {
-        'hostname': platform.node() or None,
+        'hostname': _hostname(),
         'cpu': {
             'model': _cpu_model(),
             'logical_cores': os.cpu_count(),

@@ -67,6 +67,7 @@ __all__ = [
     'first_pass',
     'recorded_summary',
     'recorded_times',
+    'replays_recording',
     'with_recorded_latency',
 ]
 
@@ -262,6 +263,14 @@ def _pipeline_refused(t: RecordedTimes) -> str | None:
 
 def _capture_refused(t: RecordedTimes) -> str | None:
     return t.capture_refused
+
+
+def replays_recording(row: SummaryRow) -> bool:
+    """Whether a summary row is a backend replaying recorded outputs (``recorded``): its
+    ``throughput_fps`` is how fast the bag was read, no detector's speed, and its latency is
+    the recorded one (``recorded_output_hz``, ``pipeline_ms_*``), so it never competes with
+    the replayed backends on speed."""
+    return row.recorded_outputs is not None
 
 
 def with_recorded_latency(

@@ -224,6 +224,29 @@ def test_a_replayed_backend_against_a_recording_shows_the_recording_beside_its_l
     assert f'>{m.baseline:.4g}</text>' in page  # its p50 bar
 
 
+def test_a_recordings_fps_is_no_speed_to_compare_with(
+    runs: dict[str, Path], tmp_path: Path
+) -> None:
+    """The rate the recorded backend was replayed at is how fast the bag was read: a recorded
+    row has no FPS, and a replayed row's FPS is no ratio to it (nor is one recording's to
+    another's)."""
+    against = rb.compare(runs['fast'], baseline_backend='recorded', out=tmp_path / 'cmp')
+    base = next(r for r in against.rows if r.role == 'baseline')
+    assert base.backend == 'recorded'
+    assert base.metrics['fps'].value is None
+    null = _row(against, 'null')
+    assert null.metrics['fps'].value is not None  # its own replay speed
+    assert null.metrics['fps'].ratio is None
+    assert null.metrics['fps'].baseline is None
+    with (tmp_path / 'cmp' / 'comparison.csv').open(newline='') as f:
+        records = {r['backend']: r for r in csv.DictReader(f)}
+    assert records['recorded']['fps'] == ''
+    assert records['null']['fps_ratio'] == ''
+    two = rb.compare(runs['fast'], runs['slow'])
+    assert _row(two).metrics['fps'].value is None
+    assert _row(two).metrics['fps'].ratio is None
+
+
 def test_every_exporter_carries_the_recorded_metrics(runs: dict[str, Path], tmp_path: Path) -> None:
     out = tmp_path / 'cmp'
     comparison = rb.compare(

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from replaybench.app.run import RunConfig, run_benchmark
 from replaybench.cli import app
 from replaybench.fixtures.live import write_live_mcap
-from replaybench.report.render import _fmt_ms
+from replaybench.report.render import _fmt_fps, _fmt_ms
 from replaybench.results.records import read_frames_csv
 
 if TYPE_CHECKING:
@@ -119,3 +119,65 @@ def test_the_recorded_section_renders_in_chromium(live_run: RunOutcome) -> None:
             assert errors == []
         finally:
             browser.close()
+
+
+@pytest.fixture(scope='module')
+def recorded_and_hsv(tmp_path_factory: pytest.TempPathFactory) -> RunOutcome:
+    """`replaybench run live_detections.mcap --backend recorded --backend hsv`: the bag is
+    read far faster than the robot's detector ran (26.65 Hz, 36.94 ms pipeline p50)."""
+    bag = REPO / 'fixtures' / 'bags' / 'live_detections.mcap'
+    out = tmp_path_factory.mktemp('recorded-hsv') / 'run'
+    return run_benchmark(RunConfig(inputs=[bag], backends=['recorded', 'hsv'], out_dir=out))
+
+
+def test_a_recording_is_never_the_fastest_and_shows_its_recorded_rate_and_latency(
+    recorded_and_hsv: RunOutcome,
+) -> None:
+    from replaybench.report.headline import topic_headlines
+
+    run = recorded_and_hsv.run
+    assert recorded_and_hsv.run_dir is not None
+    rec = next(r for r in run.summary_rows if r.backend == 'recorded')
+    hsv = next(r for r in run.summary_rows if r.backend == 'hsv')
+    assert rec.throughput_fps is not None
+    assert hsv.throughput_fps is not None
+    assert rec.recorded_output_hz == pytest.approx(26.65, abs=0.01)
+    assert rec.pipeline_ms_p50 == pytest.approx(36.94, abs=0.01)
+    [head] = topic_headlines(run, run.summary_rows, recorded_and_hsv.records)
+    assert head.fastest == 'hsv'
+    assert head.fps == hsv.throughput_fps
+    html = (recorded_and_hsv.run_dir / 'report.html').read_text(encoding='utf-8')
+    headline = html[html.index('<h2 id="headline">') : html.index('<div class="cards">')]
+    assert '<td>hsv</td>' in headline
+    assert '<td>recorded</td>' not in headline
+    # the Summary: the recording's output rate and pipeline latency, marked recorded
+    summary = html[html.index('id="summary-table"') : html.index('id="summary-more"')]
+    row = summary[summary.index('recorded</td>') :].split('</tr>')[0]
+    for value in (_fmt_fps(rec.recorded_output_hz), _fmt_ms(rec.pipeline_ms_p50)):
+        assert f'>{value}<br><span class="muted">recorded</span></td>' in row
+    assert _fmt_fps(rec.throughput_fps) not in row  # how fast the bag was read: not a speed
+    # the throughput and stage charts: replayed backends only, and the page says why
+    charts = html[html.index('<h2 id="throughput">') : html.index('<h2 id="detections">')]
+    assert '>hsv</text>' in charts
+    assert '>recorded</text>' not in charts
+    assert 'Not charted here: recorded, the outputs recorded in the bag' in charts
+
+
+def test_the_terminal_marks_a_recordings_rate_and_latency_as_recorded(tmp_path: Path) -> None:
+    bag = REPO / 'fixtures' / 'bags' / 'live_detections.mcap'
+    result = CliRunner().invoke(
+        app,
+        ['run', str(bag), '-b', 'recorded', '-b', 'hsv', '--out', str(tmp_path / 'run'),
+         '--no-report'],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.splitlines()
+    [row] = [
+        line for line in lines if line.split()[:2] == ['recorded', '/camera/image_raw/compressed']
+    ]
+    assert row.split()[5:8] == ['26.7*', '36.94*', '47.20*']
+    assert '* recorded: the output rate (Hz) and pipeline latency of the node that ran on the ' in (
+        result.stdout
+    )
+    [hsv] = [line for line in lines if line.split()[:1] == ['hsv']]
+    assert '*' not in hsv

@@ -162,3 +162,42 @@ def test_dropped_frames_are_marked_on_the_latency_chart(make_run: MakeRun) -> No
 def test_a_folder_without_run_json_cannot_be_rendered(tmp_path: Path) -> None:
     with pytest.raises(SourceError, match=r'no run\.json'):
         render_report(tmp_path)
+
+
+def test_every_chart_over_time_of_a_two_frame_run_says_in_words_it_has_too_few_points(
+    make_run: MakeRun,
+) -> None:
+    text = render_report(make_run(frames=2)).read_text(encoding='utf-8')
+    over_time = [s for s in _svgs(text) if ' over time' in s or 'Detections per frame' in s]
+    assert len(over_time) == 2  # latency and detections; the run sampled no resources
+    for svg in over_time:
+        assert 'Too few points to show a trend: fewer than 3 per series.' in svg
+        assert '<circle' not in svg
+        assert '<polyline' not in svg
+    assert '>hsv: 2 points: ' in over_time[0]
+
+
+def test_cpu_use_of_one_sample_is_said_in_words_not_drawn_as_a_dot_on_an_empty_axis(
+    make_run: MakeRun,
+) -> None:
+    from dataclasses import replace
+
+    from replaybench.results.io import read_run_result, write_run_result
+    from replaybench.results.model import ResourcePoint, Resources, ResourceSummary
+
+    run_dir = make_run()
+    run = read_run_result(run_dir / 'run.json')
+    point = ResourcePoint(t_s=0.05, cpu_percent=190.0, private_mb=30.0)
+    summary = ResourceSummary(
+        samples=1, interval_s=0.05, duration_s=0.05, cpu_source='process_time'
+    )
+    backends = tuple(
+        replace(b, resources=Resources(summary=summary, series=(point,))) for b in run.backends
+    )
+    write_run_result(run_dir / 'run.json', replace(run, backends=backends))
+    text = render_report(run_dir).read_text(encoding='utf-8')
+    [cpu] = [s for s in _svgs(text) if 'aria-label="CPU use over time"' in s]
+    assert 'Too few points to show a trend: fewer than 3 per series.' in cpu
+    assert '>hsv: 1 point: 190 at 0.05</text>' in cpu
+    assert '<circle' not in cpu
+    assert '-0.4' not in cpu

@@ -9,12 +9,14 @@ import pytest
 
 from replaybench.report.svg import (
     PALETTE,
+    Label,
     Marks,
     Segment,
     Series,
     bar_chart,
     colour,
     downsample,
+    fit_label,
     line_chart,
     nice_ticks,
     stacked_bar_chart,
@@ -146,3 +148,57 @@ def test_bar_charts_print_values_and_n_a() -> None:
     )
     assert stacked.count('<rect') >= 2 + 2  # two segments + two legend swatches
     assert '>2.50</text>' in stacked
+
+
+MACHINE = 'ci runner «nœud-07» <b>&amp;</b> — rack 12, bay 3 🚀 build-farm.example.internal / CPU'
+
+
+def test_a_long_label_loses_its_machine_before_its_run_or_its_kind() -> None:
+    label = Label('p99 · fast (', MACHINE, ') · null · recorded pipeline')
+    assert fit_label(label, 48) == 'p99 · fast (ci runn…) · null · recorded pipeline'
+    # room for none of the machine: it is only '…'; with less room the head is cut at its end
+    assert fit_label(label, 41) == 'p99 · fast (…) · null · recorded pipeline'
+    assert fit_label(label, 39) == 'p99 · fast…) · null · recorded pipeline'
+    assert fit_label(label, 500) == str(label)
+    # plain text keeps both ends
+    assert fit_label('a' * 30 + 'z' * 30, 21) == 'a' * 10 + '…' + 'z' * 10
+
+
+def test_a_legend_and_a_bar_label_show_the_kind_and_keep_the_whole_name_as_tooltip() -> None:
+    label = Label('fast (', MACHINE, ') · recorded pipeline')
+    chart = line_chart(
+        [Series(label, '#123456', [0.0, 1.0, 2.0], [1.0, 2.0, 3.0])],
+        title='t',
+        x_label='x',
+        y_label='y',
+    )
+    assert '…) · recorded pipeline</text>' in chart
+    assert '&lt;b&gt;&amp;amp;&lt;/b&gt;' in chart  # the whole name, escaped, in its <title>
+    assert '<b>' not in chart
+    bars = bar_chart([label], [3.0], ['#123456'], title='t', x_label='fps')
+    assert '…) · recorded pipeline</text>' in bars
+    assert f'<title>{str(label).replace("&", "&amp;").replace("<", "&lt;")}' in bars.replace(
+        '&gt;', '>'
+    )
+
+
+def test_a_chart_over_time_with_too_few_points_says_what_they_are_in_words() -> None:
+    few = [
+        Series('hsv', '#123456', [0.05], [199.0]),
+        Series('null', '#654321', [0.0004, 0.1], [12.5, float('nan')]),
+    ]
+    chart = line_chart(
+        few, title='CPU use over time', x_label='time (s)', y_label='CPU (%)', min_points=3
+    )
+    assert 'Too few points to show a trend: fewer than 3 per series.' in chart
+    assert '>hsv: 1 point: 199 at 0.05</text>' in chart
+    assert '>null: 1 point: 12.5 at 0</text>' in chart  # the NaN is no point
+    assert '<circle' not in chart
+    assert '<polyline' not in chart
+    # one series with enough points: the chart is drawn, the short one as its dot
+    enough = [*few, Series('onnx', '#000000', [0.0, 0.1, 0.2], [1.0, 2.0, 3.0])]
+    drawn = line_chart(enough, title='t', x_label='x', y_label='y', min_points=3)
+    assert 'Too few points' not in drawn
+    assert '<polyline' in drawn
+    # without min_points (a chart not over time), one point is drawn as before
+    assert '<circle' in line_chart(few[:1], title='t', x_label='x', y_label='y')

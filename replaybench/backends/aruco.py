@@ -75,6 +75,7 @@ class ArucoBackend:
             families=ARUCO_FAMILIES,
             refinements=tuple(_REFINE),
             decimation=1.0,
+            decimation_refine='apriltag',
         )
         self._detector: Any = None
         self._shift = 0.0

@@ -111,10 +111,14 @@ def tag_options(
     families: Iterable[str] = (),
     refinements: Iterable[str] = ('apriltag',),
     decimation: float = 2.0,
+    decimation_refine: str | None = None,
 ) -> TagOptions:
     """TagOptions from a ``--config`` TOML file and ``extra`` (which wins), checked; a
     ``BackendError`` naming the backend and the key for a value that does not fit.
-    ``decimation``: the library's own default (AprilTag 3: 2; OpenCV's ArUco: 1, none)."""
+    ``decimation``: the library's own default (AprilTag 3: 2; OpenCV's ArUco: 1, none);
+    ``decimation_refine``: the one refinement that decimation acts in, where the detector
+    uses it in one only (ArUco: ``apriltag``), so that a decimation given with another is
+    refused rather than silently ignored."""
     bag = {k: str(v) for k, v in extra.items() if k in BAG_SIZE_KEYS}
     given = _from_toml(config, backend) if config is not None else {}
     given.update({k: v for k, v in extra.items() if k not in BAG_SIZE_KEYS})
@@ -142,6 +146,17 @@ def tag_options(
     if refine not in allowed:
         msg = (
             f'{backend}: refine (--tag-refine) must be one of {", ".join(allowed)}, got {refine!r}'
+        )
+        raise BackendError(msg)
+    if (
+        decimation_refine is not None
+        and refine != decimation_refine
+        and 'decimation' in given
+        and decimation > 1
+    ):
+        msg = (
+            f'{backend}: decimation (--tag-decimation) acts with refine {decimation_refine!r} '
+            f'only, and refine is {refine!r}: add --tag-refine {decimation_refine} or drop it'
         )
         raise BackendError(msg)
     return TagOptions(

@@ -163,6 +163,8 @@ def test_max_tags_keeps_that_many(name: str) -> None:
         ('aruco', {'family': 'tagCircle21h7'}, 'unknown tag family'),
         ('aruco', {'tag_sizes': '14=big'}, 'tag size'),
         ('apriltag', {'decimation': '0.5'}, 'decimation'),
+        ('aruco', {'decimation': '2'}, "acts with refine 'apriltag' only"),
+        ('aruco', {'decimation': '2', 'refine': 'none'}, "refine is 'none'"),
         ('aruco', {'max_tags': '0'}, 'max_tags'),
         ('aruco', {'colour': 'red'}, "unknown option 'colour'"),
     ],
@@ -172,6 +174,11 @@ def test_bad_tag_options_are_refused_naming_the_option(
 ) -> None:
     with pytest.raises(BackendError, match=message):
         get_backend(name)(BackendOptions(extra=extra))  # type: ignore[call-arg]
+
+
+def test_aruco_takes_a_decimation_where_its_refinement_uses_it() -> None:
+    backend = get_backend('aruco')(BackendOptions(extra={'decimation': '2', 'refine': 'apriltag'}))  # type: ignore[call-arg]
+    assert backend.tags.decimation == 2.0
 
 
 def test_an_aruco_dictionary_family_detects_its_own_markers() -> None:

@@ -147,11 +147,14 @@ def matrix_to_quaternion(r: npt.NDArray[np.float64]) -> tuple[float, float, floa
         s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
         w, x = (m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s
         y, z = (m[1, 2] + m[2, 1]) / s, 0.25 * s
-    q = np.array([x, y, z, w], dtype=np.float64)
-    q /= np.linalg.norm(q)
+    x, y, z, w = float(x), float(y), float(z), float(w)
+    # the norm written out, not np.linalg.norm: BLAS picks its kernel by the CPU, and the last
+    # bit of the fixtures' truth quaternions with it
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    q = (x / n, y / n, z / n, w / n)
     if q[3] < 0:
-        q = -q
-    return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+        return (-q[0], -q[1], -q[2], -q[3])
+    return q
 
 
 def quaternion_to_matrix(q: Sequence[float]) -> npt.NDArray[np.float64]:

@@ -178,7 +178,7 @@ def test_bad_tag_options_are_refused_naming_the_option(
 
 def test_aruco_takes_a_decimation_where_its_refinement_uses_it() -> None:
     backend = get_backend('aruco')(BackendOptions(extra={'decimation': '2', 'refine': 'apriltag'}))  # type: ignore[call-arg]
-    assert backend.tags.decimation == 2.0
+    assert backend.info()['decimation'] == 2.0
 
 
 def test_an_aruco_dictionary_family_detects_its_own_markers() -> None:

@@ -47,6 +47,13 @@ def _clamp(time_ns: int) -> int:
     return min(max(time_ns, 0), _U64_MAX)
 
 
+def _column(n: int, value: int | npt.NDArray[np.int32]) -> npt.NDArray[np.int32]:
+    """``n`` int32 values: ``value`` repeated, or ``value`` itself when it is an array."""
+    if isinstance(value, np.ndarray):
+        return value
+    return np.full(n, value, np.int32)
+
+
 class Chunk(NamedTuple):
     """Where the payloads of a group of messages live.
 
@@ -98,7 +105,16 @@ class TableSource:
         self._cache: OrderedDict[int, memoryview] = OrderedDict()
         self._cache_bytes = 0
         self._bad_chunks: set[int] = set()
-        self._parts: list[tuple[npt.NDArray[np.uint64], int, int, npt.NDArray[np.int64]]] = []
+        #: rows added in bulk: (times, channel, chunk, offsets); channel and chunk are one value
+        #: for every row of the part, or an array of one per row
+        self._parts: list[
+            tuple[
+                npt.NDArray[np.uint64],
+                int | npt.NDArray[np.int32],
+                int | npt.NDArray[np.int32],
+                npt.NDArray[np.int64],
+            ]
+        ] = []
         self._rows_time = array('Q')
         self._rows_channel = array('i')
         self._rows_chunk = array('i')
@@ -146,8 +162,8 @@ class TableSource:
     def _add_rows(
         self,
         times: npt.NDArray[np.uint64],
-        channel: int,
-        chunk: int,
+        channel: int | npt.NDArray[np.int32],
+        chunk: int | npt.NDArray[np.int32],
         offsets: npt.NDArray[np.int64],
     ) -> None:
         self._parts.append((times, channel, chunk, offsets))
@@ -155,8 +171,8 @@ class TableSource:
     def _finish(self) -> None:
         """Sort the collected rows into replay order and compute seq and topic statistics."""
         times = [part[0] for part in self._parts]
-        channels = [np.full(len(part[0]), part[1], np.int32) for part in self._parts]
-        chunks = [np.full(len(part[0]), part[2], np.int32) for part in self._parts]
+        channels = [_column(len(part[0]), part[1]) for part in self._parts]
+        chunks = [_column(len(part[0]), part[2]) for part in self._parts]
         offsets = [part[3] for part in self._parts]
         times.append(np.frombuffer(self._rows_time, np.uint64))
         channels.append(np.frombuffer(self._rows_channel, np.int32))

@@ -14,6 +14,7 @@ cut) is read as cut where the zeros begin: no message is built from the zeroed b
 
 from __future__ import annotations
 
+import itertools
 import struct
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -540,7 +541,7 @@ class McapSource(TableSource):
     ) -> bool:
         """``_index_from_summary`` for a regular index read at once (``_bulk_index``): the
         same chunks, rows and refusals."""
-        ids = set(np.unique(bulk.cids).tolist())
+        ids = set(np.flatnonzero(np.bincount(bulk.cids)).tolist())
         if any(cid not in summary.channels for cid in ids):
             return False
         indexed = int(bulk.counts.sum())
@@ -554,17 +555,23 @@ class McapSource(TableSource):
             )
             return False
         first = len(self._chunks)
-        compression = bulk.compression
-        for pos, start, length, usize in zip(
-            bulk.chunk_pos.tolist(),
-            bulk.data_start.tolist(),
-            bulk.data_len.tolist(),
-            bulk.uncompressed_size.tolist(),
-            strict=True,
-        ):
-            self._add_chunk(Chunk(file_no, pos, start, length, compression, usize, False))
-        lookup = {cid: chmap.get(cid, -1) for cid in ids}
-        g = np.vectorize(lookup.__getitem__, otypes=[np.int64])(bulk.cids)
+        n = len(bulk.chunk_pos)
+        self._chunks.extend(
+            map(
+                Chunk,
+                itertools.repeat(file_no, n),
+                bulk.chunk_pos.tolist(),
+                bulk.data_start.tolist(),
+                bulk.data_len.tolist(),
+                itertools.repeat(bulk.compression, n),
+                bulk.uncompressed_size.tolist(),
+                itertools.repeat(False, n),  # Chunk.partial
+            )
+        )
+        lookup = np.full(1 << 16, -1, np.int64)
+        for cid in ids:
+            lookup[cid] = chmap.get(cid, -1)
+        g = lookup[bulk.cids]
         for unreadable in sorted(set(g[g < -1].tolist())):
             self._count_unreadable(unreadable, int(bulk.counts[g == unreadable].sum()))
         chunk = first + bulk.chunk

@@ -3,7 +3,16 @@ timing reads the first frame of a fresh process (the figures themselves are the 
 
 from __future__ import annotations
 
-from benchmarks.first_frame import child_environment, time_to_first_frame, write_sparse_bag
+from benchmarks.first_frame import (
+    RATIO_MAX,
+    TARGET_S,
+    child_environment,
+    chunk_count,
+    time_to_first_frame,
+    verdict,
+    write_chunk_bag,
+    write_sparse_bag,
+)
 from replaybench.sources import open_source
 
 
@@ -38,3 +47,27 @@ def test_the_timed_runs_keep_their_bytecode_in_a_folder_of_their_own(tmp_path):
     time_to_first_frame(bag, tmp_path / 'run', hash_inputs=False, env=env)
     cached = {p.name.split('.')[0] for p in (tmp_path / 'pycache').rglob('*.pyc')}
     assert {'runner', 'null', 'camera_info'} <= cached
+
+
+def test_a_chunk_bag_holds_the_chunks_asked_for_each_with_a_frame_and_its_camera_info(tmp_path):
+    bag = tmp_path / 'chunks.mcap'
+    frames = write_chunk_bag(bag, 300)
+    assert chunk_count(bag) == 300
+    with open_source(bag) as source:
+        counts = {t.name: t.count for t in source.topics()}
+        assert counts == {'/camera/image_raw': frames, '/camera/camera_info': frames}
+
+
+def test_the_verdict_holds_every_bag_to_the_target_and_to_the_first_bags_figure():
+    def row(bag: str, first: float) -> dict[str, object]:
+        return {'bag': bag, 'first_frame_s': first}
+
+    base = TARGET_S * 0.8
+    assert verdict([row('a', base), row('b', base * RATIO_MAX * 0.99)]) == (True, [])
+    met, missed = verdict([row('a', base), row('b', base * RATIO_MAX * 1.01)])
+    assert not met
+    assert len(missed) == 1
+    assert missed[0].startswith('b: ')
+    met, missed = verdict([row('a', TARGET_S * 1.01)])
+    assert not met
+    assert missed == [f'a: {TARGET_S * 1.01:.3f} s > {TARGET_S} s']

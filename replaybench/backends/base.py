@@ -97,6 +97,9 @@ class Backend(Protocol):
     * ``uses_recorded_detections``: False (default); True: before ``open()`` the runner reads
       the recorded Detection2DArray topic (``--recorded-topic``) of every input and calls
       ``prepare(RecordedDetections)``.
+    * ``reads_camera_info``: True (default): ``detect`` may read ``frame.camera_info``; False:
+      it never does, so its frames come without one (None) and a run of such backends reads
+      the bag's CameraInfo messages only after its passes, for detections.mcap.
 
     Optional methods: ``prepare(recorded)`` (above); ``forget_warmup()``: the runner calls it
     after detects that are neither timed nor recorded (the warm-up detect of a topic too short
@@ -127,6 +130,7 @@ class BackendTraits(NamedTuple):
     device: str = 'cpu'
     measures_latency: bool = True
     uses_recorded_detections: bool = False
+    reads_camera_info: bool = True
 
 
 def backend_traits(backend: object) -> BackendTraits:
@@ -138,7 +142,7 @@ def backend_traits(backend: object) -> BackendTraits:
         msg = f'backend {name!r} declares device {device!r}; use one of {", ".join(DEVICES)}'
         raise BackendUnavailableError(msg)
     flags: list[bool] = []
-    for trait in ('measures_latency', 'uses_recorded_detections'):
+    for trait in ('measures_latency', 'uses_recorded_detections', 'reads_camera_info'):
         value = getattr(backend, trait, BackendTraits._field_defaults[trait])
         if not isinstance(value, bool):
             msg = f'backend {name!r} declares {trait} {value!r}; it must be True or False'

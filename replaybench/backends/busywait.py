@@ -87,6 +87,8 @@ class BusyBackend:
     """Spins ``busy_ms`` milliseconds of wall or CPU time per frame; returns no detections."""
 
     name: ClassVar[str] = 'busy'
+    #: ``detect`` never reads ``frame.camera_info``.
+    reads_camera_info: ClassVar[bool] = False
     description: ClassVar[str] = (
         'spins a set time per frame (busy_ms, default 10) and detects nothing: a known cost'
     )

@@ -322,6 +322,8 @@ class ColourMorphology:
     ``options``, ``_kernel`` and ``_saved_threads`` (None) and ``_buffers`` in ``__init__``."""
 
     name: ClassVar[str]
+    #: ``detect`` never reads ``frame.camera_info``.
+    reads_camera_info: ClassVar[bool] = False
     config: HsvConfig
     options: BackendOptions
     _kernel: npt.NDArray[np.uint8] | None

@@ -26,6 +26,8 @@ class NullBackend:
 
     name: ClassVar[str] = 'null'
     description: ClassVar[str] = 'no detections; measures the replay harness itself'
+    #: ``detect`` never reads ``frame.camera_info``.
+    reads_camera_info: ClassVar[bool] = False
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()

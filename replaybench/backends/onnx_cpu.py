@@ -93,6 +93,9 @@ class OnnxCpuBackend:
     it on).
     """
 
+    #: ``detect`` never reads ``frame.camera_info``.
+    reads_camera_info: ClassVar[bool] = False
+
     name: ClassVar[str] = 'onnx-cpu'
     description: ClassVar[str] = (
         'ONNX Runtime CPU: YOLOX / YOLOv5 / YOLOv8 / NMS-in-graph detectors (--model)'

@@ -49,6 +49,9 @@ class OnnxSegBackend:
     (frame-sized uint8 class ids) and no detections.
     """
 
+    #: ``detect`` never reads ``frame.camera_info``.
+    reads_camera_info: ClassVar[bool] = False
+
     name: ClassVar[str] = 'onnx-seg'
     description: ClassVar[str] = (
         'ONNX Runtime CPU segmentation: [1,C,H,W] / [1,H,W,C] scores or class-id outputs (--model)'

@@ -52,6 +52,8 @@ class RecordedBackend:
     measures_latency: ClassVar[bool] = False
     #: The runner reads the recorded topic and calls ``prepare`` with it.
     uses_recorded_detections: ClassVar[bool] = True
+    #: ``detect`` never reads ``frame.camera_info``.
+    reads_camera_info: ClassVar[bool] = False
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()

@@ -172,8 +172,7 @@ def _floats(buf: memoryview, pos: int, count: int, lay: _Layout) -> tuple[tuple[
     if lay.align:
         pos = ((pos - lay.start + 7) & ~7) + lay.start
     order = lay.u32.format[0]
-    values = struct.unpack_from(f'{order}{count}d', buf, pos)
-    return tuple(float(v) for v in values), pos + 8 * count
+    return struct.unpack_from(f'{order}{count}d', buf, pos), pos + 8 * count  # floats already
 
 
 def parse_camera_info(buf: memoryview, serialization: str) -> CameraInfoFields:

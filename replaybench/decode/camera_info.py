@@ -127,7 +127,11 @@ def camera_info_topic_for(
 
 
 class CameraInfoIndex:
-    """CameraInfo messages by topic, looked up for an image frame by nearest header stamp."""
+    """CameraInfo messages by topic, looked up for an image frame by nearest header stamp.
+
+    ``deferred`` makes one that reads its messages on first use: a run whose backends never
+    read a frame's camera info does not read them before its first frame.
+    """
 
     def __init__(
         self,
@@ -136,50 +140,101 @@ class CameraInfoIndex:
         *,
         skipped: int = 0,
     ) -> None:
-        self._all = list(infos)
+        self._image_topics = None if image_topics is None else list(image_topics)
+        self._topic_for: dict[str, str | None] = {}
+        #: (source, camera_info topics) still to be read; None once read
+        self._pending: tuple[MessageSource, list[str]] | None = None
+        self._build(list(infos), skipped)
+
+    def _build(self, infos: list[CameraInfo], skipped: int) -> None:
+        self._all = infos
         by_topic: dict[str, list[CameraInfo]] = {}
         for info in self._all:
             by_topic.setdefault(info.topic, []).append(info)
         self._infos = {t: sorted(v, key=lambda i: i.stamp_ns) for t, v in by_topic.items()}
         self._stamps = {t: [i.stamp_ns for i in v] for t, v in self._infos.items()}
-        self._image_topics = None if image_topics is None else list(image_topics)
-        self._topic_for: dict[str, str | None] = {}
-        #: Messages of the camera_info topics that could not be decoded.
-        self.skipped = skipped
+        self._skipped = skipped
+
+    def _ready(self) -> None:
+        """Read the messages of a deferred index (once)."""
+        if self._pending is None:
+            return
+        source, topics = self._pending
+        self._pending = None
+        infos: list[CameraInfo] = []
+        skipped = 0
+        for raw in source.messages(topics=topics) if topics else ():
+            try:
+                infos.append(decode_camera_info(raw))
+            except DecodeError:
+                skipped += 1
+        self._build(infos, skipped)
+
+    @property
+    def skipped(self) -> int:
+        """Messages of the camera_info topics that could not be decoded."""
+        self._ready()
+        return self._skipped
 
     @classmethod
     def from_source(
         cls, source: MessageSource, camera_info_topics: Collection[str]
     ) -> CameraInfoIndex:
         """Read every message of ``camera_info_topics`` (skipping undecodable ones)."""
+        index = cls.deferred(source, camera_info_topics)
+        index._ready()
+        return index
+
+    @classmethod
+    def deferred(
+        cls, source: MessageSource, camera_info_topics: Collection[str]
+    ) -> CameraInfoIndex:
+        """``from_source``, read when first used (``source`` must stay open until then)."""
         image_topics = [
             t.name
             for t in source.topics()
             if message_kind(t.msgtype) in {'image', 'compressed_image'}
         ]
-        infos: list[CameraInfo] = []
-        skipped = 0
-        if camera_info_topics:
-            for raw in source.messages(topics=list(camera_info_topics)):
-                try:
-                    infos.append(decode_camera_info(raw))
-                except DecodeError:
-                    skipped += 1
-        return cls(infos, image_topics, skipped=skipped)
+        index = cls((), image_topics)
+        index._pending = (source, list(camera_info_topics))
+        return index
+
+    def first_topics(self) -> list[str]:
+        """The topics holding a decodable CameraInfo, in the order of their first one (as
+        ``all`` lists them); a deferred index reads only up to the first of each."""
+        if self._pending is None:
+            return list(dict.fromkeys(info.topic for info in self._all))
+        source, topics = self._pending
+        found: dict[str, None] = {}
+        for raw in source.messages(topics=topics) if topics else ():
+            if raw.topic in found:
+                continue
+            try:
+                decode_camera_info(raw)
+            except DecodeError:
+                continue
+            found[raw.topic] = None
+            if len(found) == len(set(topics)):
+                break
+        return list(found)
 
     def __len__(self) -> int:
+        self._ready()
         return len(self._all)
 
     def topics(self) -> list[str]:
         """The camera_info topics holding at least one message, sorted."""
+        self._ready()
         return sorted(self._infos)
 
     def all(self) -> list[CameraInfo]:
         """Every CameraInfo in the order it was read."""
+        self._ready()
         return list(self._all)
 
     def topic_for(self, image_topic: str) -> str | None:
         """The camera_info topic used for ``image_topic`` (cached)."""
+        self._ready()
         try:
             return self._topic_for[image_topic]
         except KeyError:
@@ -189,7 +244,7 @@ class CameraInfoIndex:
 
     def lookup(self, image_topic: str, stamp_ns: int) -> CameraInfo | None:
         """The CameraInfo of ``image_topic``'s camera nearest to ``stamp_ns``; ties -> earlier."""
-        topic = self.topic_for(image_topic)
+        topic = self.topic_for(image_topic)  # reads a deferred index
         if topic is None:
             return None
         stamps = self._stamps[topic]

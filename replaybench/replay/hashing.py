@@ -2,11 +2,11 @@
 
 run.json records each input's sha256 so that ``compare`` can tell whether two runs replayed the
 same bytes. Hashing a large recording takes a while (12 GB: some 20 s), which must not hold up
-the first frame, nor share the CPU and the disk with the measured frames: the run hashes an
-input of at most ``INLINE_MAX_BYTES`` at once when it opens (a fraction of a second, before
-anything is timed) and a larger one after the passes (``replaybench.replay.inputs``), where
-``InputHash`` reads and digests its files in a thread of its own (file reads and hashlib's
-digest of a large buffer release the GIL) that the run waits for.
+the first frame, nor share the CPU and the disk with the measured frames: the run hashes its
+inputs after the passes (``replaybench.replay.inputs``), one of at most ``INLINE_MAX_BYTES``
+at once (a fraction of a second), a larger one with ``InputHash`` reading and digesting its
+files in a thread of its own (file reads and hashlib's digest of a large buffer release the
+GIL) that the run waits for; an interrupted run still hashes a small input, not a large one.
 
 A hash started before the passes and still running while frames are measured would share the
 CPU and the disk with them; the run records for how long (``overlap_s``) and says so in
@@ -32,7 +32,7 @@ __all__ = [
     'describe_size',
 ]
 
-#: Inputs up to this size are hashed at once, before the replay (about 0.1 s).
+#: Inputs up to this size are hashed at once, in the thread that asks (about 0.1 s).
 INLINE_MAX_BYTES = 64 << 20
 #: Inputs over this size are announced on the terminal when their hashing starts.
 ANNOUNCE_MIN_BYTES = 1_000_000_000

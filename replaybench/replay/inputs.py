@@ -160,7 +160,9 @@ def open_input(
         if options.duration_s is not None:
             end_ns = (start_ns if start_ns is not None else first) + round(options.duration_s * _NS)
         info_topics = [t.name for t in all_topics if message_kind(t.msgtype) == 'camera_info']
-        camera_infos = CameraInfoIndex.from_source(source, info_topics)
+        # read when first used: by the first pass of a backend that reads camera infos, or
+        # after the passes for detections.mcap (``decoder``, ``output.copy_camera_infos``)
+        camera_infos = CameraInfoIndex.deferred(source, info_topics)
         notes: list[str] = []
         ground_truth: DetectionTable = {}
         gt_topic = options.ground_truth_topic
@@ -285,10 +287,20 @@ def _at_most(
         yield raw
 
 
-def decoder(inp: OpenedInput) -> Callable[[RawMessage], Frame]:
+def decoder(inp: OpenedInput, *, camera_info: bool = True) -> Callable[[RawMessage], Frame]:
     """RawMessage -> the Frame a backend gets: ``decode_image``, plus camera info and the
-    input's index where there are any to add."""
+    input's index where there are any to add. ``camera_info`` False (a backend that never
+    reads it, ``BackendTraits.reads_camera_info``): frames without one, and the input's
+    CameraInfo messages are not read for them."""
     number = inp.number
+    if not camera_info:
+        if number == 0:
+            return decode_image
+
+        def numbered(raw: RawMessage) -> Frame:
+            return decode_image(raw)._replace(input_index=number)
+
+        return numbered
     lookup = inp.camera_infos.lookup
     if number == 0 and all(inp.camera_infos.topic_for(t.name) is None for t in inp.topics):
         return decode_image
@@ -308,16 +320,15 @@ def deferred_hash(
     options: InputOptions,
     hasher: Callable[[Sequence[Path]], InputHash] | None,
 ) -> OpenedInput:
-    """The input with its ``InputHash``: an input of at most ``INLINE_MAX_BYTES`` is hashed now
-    (a fraction of a second, before anything is timed); a larger one after the passes
-    (``settle_hash``), so that nothing reads and digests beside the measured frames. Its files'
-    size and mtime are noted now and checked then. Unchanged when not computed here
+    """The input with its ``InputHash``, computed after the passes (``settle_hash``): nothing
+    reads and digests beside the measured frames, nor before the first one (an input of at most
+    ``INLINE_MAX_BYTES`` is hashed there at once, a larger one in a thread the run waits for).
+    Its files' size and mtime are noted now and checked then. Unchanged when not computed here
     (--no-hash, or known already)."""
     if not options.hash_inputs or options.input_sha256 is not None:
         return inp
     found = (hasher or InputHash)(list(inp.source.files))
-    state = _files_state(inp)
-    return inp._replace(sha256=found if found.background else found.start(), files_state=state)
+    return inp._replace(sha256=found, files_state=_files_state(inp))
 
 
 def _files_state(inp: OpenedInput) -> tuple[tuple[int, int], ...]:
@@ -386,7 +397,7 @@ def settle_hash(
     found = inp.sha256
     if found is None:  # pragma: no cover - started for every input that is hashed
         return HashOutcome(None)
-    if interrupted and not found.done:
+    if interrupted and found.background and not found.done:  # a small one is hashed at once
         found.cancel()
         return HashOutcome(None, ('sha256 not computed: the run was interrupted before it ended',))
     deferred = _hash_after_passes(inp, found, notice)

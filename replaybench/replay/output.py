@@ -30,6 +30,7 @@ __all__ = [
     'Discard',
     'Renderer',
     'SampleImage',
+    'camera_info_channels',
     'copy_camera_infos',
     'copy_images',
     'finish_files',
@@ -84,6 +85,9 @@ class Discard:
     def add_camera_info(self, *args: object) -> None:
         """A camera info message: dropped."""
 
+    def add_camera_info_channel(self, *args: object) -> None:
+        """A camera info channel: dropped."""
+
     def add_raw(self, *args: object) -> None:
         """A copied image message: dropped."""
 
@@ -111,6 +115,15 @@ def writers(options: OutputOptions) -> Iterator[tuple[FrameSink, DetectionsSink]
             yield frames_csv, detections_out
     except OSError as err:
         raise with_filename(err, out / 'detections.mcap') from None
+
+
+def camera_info_channels(inputs: Sequence[OpenedInput], writer: DetectionsSink) -> None:
+    """detections.mcap's channels of the camera infos, made before the passes in the order
+    ``copy_camera_infos`` would make them (the first decodable message of each topic), so that
+    the messages can be copied after the passes without changing a byte of the file."""
+    for inp in inputs:
+        for topic in inp.camera_infos.first_topics():
+            writer.add_camera_info_channel(topic)
 
 
 def copy_camera_infos(inputs: Sequence[OpenedInput], writer: DetectionsSink) -> None:

@@ -201,8 +201,9 @@ class Pass:
         self.inp = inp
         self.t0 = 0.0
         self.log: list[LogEntry] = []
-        self.decode = decoder(inp)
-        self.measures_latency = backend_traits(backend).measures_latency
+        traits = backend_traits(backend)
+        self.decode = decoder(inp, camera_info=traits.reads_camera_info)
+        self.measures_latency = traits.measures_latency
         # at max rate: whether frames were read ahead in a thread, and why (run.json)
         self.read_ahead: dict[str, Any] | None = None
 

@@ -57,6 +57,7 @@ from replaybench.replay.inputs import (
 from replaybench.replay.output import (
     Renderer,
     SampleImage,
+    camera_info_channels,
     copy_camera_infos,
     copy_images,
     draw_samples,
@@ -295,7 +296,8 @@ def _execute(
     with writers(output) as (frames_csv, detections_out):
         segmentation = Segmentation(config.ground_truth_masks, len(config.backends))
         recorder = Recorder(inputs, warmups, frames_csv, detections_out, segmentation)
-        copy_camera_infos(inputs, detections_out)
+        # their messages are read after the passes, unless a backend reads them (``decoder``)
+        camera_info_channels(inputs, detections_out)
         passes_began = time.perf_counter()
         try:
             if config.repeat > 1:  # the backends' passes interleaved
@@ -325,6 +327,7 @@ def _execute(
                 copy_problems = copy_images(inputs, detections_out)
         except (KeyboardInterrupt, Stopped):
             status = 'interrupted'
+        copy_camera_infos(inputs, detections_out)
     write_detections_metadata(output)
     from replaybench.replay.record import input_info, run_result, summaries
     from replaybench.results.agreement import AGREEMENT_IOU, agreement_table

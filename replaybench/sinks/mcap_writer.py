@@ -322,6 +322,14 @@ class DetectionsWriter:
         """An MCAP metadata record ``name`` (string keys and values), written by ``finish``."""
         self._metadata[name] = dict(data)
 
+    def add_camera_info_channel(self, topic: str) -> None:
+        """Make the channel of CameraInfo messages on ``topic`` now (``add_camera_info`` makes
+        it when not made yet), so that its id does not depend on when they are copied."""
+        if self._finished:
+            msg = f'{self.path} is already finished'
+            raise ValueError(msg)
+        self._info_channels.add(self._channel(topic, CAMERA_INFO, None, _SOURCE))
+
     def add_camera_info(self, topic: str, log_time_ns: int, ci: CameraInfo) -> None:
         """Copy a CameraInfo message through on its original topic. Its channel is made now;
         the message is serialised when the file is written (in log time order like the rest,

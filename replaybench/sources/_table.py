@@ -47,6 +47,13 @@ def _clamp(time_ns: int) -> int:
     return min(max(time_ns, 0), _U64_MAX)
 
 
+def _column(n: int, value: int | npt.NDArray[np.int32]) -> npt.NDArray[np.int32]:
+    """``n`` int32 values: ``value`` repeated, or ``value`` itself when it is an array."""
+    if isinstance(value, np.ndarray):
+        return value
+    return np.full(n, value, np.int32)
+
+
 class Chunk(NamedTuple):
     """Where the payloads of a group of messages live.
 
@@ -98,7 +105,17 @@ class TableSource:
         self._cache: OrderedDict[int, memoryview] = OrderedDict()
         self._cache_bytes = 0
         self._bad_chunks: set[int] = set()
-        self._parts: list[tuple[npt.NDArray[np.uint64], int, int, npt.NDArray[np.int64]]] = []
+        self._chunk_regions: tuple[list[tuple[memoryview, int] | None], bool] | None = None
+        #: rows added in bulk: (times, channel, chunk, offsets); channel and chunk are one value
+        #: for every row of the part, or an array of one per row
+        self._parts: list[
+            tuple[
+                npt.NDArray[np.uint64],
+                int | npt.NDArray[np.int32],
+                int | npt.NDArray[np.int32],
+                npt.NDArray[np.int64],
+            ]
+        ] = []
         self._rows_time = array('Q')
         self._rows_channel = array('i')
         self._rows_chunk = array('i')
@@ -146,8 +163,8 @@ class TableSource:
     def _add_rows(
         self,
         times: npt.NDArray[np.uint64],
-        channel: int,
-        chunk: int,
+        channel: int | npt.NDArray[np.int32],
+        chunk: int | npt.NDArray[np.int32],
         offsets: npt.NDArray[np.int64],
     ) -> None:
         self._parts.append((times, channel, chunk, offsets))
@@ -155,8 +172,8 @@ class TableSource:
     def _finish(self) -> None:
         """Sort the collected rows into replay order and compute seq and topic statistics."""
         times = [part[0] for part in self._parts]
-        channels = [np.full(len(part[0]), part[1], np.int32) for part in self._parts]
-        chunks = [np.full(len(part[0]), part[2], np.int32) for part in self._parts]
+        channels = [_column(len(part[0]), part[1]) for part in self._parts]
+        chunks = [_column(len(part[0]), part[2]) for part in self._parts]
         offsets = [part[3] for part in self._parts]
         times.append(np.frombuffer(self._rows_time, np.uint64))
         channels.append(np.frombuffer(self._rows_channel, np.int32))
@@ -272,6 +289,7 @@ class TableSource:
         if self._closed:
             return
         self._closed = True
+        self._chunk_regions = None
         self._cache.clear()
         self._cache_bytes = 0
         for mapped in self._maps:
@@ -305,15 +323,11 @@ class TableSource:
         table = self._table
         channels = self._channels
         payload = self._payload
-        # For uncompressed chunks a (buffer, base) pair; None where a chunk must be decompressed.
-        regions: list[tuple[memoryview, int] | None] = [
-            (self._maps[ck.file_no].view, ck.data_start) if not ck.compression else None
-            for ck in self._chunks
-        ]
+        regions, compressed = self._regions()
         # Drop a decompressed chunk from the cache right after its last message is yielded.
         chunk_ids = table.chunk[lo:hi] if selection is None else table.chunk[selection]
         last_use: dict[int, int] = {}
-        if any(region is None for region in regions):
+        if compressed:
             rev_unique, rev_first = np.unique(chunk_ids[::-1], return_index=True)
             last_pos = len(chunk_ids) - 1 - rev_first
             last_use = {
@@ -355,6 +369,17 @@ class TableSource:
                 if last_use and last_use.get(k) == position:
                     self._evict(k)
                 position += 1
+
+    def _regions(self) -> tuple[list[tuple[memoryview, int] | None], bool]:
+        """Per chunk, for an uncompressed one a (buffer, base) pair, None for one that must be
+        decompressed; and whether there is any of those. Made once, on the first read."""
+        if self._chunk_regions is None:
+            regions: list[tuple[memoryview, int] | None] = [
+                (self._maps[ck.file_no].view, ck.data_start) if not ck.compression else None
+                for ck in self._chunks
+            ]
+            self._chunk_regions = (regions, any(region is None for region in regions))
+        return self._chunk_regions
 
     def _skipped(self, k: int, topic: str) -> None:
         if k in self._bad_chunks:

@@ -14,9 +14,10 @@ cut) is read as cut where the zeros begin: no message is built from the zeroed b
 
 from __future__ import annotations
 
+import itertools
 import struct
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -28,6 +29,8 @@ from ._table import Channel, Chunk, TableSource
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
+
+    import numpy.typing as npt
 
     from replaybench.types import Serialization
 
@@ -44,6 +47,8 @@ _OP_MESSAGE_INDEX = 0x07
 _OP_CHUNK_INDEX = 0x08
 _OP_STATISTICS = 0x0B
 _FOOTER_TAIL = 1 + 8 + 20 + len(MCAP_MAGIC)  # footer record + closing magic
+#: MessageIndex records with fewer entries are read together in one gather (``_add_gathered``)
+_GATHER_BELOW = 64
 
 _U16 = struct.Struct('<H').unpack_from
 _U32 = struct.Struct('<I').unpack_from
@@ -79,8 +84,25 @@ class _Summary(NamedTuple):
     start: int  # where the summary section (and so the data section's end) is
     schemas: dict[int, _Schema]
     channels: dict[int, _ChannelRecord]
-    chunk_indexes: list[_ChunkIndex]
+    chunk_records: list[int]  # where each ChunkIndex record's body begins
+    chunk_ends: list[int]  # and where it ends
     message_count: int | None
+
+
+class _Bulk(NamedTuple):
+    """The chunk indexes of a summary read at once (``_bulk_index``): per chunk (in chunk
+    position order) its head; per MessageIndex record its chunk (a row of the first arrays),
+    channel id, where its entries are and how many."""
+
+    chunk_pos: npt.NDArray[np.int64]
+    data_start: npt.NDArray[np.int64]
+    data_len: npt.NDArray[np.int64]
+    uncompressed_size: npt.NDArray[np.int64]
+    compression: str
+    chunk: npt.NDArray[np.int64]
+    cids: npt.NDArray[np.int64]
+    entries_at: npt.NDArray[np.int64]
+    counts: npt.NDArray[np.int64]
 
 
 class _ChunkHead(NamedTuple):
@@ -159,6 +181,14 @@ def _parse_chunk_index(buf: memoryview, pos: int, end: int) -> _ChunkIndex:
     return _ChunkIndex(chunk_pos, offsets)
 
 
+def _chunk_indexes(buf: memoryview, summary: _Summary) -> list[_ChunkIndex]:
+    """The summary's ChunkIndex records, parsed one by one."""
+    return [
+        _parse_chunk_index(buf, body, end)
+        for body, end in zip(summary.chunk_records, summary.chunk_ends, strict=True)
+    ]
+
+
 def _chunk_head(buf: memoryview, pos: int, size: int) -> _ChunkHead:
     """Parse the Chunk record at ``pos``; ``data_len`` is what of its records lies in the file."""
     if pos + 9 + 36 > size or buf[pos] != _OP_CHUNK:
@@ -194,7 +224,8 @@ def _read_summary(buf: memoryview, start: int, size: int) -> _Summary:
         raise _CorruptError(msg)
     schemas: dict[int, _Schema] = {}
     channels: dict[int, _ChannelRecord] = {}
-    chunk_indexes: list[_ChunkIndex] = []
+    chunk_records: list[int] = []
+    chunk_ends: list[int] = []
     message_count: int | None = None
     pos = start
     while pos < end:
@@ -214,12 +245,125 @@ def _read_summary(buf: memoryview, start: int, size: int) -> _Summary:
         elif op == _OP_CHANNEL:
             channel = _parse_channel(buf, body, rec_end)
             channels[channel.id] = channel
-        elif op == _OP_CHUNK_INDEX:
-            chunk_indexes.append(_parse_chunk_index(buf, body, rec_end))
+        elif op == _OP_CHUNK_INDEX:  # parsed later, all at once where they are regular
+            chunk_records.append(body)
+            chunk_ends.append(rec_end)
         elif op == _OP_STATISTICS and length >= 8:
             message_count = int(_U64(buf, body)[0])
         pos = rec_end
-    return _Summary(start, schemas, channels, chunk_indexes, message_count)
+    return _Summary(start, schemas, channels, chunk_records, chunk_ends, message_count)
+
+
+def _bulk_index(buf: memoryview, size: int, summary: _Summary) -> _Bulk | None:
+    """Every ChunkIndex record of ``summary``, the Chunk record heads and the MessageIndex
+    records they point to, read with array operations; None (nothing decided) unless they are
+    regular: every chunk in one compression, listing each of its channels once, and every field
+    as ``_parse_chunk_index``, ``_chunk_head`` and ``_message_indexes`` would read it without
+    error. A file that is not regular is read record by record, which gives the same index (or
+    the same refusal) one chunk at a time."""
+    if not summary.chunk_records or len(summary.chunk_records) != len(summary.chunk_ends):
+        return None
+    bodies = np.array(summary.chunk_records, np.int64)
+    lengths = np.array(summary.chunk_ends, np.int64) - bodies
+    if np.any(lengths < 36):
+        return None
+    data = np.frombuffer(buf, np.uint8)
+    try:
+        return _bulk_read(data, size, bodies, lengths)
+    finally:
+        del data
+
+
+def _gather(data: npt.NDArray[np.uint8], pos: npt.NDArray[np.int64], width: int) -> Any:
+    """The ``width`` bytes at each of ``pos`` (checked to lie in ``data``), one row each."""
+    return data[pos.reshape(-1)[:, None] + np.arange(width)].reshape((*pos.shape, width))
+
+
+def _uint(data: npt.NDArray[np.uint8], pos: npt.NDArray[np.int64], kind: str) -> Any:
+    width = np.dtype(kind).itemsize
+    return _gather(data, pos, width).view(kind)[..., 0]
+
+
+def _bulk_read(
+    data: npt.NDArray[np.uint8],
+    size: int,
+    bodies: npt.NDArray[np.int64],
+    lengths: npt.NDArray[np.int64],
+) -> _Bulk | None:
+    # ChunkIndex: start, end, chunk position (u64 at 16), ..., map length (u32 at 32), map of
+    # (channel id u16, MessageIndex position u64); records of one length are read together
+    map_lens = _uint(data, bodies + 32, '<u4').astype(np.int64)
+    if np.any(map_lens % 10) or np.any(map_lens == 0) or np.any(36 + map_lens > lengths):
+        return None
+    rows, cid_parts, offset_parts = [], [], []
+    for map_len in np.unique(map_lens).tolist():
+        sel = np.flatnonzero(map_lens == map_len)
+        k = map_len // 10
+        at = bodies[sel][:, None] + 36 + 10 * np.arange(k)
+        cids = _uint(data, at, '<u2').astype(np.int64)
+        if k > 1 and np.any(np.diff(np.sort(cids, axis=1), axis=1) == 0):
+            return None  # a channel listed twice: the record reader keeps the last one
+        rows.append(np.repeat(sel, k))
+        cid_parts.append(cids.reshape(-1))
+        offset_parts.append(_uint(data, at + 2, '<u8').reshape(-1))
+    record = np.concatenate(rows)
+    cids = np.concatenate(cid_parts)
+    offsets = np.concatenate(offset_parts)
+    chunk_pos = _uint(data, bodies + 16, '<u8')
+    if np.any(chunk_pos > size - 45):
+        return None
+    order = np.argsort(chunk_pos, kind='stable')
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    chunk_pos = chunk_pos[order].astype(np.int64)
+    # Chunk: op, record length, then start, end, uncompressed size (u64 at 16), crc, compression
+    if np.any(data[chunk_pos] != _OP_CHUNK):
+        return None
+    body = chunk_pos + 9
+    record_len = np.minimum(_uint(data, chunk_pos + 1, '<u8'), np.uint64(size)).astype(np.int64)
+    record_end = np.minimum(body + record_len, size)
+    usize = _uint(data, body + 16, '<u8')
+    comp_len = _uint(data, body + 28, '<u4').astype(np.int64)
+    if np.any(comp_len != comp_len[0]):
+        return None
+    after = body + 32 + int(comp_len[0])  # the records' length (u64), then the records
+    if np.any(after + 8 > record_end) or np.any(usize > np.uint64(2**62)):
+        return None
+    names = _gather(data, body + 32, int(comp_len[0]))
+    if np.any(names != names[:1]):
+        return None
+    try:
+        compression = bytes(names[0]).decode()
+    except UnicodeDecodeError:
+        return None
+    records_len = np.minimum(_uint(data, after, '<u8'), np.uint64(size)).astype(np.int64)
+    data_start = after + 8
+    data_len = np.maximum(0, np.minimum(records_len, size - data_start))
+    # MessageIndex: op, record length, channel id (u16), entries' length (u32), entries
+    if np.any(offsets > size - 15):
+        return None
+    entries_at = offsets.astype(np.int64)
+    rec_len = _uint(data, entries_at + 1, '<u8')
+    nbytes = _uint(data, entries_at + 11, '<u4').astype(np.int64)
+    if (
+        np.any(data[entries_at] != _OP_MESSAGE_INDEX)
+        or np.any(_uint(data, entries_at + 9, '<u2') != cids)
+        or np.any(nbytes % 16)
+        or np.any(rec_len < (6 + nbytes).astype(np.uint64))
+        or np.any(entries_at + 15 + nbytes > size)
+    ):
+        return None
+    return _Bulk(
+        chunk_pos,
+        data_start,
+        data_len,
+        usize.astype(np.int64),
+        compression,
+        rank[record],
+        cids,
+        entries_at + 15,
+        nbytes // 16,
+    )
 
 
 def _schemas_in(buf: memoryview, start: int, end: int, found: dict[int, _Schema]) -> None:
@@ -358,10 +502,15 @@ class McapSource(TableSource):
         if summary_start:
             try:
                 summary = _read_summary(buf, summary_start, size)
+                bulk = _bulk_index(buf, size, summary)
+                indexes = [] if bulk is not None else _chunk_indexes(buf, summary)
             except (_CorruptError, struct.error) as err:
                 self._warn(f'{mapped.path.name}: summary unreadable ({err}); scanned the file')
             else:
-                if self._index_from_summary(file_no, mapped, summary):
+                if bulk is not None:
+                    if self._index_from_bulk(file_no, mapped, summary, bulk):
+                        return
+                elif self._index_from_summary(file_no, mapped, summary, indexes):
                     return
         zeros = ''
         if summary_start is None:  # no footer: a zero-filled tail is where the file was cut
@@ -376,25 +525,95 @@ class McapSource(TableSource):
                 f'(no MCAP footer{zeros}); replaying every complete message before the cut'
             )
 
-    def _index_from_summary(self, file_no: int, mapped: MappedFile, summary: _Summary) -> bool:
-        """Index from the summary; False (nothing added) when the index cannot be trusted."""
-        if not summary.chunk_indexes:
-            return False
-        ids = {cid for ci in summary.chunk_indexes for cid in ci.index_offsets}
-        if any(cid not in summary.channels for cid in ids):
-            return False
-        buf, size = mapped.view, mapped.size
+    def _summary_channels(self, mapped: MappedFile, summary: _Summary) -> dict[int, int]:
+        """Register the summary's channels; their chmap (channel id -> index, or below 0)."""
         chmap: dict[int, int] = {}
-        channels_before = len(self._channels)
         schemas = summary.schemas
         missing = {ch.schema_id for ch in summary.channels.values() if ch.schema_id} - set(schemas)
         if missing:  # channels in the summary, their schemas only in the data section
-            schemas = {**_data_schemas(buf, summary.start, missing), **schemas}
+            schemas = {**_data_schemas(mapped.view, summary.start, missing), **schemas}
         for record in summary.channels.values():
             self._register(chmap, record, schemas)
+        return chmap
+
+    def _index_from_bulk(
+        self, file_no: int, mapped: MappedFile, summary: _Summary, bulk: _Bulk
+    ) -> bool:
+        """``_index_from_summary`` for a regular index read at once (``_bulk_index``): the
+        same chunks, rows and refusals."""
+        ids = set(np.flatnonzero(np.bincount(bulk.cids)).tolist())
+        if any(cid not in summary.channels for cid in ids):
+            return False
+        indexed = int(bulk.counts.sum())
+        channels_before = len(self._channels)
+        chmap = self._summary_channels(mapped, summary)
+        if summary.message_count not in (None, indexed):
+            del self._channels[channels_before:]
+            self._warn(
+                f'{mapped.path.name}: index lists {indexed} of {summary.message_count} '
+                'messages; scanned the file'
+            )
+            return False
+        first = len(self._chunks)
+        n = len(bulk.chunk_pos)
+        self._chunks.extend(
+            map(
+                Chunk,
+                itertools.repeat(file_no, n),
+                bulk.chunk_pos.tolist(),
+                bulk.data_start.tolist(),
+                bulk.data_len.tolist(),
+                itertools.repeat(bulk.compression, n),
+                bulk.uncompressed_size.tolist(),
+                itertools.repeat(False, n),  # Chunk.partial
+            )
+        )
+        lookup = np.full(1 << 16, -1, np.int64)
+        for cid in ids:
+            lookup[cid] = chmap.get(cid, -1)
+        g = lookup[bulk.cids]
+        for unreadable in sorted(set(g[g < -1].tolist())):
+            self._count_unreadable(unreadable, int(bulk.counts[g == unreadable].sum()))
+        chunk = first + bulk.chunk
+        keep = (g >= 0) & (bulk.counts > 0)
+        small = keep & (bulk.counts < _GATHER_BELOW)
+        if np.any(small):
+            self._add_gathered(
+                mapped,
+                np.stack(
+                    (bulk.entries_at[small], bulk.counts[small], g[small], chunk[small]), axis=1
+                ),
+            )
+        large = keep & ~small
+        for at, count, channel, k in zip(
+            bulk.entries_at[large].tolist(),
+            bulk.counts[large].tolist(),
+            g[large].tolist(),
+            chunk[large].tolist(),
+            strict=True,
+        ):
+            pairs = np.frombuffer(mapped.map, '<u8', count=2 * count, offset=at)
+            pairs = pairs.reshape(count, 2)
+            self._add_rows(pairs[:, 0].astype(np.uint64), channel, k, pairs[:, 1].astype(np.int64))
+            del pairs
+        return True
+
+    def _index_from_summary(
+        self, file_no: int, mapped: MappedFile, summary: _Summary, indexes: list[_ChunkIndex]
+    ) -> bool:
+        """Index from the summary; False (nothing added) when the index cannot be trusted."""
+        if not indexes:
+            return False
+        ids = {cid for ci in indexes for cid in ci.index_offsets}
+        if any(cid not in summary.channels for cid in ids):
+            return False
+        buf, size = mapped.view, mapped.size
+        channels_before = len(self._channels)
+        chmap = self._summary_channels(mapped, summary)
         plans: list[tuple[int, _ChunkHead, list[tuple[int, int, int]] | None]] = []
+        few: list[tuple[int, int, int, int]] = []  # short MessageIndex records, read at once
         indexed = 0
-        for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_pos):
+        for ci in sorted(indexes, key=lambda c: c.chunk_pos):
             try:
                 head = _chunk_head(buf, ci.chunk_pos, size)
                 entries = self._message_indexes(buf, size, ci) if ci.index_offsets else None
@@ -434,11 +653,38 @@ class McapSource(TableSource):
                     self._count_unreadable(g, count)
                 if g < 0 or not count:
                     continue
+                if count < _GATHER_BELOW:
+                    few.append((offset, count, g, k))
+                    continue
                 pairs = np.frombuffer(mapped.map, '<u8', count=2 * count, offset=offset)
                 pairs = pairs.reshape(count, 2)
                 self._add_rows(pairs[:, 0].astype(np.uint64), g, k, pairs[:, 1].astype(np.int64))
                 del pairs
+        if few:
+            self._add_gathered(mapped, few)
         return True
+
+    def _add_gathered(
+        self, mapped: MappedFile, few: list[tuple[int, int, int, int]] | npt.NDArray[np.int64]
+    ) -> None:
+        """The rows of many short MessageIndex records at once: ``few`` holds (file offset of
+        the entries, entry count, channel, chunk) per record."""
+        table = np.asarray(few, np.int64)
+        counts = table[:, 1]
+        total = int(counts.sum())
+        rank = np.arange(total, dtype=np.int64) - np.repeat(np.cumsum(counts) - counts, counts)
+        pos = np.repeat(table[:, 0], counts) + 16 * rank
+        data = np.frombuffer(mapped.map, np.uint8)
+        try:
+            pairs = data[pos[:, None] + np.arange(16)].view('<u8')
+        finally:
+            del data
+        self._add_rows(
+            pairs[:, 0].astype(np.uint64),
+            np.repeat(table[:, 2].astype(np.int32), counts),
+            np.repeat(table[:, 3].astype(np.int32), counts),
+            pairs[:, 1].astype(np.int64),
+        )
 
     @staticmethod
     def _message_indexes(buf: memoryview, size: int, ci: _ChunkIndex) -> list[tuple[int, int, int]]:

@@ -67,3 +67,10 @@ def test_no_backend_name_list_is_kept_outside_the_registry():
             code = [line for line in text.splitlines() if name in line and '#' not in line]
             assert not [line for line in code if 'device' not in line], (path, name, code)
         assert 'RecordedBackend' not in text, path
+
+
+def test_only_the_backends_that_never_read_a_frames_camera_info_say_so():
+    traits = {name: backend_traits(get_backend(name)) for name in BUILTIN_BACKENDS}
+    silent = {n for n, t in traits.items() if not t.reads_camera_info}
+    assert {'null', 'hsv', 'hsv-seg', 'onnx-cpu', 'onnx-seg', 'recorded'} <= silent
+    assert not {'apriltag', 'aruco'} & silent  # their poses need the intrinsics

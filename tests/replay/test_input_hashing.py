@@ -145,9 +145,17 @@ def test_an_input_that_changes_during_the_run_gets_no_sha256_and_a_warning(tmp_p
     assert any('changed during the run' in w for w in entry['warnings'])
 
 
-def test_a_small_input_is_hashed_at_once_and_its_run_has_no_hashing_warning(tmp_path):
+def test_a_small_input_is_hashed_after_the_passes_too_and_its_run_has_no_hashing_warning(
+    tmp_path,
+):
+    log: list[str] = []
     out = tmp_path / 'run'
-    run_benchmark(RunConfig(inputs=[RAW], backends=['null'], out_dir=out, report=False))
+    run_benchmark(
+        RunConfig(inputs=[RAW], backends=['null'], out_dir=out, report=False),
+        backend_factory=_factory(_LoggingNull(log)),
+        hasher=lambda files: InputHash(files, digest=lambda: _LoggingDigest(log)),
+    )
+    assert log.index('digest') > max(i for i, e in enumerate(log) if e == 'frame')
     (entry,) = _run_json(out)['inputs']
     assert entry['sha256'] == EXPECTED
     assert not [w for w in entry['warnings'] if 'sha256' in w]

@@ -126,9 +126,11 @@ def read_mcap_metadata(path: Path, name: str) -> dict[str, str] | None:
 
 
 def _mcap_files(path: Path) -> list[Path]:
+    """The MCAP files of an input; only regular files (a FIFO or a device is never opened
+    here: ``replaybench.sources.open_source`` refuses it with its own line)."""
     if path.is_dir():
-        return sorted(path.glob('*.mcap'))
-    return [path] if path.suffix == '.mcap' else []
+        return sorted(p for p in path.glob('*.mcap') if p.is_file())
+    return [path] if path.suffix == '.mcap' and path.is_file() else []
 
 
 def _one(path: Path) -> tuple[tuple[str, str] | None, str]:

@@ -59,6 +59,25 @@ CLI_CASES: list[tuple[str, list[str]]] = [
             '8',
         ],
     ),
+    # the tag task: two detectors scored against the bag's tag truth, poses and the sizes the
+    # bag records; a tag node's recorded outputs beside a replayed detector
+    ('tags-two-detectors', ['../tags/tags.mcap', '--backend', 'aruco', '--backend', 'apriltag']),
+    ('tags-recorded', ['../tags/live_tags.mcap', '--backend', 'recorded', '--backend', 'aruco']),
+    # the segmentation task: recorded label masks beside both segmenters, mIoU and agreement
+    (
+        'masks-recorded',
+        [
+            'live_masks.mcap',
+            '--backend',
+            'recorded',
+            '--backend',
+            'hsv-seg',
+            '--backend',
+            'onnx-seg',
+            '--recorded-topic',
+            '/unet/raw_segmentation_mask',
+        ],
+    ),
 ]
 
 #: ``rb.run`` cases: (name, positional bags, keyword options); each runs in memory and into a

@@ -169,3 +169,42 @@ def test_a_document_built_for_writing_may_not_hold_a_key_the_model_lacks() -> No
     # reading a file keeps what it knows and leaves the rest
     assert from_json(InputInfo, {'path': 'a.mcap', 'extra': 1}) == InputInfo(path='a.mcap')
     assert from_document(ResourceSummary, {'samples': 3}).samples == 3
+
+
+def test_a_pickled_result_names_its_types_by_replaybench_results_model_and_loads_back_equal() -> (
+    None
+):
+    import pickle
+    import pickletools
+
+    from replaybench.results import model
+
+    run = model.RunResult(
+        summary_rows=(
+            model.SummaryRow(
+                backend='aruco',
+                accuracy=model.Accuracy(ap50={'tag': 1.0}),
+                segmentation=model.SegmentationSummary(iou={'road': 0.5}),
+                tag_accuracy=model.TagAccuracy(size_hints=(model.TagSizeHint(tag_id=14),)),
+            ),
+        ),
+        agreement=(model.AgreementRow(disagreeing_frames=((0, 3),)),),
+        segmentation_agreement=(model.SegmentationAgreementRow(miou=0.9),),
+        backends=(model.BackendRun(resources=model.Resources(series=(model.ResourcePoint(),))),),
+        repeats=(model.RepeatStats(repeat=1),),
+    )
+    peak = model.PeakResult(trial_rows=(model.PeakTrial(rate_hz=30.0),))
+    comparison = model.Comparison(
+        rows=(model.ComparisonRow(metrics={'latency_ms_p50': model.MetricResult(value=1.0)}),),
+        gate=model.ComparisonGate(results=(model.GateCheck(condition='x'),)),
+    )
+    for result in (run, peak, comparison):
+        data = pickle.dumps(result, protocol=2)
+        named = {
+            str(arg).split(' ')[0]
+            for op, arg, _ in pickletools.genops(data)
+            if op.name == 'GLOBAL' and str(arg).startswith('replaybench')
+        }
+        assert named == {'replaybench.results.model'}
+        assert pickle.loads(data) == result
+        assert pickle.loads(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL)) == result

@@ -1,0 +1,124 @@
+"""One (backend, topic) summarised: summary.csv's row (``SummaryRow``) and one ``--repeat``
+pass's statistics (``RepeatStats``).
+
+``SummaryRow`` holds the common fields (counts, latency, throughput, stage means, resources,
+intervals, warnings, the recorded outputs' latency) and each task's metrics: detection's
+``precision50`` ... ``map50_95`` and ``accuracy``, segmentation's ``miou``,
+``pixel_accuracy`` and ``segmentation``, the tags' ``tag_*`` and ``tag_accuracy``. The
+order of the fields is the order of run.json's keys.
+"""
+
+from dataclasses import dataclass
+
+from replaybench.results.model.detections import Accuracy
+from replaybench.results.model.segmentation import SegmentationSummary
+from replaybench.results.model.tags import TagAccuracy
+
+__all__ = ['RepeatStats', 'SummaryRow']
+
+
+@dataclass(frozen=True, slots=True)
+class SummaryRow:
+    """One (backend, topic): the summary.csv columns and the full ``accuracy``."""
+
+    backend: str = ''
+    topic: str = ''
+    frames: int = 0
+    processed: int = 0
+    measured: int = 0
+    warmup: int = 0
+    dropped: int = 0
+    skipped: int = 0
+    throughput_fps: float | None = None
+    latency_ms_mean: float | None = None
+    latency_ms_std: float | None = None
+    latency_ms_min: float | None = None
+    latency_ms_p50: float | None = None
+    latency_ms_p90: float | None = None
+    latency_ms_p95: float | None = None
+    latency_ms_p99: float | None = None
+    latency_ms_max: float | None = None
+    jitter_ms: float | None = None
+    detections_per_frame: float | None = None
+    queue_wait_ms_mean: float | None = None
+    read_decode_ms_mean: float | None = None
+    preprocess_ms_mean: float | None = None
+    infer_ms_mean: float | None = None
+    postprocess_ms_mean: float | None = None
+    h2d_ms_mean: float | None = None
+    d2h_ms_mean: float | None = None
+    precision50: float | None = None
+    recall50: float | None = None
+    map50: float | None = None
+    map50_95: float | None = None
+    cpu_percent_mean: float | None = None
+    private_mb_peak: float | None = None
+    mapped_mb_peak: float | None = None
+    rss_mb_peak: float | None = None
+    gpu_util_mean: float | None = None
+    gpu_mem_mb_peak: float | None = None
+    gpu_power_w_mean: float | None = None
+    #: 95 % block-bootstrap intervals (None below 20 measured frames)
+    latency_ms_p50_ci_low: float | None = None
+    latency_ms_p50_ci_high: float | None = None
+    latency_ms_p99_ci_low: float | None = None
+    latency_ms_p99_ci_high: float | None = None
+    throughput_fps_ci_low: float | None = None
+    throughput_fps_ci_high: float | None = None
+    #: stability warnings (too few frames, CV, drift, throttling)
+    warnings: tuple[str, ...] = ()
+    accuracy: Accuracy | None = None
+    #: segmentation backends: mIoU and pixel accuracy (summary.csv) and the full entry
+    miou: float | None = None
+    pixel_accuracy: float | None = None
+    segmentation: SegmentationSummary | None = None
+
+    #: recorded outputs (``recorded`` backend): their latency from the recording
+    #: (replaybench.results.recorded_latency); None for replayed backends
+    recorded_outputs: int | None = None
+    recorded_outputs_dropped: int | None = None
+    recorded_output_hz: float | None = None
+    capture_to_output_ms_mean: float | None = None
+    capture_to_output_ms_p50: float | None = None
+    capture_to_output_ms_p50_ci_low: float | None = None
+    capture_to_output_ms_p50_ci_high: float | None = None
+    capture_to_output_ms_p99: float | None = None
+    capture_to_output_ms_p99_ci_low: float | None = None
+    capture_to_output_ms_p99_ci_high: float | None = None
+    capture_to_output_ms_max: float | None = None
+    pipeline_ms_mean: float | None = None
+    pipeline_ms_p50: float | None = None
+    pipeline_ms_p50_ci_low: float | None = None
+    pipeline_ms_p50_ci_high: float | None = None
+    pipeline_ms_p99: float | None = None
+    pipeline_ms_p99_ci_low: float | None = None
+    pipeline_ms_p99_ci_high: float | None = None
+    pipeline_ms_max: float | None = None
+    recorded_latency_note: str | None = None
+
+    #: tag backends against tag ground truth (None otherwise)
+    tag_recall: float | None = None
+    tag_wrong_ids: int | None = None
+    tag_phantoms: int | None = None
+    tag_corner_rmse_px: float | None = None
+    tag_trans_err_m: float | None = None
+    tag_trans_err_pct: float | None = None
+    tag_rot_err_deg: float | None = None
+    tag_accuracy: TagAccuracy | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class RepeatStats:
+    """One pass (``--repeat``) of one (backend, topic): the statistics ``compare`` judges
+    between repeats (``results.stats.repeat_statistics``)."""
+
+    backend: str = ''
+    topic: str = ''
+    repeat: int = 0
+    measured: int = 0
+    latency_ms_p50: float | None = None
+    latency_ms_p99: float | None = None
+    latency_ms_mean: float | None = None
+    throughput_fps: float | None = None
+    #: the measured frames' processing window (s): completion to completion
+    window_s: float | None = None

@@ -50,6 +50,8 @@ _LATER = (
     'replaybench.results.stats',
     'replaybench.results.io',
     'replaybench.backends.gpu.cuda',
+    'replaybench.backends.gpu._engines',
+    'replaybench.backends.gpu._dnn',
     'rosbags.typesys.stores.ros2_humble',
 )
 

@@ -1,7 +1,7 @@
 """A model's input on one torch device: the frame's pixels uploaded once (through a reused
 pinned buffer on CUDA), then letterboxed or stretched, normalised and written into the input
 tensor the engines bind (``DeviceInput``); the base of the detection and segmentation pipelines
-of ``cuda`` / ``tensorrt``."""
+of ``cuda`` / ``tensorrt``. ``frame_input`` gives a frame's pixels as uploaded."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from replaybench.backends.gpu import _torch_ops as ops
+from replaybench.errors import BackendError
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -18,10 +19,40 @@ if TYPE_CHECKING:
 
     from replaybench.detector.preprocess import Transform
     from replaybench.detector.spec import Preprocess
+    from replaybench.types import Frame
 
-__all__ = ['DeviceInput']
+__all__ = ['DeviceInput', 'frame_input']
 
+#: Encodings uploaded as they are, with their channel layout; others go through to_bgr8.
+_LAYOUTS = {'bgr8': 'bgr', 'rgb8': 'rgb', 'bgra8': 'bgra', 'rgba8': 'rgba', 'mono8': 'y'}
 Tensor = Any  # torch.Tensor
+
+
+def frame_input(frame: Frame, backend: str) -> tuple[npt.NDArray[np.uint8], str]:
+    """The frame's uint8 pixels as uploaded and their channel layout; depth is refused."""
+    if frame.is_depth or frame.encoding == '32FC1':
+        msg = (
+            f'{backend}: frame {frame.topic}#{frame.seq} is a depth image '
+            f'({frame.source_encoding}); a detector for colour images cannot use it: '
+            'replay colour or mono topics only'
+        )
+        raise BackendError(msg)
+    image = frame.image
+    layout = _LAYOUTS.get(frame.encoding)
+    if layout is None:
+        from replaybench.decode import to_bgr8
+
+        image, layout = to_bgr8(image, frame.encoding), 'bgr'
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    channels = 1 if image.ndim == 2 else int(image.shape[2])
+    if image.dtype != np.uint8 or image.ndim not in (2, 3) or channels != len(layout):
+        msg = (
+            f'{backend}: frame {frame.topic}#{frame.seq}: expected a {len(layout)}-channel '
+            f'uint8 image for {frame.encoding}, got shape {image.shape} {image.dtype}'
+        )
+        raise BackendError(msg)
+    return np.asarray(image, dtype=np.uint8), layout
 
 
 class DeviceInput:

@@ -26,6 +26,10 @@ gets the GPU providers only with ``session.disable_cpu_ep_fallback``, and a sess
 provider is not the GPU one, or with a node placed on the CPU, is refused with
 ``BackendUnavailableError``. ``precision='fp32'`` keeps TF32 off (torch and the CUDA provider);
 ``tf32`` allows it.
+
+The engines are ``_engines``'s, the detection pipeline ``_dnn``'s, the segmentation one
+``_seg``'s, the upload and preprocessing ``_upload``'s; their public names are importable from
+here too.
 """
 
 from __future__ import annotations
@@ -33,13 +37,11 @@ from __future__ import annotations
 import gc
 import importlib
 import time
-import warnings
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from replaybench.backends.base import Availability, BackendOptions
-from replaybench.backends.gpu import _torch_ops as ops
 from replaybench.backends.gpu._cuda import (
     STAGE_EVENTS,
     DeviceFacts,
@@ -48,10 +50,19 @@ from replaybench.backends.gpu._cuda import (
     device_facts,
     driver_problem,
 )
-from replaybench.backends.gpu._fold import fold_shapes, pin_host_arguments
+from replaybench.backends.gpu._dnn import DnnPipeline, to_detections
+from replaybench.backends.gpu._engines import (
+    OrtEngine,
+    TorchEngine,
+    count_syncs,
+    graph_output_names,
+    ortvalue_to_torch,
+    torch_module,
+)
+from replaybench.backends.gpu._fold import pin_host_arguments
 from replaybench.backends.gpu._libs import ORT_CUDA_LIBRARIES, load_libraries
 from replaybench.backends.gpu._tf32 import Tf32Hold, set_tf32
-from replaybench.backends.gpu._upload import DeviceInput
+from replaybench.backends.gpu._upload import frame_input
 from replaybench.backends.gpu.availability import (
     GPU_EXTRA,
     check_placement,
@@ -76,16 +87,14 @@ from replaybench.detector.spec import (
 from replaybench.errors import BackendError, BackendUnavailableError
 from replaybench.segmentation.decoder import LAYOUTS
 from replaybench.segmentation.spec import SegModelSpec
-from replaybench.types import BackendResult, Detection, LabelMask, StageTimes
+from replaybench.types import BackendResult, StageTimes
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Mapping, Sequence
     from pathlib import Path
 
     import numpy.typing as npt
 
     from replaybench.backends.gpu._seg import SegPipeline
-    from replaybench.detector.preprocess import Transform
     from replaybench.detector.spec import ModelSpec
     from replaybench.types import Frame
 
@@ -109,314 +118,6 @@ __all__ = [
 #: (``on`` / ``off``; engine torch only) for ``options.extra``.
 EXTRA_KEYS = (*SPEC_KEYS, 'max_det', 'cuda_graph')
 _SPEC_KEYS = frozenset(SPEC_KEYS)
-#: Encodings uploaded as they are, with their channel layout; others go through to_bgr8.
-_LAYOUTS = {'bgr8': 'bgr', 'rgb8': 'rgb', 'bgra8': 'bgra', 'rgba8': 'rgba', 'mono8': 'y'}
-#: onnxruntime element types (TensorProto) -> numpy type strings, for the pointer fallback.
-_ORT_TYPES = {1: '<f4', 6: '<i4', 7: '<i8', 9: '|b1', 10: '<f2', 11: '<f8'}
-Tensor = Any  # torch.Tensor
-
-
-def frame_input(frame: Frame, backend: str) -> tuple[npt.NDArray[np.uint8], str]:
-    """The frame's uint8 pixels as uploaded and their channel layout; depth is refused."""
-    if frame.is_depth or frame.encoding == '32FC1':
-        msg = (
-            f'{backend}: frame {frame.topic}#{frame.seq} is a depth image '
-            f'({frame.source_encoding}); a detector for colour images cannot use it: '
-            'replay colour or mono topics only'
-        )
-        raise BackendError(msg)
-    image = frame.image
-    layout = _LAYOUTS.get(frame.encoding)
-    if layout is None:
-        from replaybench.decode import to_bgr8
-
-        image, layout = to_bgr8(image, frame.encoding), 'bgr'
-    if image.ndim == 3 and image.shape[2] == 1:
-        image = image[:, :, 0]
-    channels = 1 if image.ndim == 2 else int(image.shape[2])
-    if image.dtype != np.uint8 or image.ndim not in (2, 3) or channels != len(layout):
-        msg = (
-            f'{backend}: frame {frame.topic}#{frame.seq}: expected a {len(layout)}-channel '
-            f'uint8 image for {frame.encoding}, got shape {image.shape} {image.dtype}'
-        )
-        raise BackendError(msg)
-    return np.asarray(image, dtype=np.uint8), layout
-
-
-def to_detections(rows: npt.NDArray[Any], class_names: Sequence[str]) -> tuple[Detection, ...]:
-    """Downloaded ``[K, 6]`` rows (source-pixel box, score, class) -> Detections.
-
-    As ``decoders.postprocess``: boxes left empty by clipping are dropped; labels from the
-    class names (the class index as text beyond them); sorted by (-score, class, x0, y0).
-    """
-    n_names = len(class_names)
-    found: list[Detection] = []
-    for x0, y0, x1, y1, score, cls in rows.tolist():
-        if x1 <= x0 or y1 <= y0:
-            continue
-        cid = int(cls)
-        label = class_names[cid] if 0 <= cid < n_names else str(cid)
-        found.append(Detection(cid, label, score, x0, y0, x1, y1))
-    found.sort(key=lambda d: (-d.score, d.class_index, d.x0, d.y0))
-    return tuple(found)
-
-
-class _DevicePointer:
-    """``__cuda_array_interface__`` over a raw device buffer (an onnxruntime output)."""
-
-    def __init__(self, ptr: int, shape: Sequence[int], typestr: str) -> None:
-        self.__cuda_array_interface__ = {
-            'shape': tuple(shape),
-            'typestr': typestr,
-            'data': (ptr, False),
-            'version': 2,
-        }
-
-
-def ortvalue_to_torch(torch: Any, value: Any, device: Any) -> Tensor:
-    """A torch view of an onnxruntime ``OrtValue`` output without a copy.
-
-    DLPack where the onnxruntime build offers it; else the raw pointer (CUDA) or numpy (CPU).
-    The ``OrtValue`` must outlive the tensor.
-    """
-    if hasattr(value, '__dlpack__'):
-        return torch.from_dlpack(value)
-    if device.type == 'cpu':
-        return torch.from_numpy(value.numpy())
-    typestr = _ORT_TYPES.get(int(value.element_type()))
-    if typestr is None:
-        msg = f'unsupported onnxruntime output type {value.data_type()}'
-        raise BackendError(msg)
-    wrapper = _DevicePointer(int(value.data_ptr()), list(value.shape()), typestr)
-    return torch.as_tensor(wrapper, device=device)
-
-
-class OrtEngine:
-    """onnxruntime session run with IO binding: input and outputs stay on the device."""
-
-    def __init__(
-        self, session: Any, spec: ModelSpec | SegModelSpec, input_tensor: Tensor, torch: Any
-    ) -> None:
-        self.torch = torch
-        self.session = session
-        self.names = list(spec.output_names)
-        self.device = input_tensor.device
-        kind = 'cuda' if self.device.type == 'cuda' else 'cpu'
-        index = self.device.index or 0
-        dtype = np.float16 if input_tensor.dtype == torch.float16 else np.float32
-        binding = session.io_binding()
-        binding.bind_input(
-            spec.input_name, kind, index, dtype, list(input_tensor.shape), input_tensor.data_ptr()
-        )
-        for name in self.names:
-            binding.bind_output(name, kind, index)
-        self.binding = binding
-        self._values: list[Any] = []
-
-    def __call__(self) -> dict[str, Tensor]:
-        try:
-            self.session.run_with_iobinding(self.binding)
-        except Exception as exc:  # onnxruntime errors have several types
-            msg = f'inference failed: {type(exc).__name__}: {exc}'
-            raise BackendError(msg) from exc
-        self.binding.synchronize_outputs()
-        self._values = self.binding.get_outputs()  # keeps the device buffers alive
-        return {
-            name: ortvalue_to_torch(self.torch, value, self.device)
-            for name, value in zip(self.names, self._values, strict=True)
-        }
-
-
-#: ONNX ops that onnx2torch implements with torchvision.
-_TORCHVISION_OPS = frozenset({'NonMaxSuppression', 'RoiAlign'})
-
-
-def _import_onnx2torch() -> tuple[Any, Any]:
-    """``(onnx2torch, torchvision or None)``.
-
-    onnx2torch imports torchvision at import time, but uses it only for the
-    ``NonMaxSuppression`` and ``RoiAlign`` converters. Without torchvision (a CPU build of torch
-    has no matching one on PyPI) it is imported against a placeholder that is removed right
-    after, and ``_open_torch`` refuses models with those two ops.
-    """
-    import sys
-    import types
-
-    try:
-        return importlib.import_module('onnx2torch'), importlib.import_module('torchvision')
-    except ModuleNotFoundError as exc:
-        if exc.name != 'torchvision':
-            raise
-    for name in [m for m in sys.modules if m == 'onnx2torch' or m.startswith('onnx2torch.')]:
-        del sys.modules[name]
-
-    def missing(*_args: object, **_kwargs: object) -> Any:
-        msg = 'torchvision is not installed'
-        raise BackendError(msg)
-
-    placeholder = types.ModuleType('torchvision')
-    placeholder_ops = types.ModuleType('torchvision.ops')
-    for attr in ('nms', 'box_convert', 'roi_align'):
-        setattr(placeholder_ops, attr, missing)
-    placeholder.ops = placeholder_ops  # type: ignore[attr-defined]
-    sys.modules['torchvision'] = placeholder
-    sys.modules['torchvision.ops'] = placeholder_ops
-    try:
-        return importlib.import_module('onnx2torch'), None
-    finally:
-        del sys.modules['torchvision'], sys.modules['torchvision.ops']
-
-
-def count_syncs(torch: Any, call: Callable[[], object]) -> int | None:
-    """Device -> host synchronisations ``call`` makes, counted by torch's sync debug mode
-    (each one a warning); None where this torch has no such mode."""
-    mode = getattr(torch.cuda, 'set_sync_debug_mode', None)
-    if mode is None:
-        return None
-    previous = torch.cuda.get_sync_debug_mode()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter('always')
-        mode('warn')
-        try:
-            call()
-        finally:
-            mode(previous)
-    return sum('synchroniz' in str(w.message).lower() for w in caught)
-
-
-class TorchEngine:
-    """A torch module (the ONNX graph converted by onnx2torch) on the input tensor.
-
-    With ``cuda_graph`` the forward pass is captured once and replayed each frame; a forward
-    that synchronises with the host (``syncs`` > 0, counted first) is not captured, since a
-    capture fails on it; when capture fails for another reason it runs eagerly too, and
-    ``graph_note`` says why. Warm-up and capture run on a side stream made on the input's
-    device, passed to ``torch.cuda.graph`` (whose own default is a process-wide stream made on
-    whichever device was current first).
-    """
-
-    def __init__(
-        self, torch: Any, module: Any, input_tensor: Tensor, names: Sequence[str], cuda_graph: bool
-    ) -> None:
-        self.torch = torch
-        self.module = module
-        self.input = input_tensor
-        self.names = list(names)
-        self.graph: Any = None
-        self.static: list[Tensor] = []
-        self.graph_note = 'off'
-        #: Device -> host synchronisations of one eager forward (CUDA only), as torch counts them.
-        self.syncs: int | None = None
-        if input_tensor.device.type == 'cuda':
-            self.syncs = count_syncs(torch, self._forward)
-            if cuda_graph:
-                self._capture()
-
-    def _forward(self) -> list[Tensor]:
-        with self.torch.inference_mode():
-            out = self.module(self.input)
-        return list(out) if isinstance(out, list | tuple) else [out]
-
-    def _capture(self) -> None:
-        torch = self.torch
-        if self.syncs:
-            self.graph_note = (
-                f'eager (the forward synchronises with the host {self.syncs} time(s), which a '
-                'CUDA graph cannot capture)'
-            )
-            return
-        try:
-            side = torch.cuda.Stream(device=self.input.device)
-            side.wait_stream(torch.cuda.current_stream(self.input.device))
-            with torch.cuda.stream(side):
-                for _ in range(3):
-                    self._forward()
-            torch.cuda.current_stream(self.input.device).wait_stream(side)
-            graph = torch.cuda.CUDAGraph()
-            with torch.cuda.graph(graph, stream=side):
-                self.static = self._forward()
-        except Exception as exc:  # noqa: BLE001  capture is an optimisation: eager mode
-            torch.cuda.synchronize(self.input.device)
-            self.graph = None
-            self.static = []
-            self.graph_note = f'eager (capture failed: {type(exc).__name__}: {exc})'[:300]
-            return
-        self.graph = graph
-        self.graph_note = 'captured'
-
-    def __call__(self) -> dict[str, Tensor]:
-        if self.graph is not None:
-            self.graph.replay()
-            outputs = self.static
-        else:
-            outputs = self._forward()
-        if len(outputs) < len(self.names):
-            msg = f'the converted model returned {len(outputs)} outputs, expected {len(self.names)}'
-            raise BackendError(msg)
-        return dict(zip(self.names, outputs, strict=False))
-
-
-class DnnPipeline(DeviceInput):
-    """Upload, preprocessing (``DeviceInput``) and postprocessing of one detection model on
-    one torch device."""
-
-    def __init__(
-        self,
-        torch: Any,
-        spec: ModelSpec,
-        device: Any,
-        half: bool,
-        conf: float,
-        iou: float,
-        max_det: int,
-    ) -> None:
-        super().__init__(torch, spec.preprocess, device, half)
-        self.spec = spec
-        self.conf = conf
-        self.iou = iou
-        self.max_det = max_det
-        self._grid = None
-        if spec.family == 'yolox':
-            self._grid = ops.yolox_grid(torch, spec.preprocess.size, device)
-        #: Candidates left out for NaN or inf model outputs.
-        self.nonfinite = NonfiniteTally()
-
-    def postprocess(self, outputs: Mapping[str, Tensor], transform: Transform) -> list[Tensor]:
-        """What to download: ``[rows K x 6]`` and the count of candidates left out for NaN or
-        inf values (0-d) for YOLO heads; the raw outputs for ``nms`` ones."""
-        torch = self.torch
-        spec = self.spec
-        if spec.family == 'nms':
-            return [outputs[name] for name in spec.output_names]
-        out = outputs[spec.output_names[0]]
-        boxes, scores, classes, nonfinite = ops.decode(
-            torch, spec.family, out, self.conf, self._grid
-        )
-        keep = ops.batched_nms(torch, boxes, scores, classes, self.iou, self.max_det)
-        src = ops.boxes_to_source(torch, boxes[keep], transform)
-        rows = torch.cat((src, scores[keep, None], classes[keep, None].to(torch.float32)), dim=1)
-        return [rows, nonfinite]
-
-    def detections(
-        self, arrays: Sequence[npt.NDArray[Any]], transform: Transform
-    ) -> tuple[Detection, ...]:
-        """Detections from the downloaded arrays (``nms`` models: the numpy decoder)."""
-        spec = self.spec
-        if spec.family == 'nms':
-            from replaybench.detector.decoders import postprocess
-
-            outputs = dict(zip(spec.output_names, arrays, strict=True))
-            return postprocess(
-                outputs, spec, transform, self.conf, self.iou, self.max_det, self.nonfinite
-            )
-        self.nonfinite.add(int(arrays[1]))
-        return to_detections(arrays[0], spec.class_names)
-
-    def answer(
-        self, arrays: Sequence[npt.NDArray[Any]], transform: Transform
-    ) -> tuple[tuple[Detection, ...], LabelMask | None]:
-        """The frame's detections and label mask (``_seg.SegPipeline``: a mask)."""
-        return self.detections(arrays, transform), None
 
 
 def _unit(backend: str, name: str, value: float | None) -> None:
@@ -658,38 +359,7 @@ class CudaBackend:
             msg = f'{" and ".join(missing)} not installed: {GPU_EXTRA}'
             raise BackendUnavailableError(msg)
         spec = self._load_spec(None)
-        onnx = importlib.import_module('onnx')
-        proto = onnx.load(str(self.model_path))
-        onnx2torch, torchvision = _import_onnx2torch()
-        needs = sorted({n.op_type for n in proto.graph.node} & _TORCHVISION_OPS)
-        if needs and torchvision is None:
-            msg = (
-                f'{self.name}: {self.model_path.name} has {", ".join(needs)} nodes, which '
-                'onnx2torch runs with torchvision; torchvision is not installed'
-            )
-            raise BackendUnavailableError(msg)
-        width, height = spec.preprocess.size
-        try:
-            proto, report = fold_shapes(onnx, proto, (1, 3, height, width))
-        except BackendError as exc:
-            msg = f'{self.name}: cannot fold the shapes of {self.model_path.name}: {exc}'
-            raise BackendError(msg) from exc
-        try:
-            module = onnx2torch.convert(proto)
-        except Exception as exc:  # unsupported ops and the like
-            what = f'{type(exc).__name__}: {exc}'
-            msg = f'{self.name}: onnx2torch cannot convert {self.model_path}: {what}'
-            raise BackendError(msg) from exc
-        facts = {
-            'torch': str(torch.__version__),
-            'onnx2torch': _version('onnx2torch'),
-            'torchvision': _version('torchvision') if torchvision is not None else None,
-            'shape_folding': {
-                'input_shape': [1, 3, height, width],
-                'folded_nodes': report.folded,
-                'shape_ops_left': report.shape_ops_left,
-            },
-        }
+        module, facts = torch_module(self.name, self.model_path, spec.preprocess.size, torch)
         return spec, module, facts
 
     def _torch_device(self) -> tuple[Any, Any]:
@@ -775,7 +445,7 @@ class CudaBackend:
                 facts['shape_folding']['host_constants'] = len(pinned.pinned)
                 facts['shape_folding']['device_shape_reads'] = pinned.dynamic
                 self._engine = TorchEngine(
-                    torch, module, pipeline.input, _graph_output_names(spec), self.cuda_graph
+                    torch, module, pipeline.input, graph_output_names(spec), self.cuda_graph
                 )
                 facts['cuda_graph'] = self._engine.graph_note
                 facts['syncs_per_forward'] = self._engine.syncs
@@ -940,19 +610,3 @@ class CudaBackend:
             d2h_device_ns=on_device[4],
         )
         return BackendResult(detections, stages, mask)
-
-
-def _graph_output_names(spec: ModelSpec | SegModelSpec) -> list[str]:
-    """Names of all graph outputs in graph order (onnx2torch returns them in this order)."""
-    onnx = importlib.import_module('onnx')
-    model = onnx.load(str(spec.path), load_external_data=False)
-    return [o.name for o in model.graph.output]
-
-
-def _version(module: str) -> str | None:
-    import importlib.metadata
-
-    try:
-        return importlib.metadata.version(module)
-    except importlib.metadata.PackageNotFoundError:
-        return None

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from replaybench.backends.gpu._engines import import_onnx2torch
 from replaybench.backends.gpu._fold import fold_shapes, pin_host_arguments
-from replaybench.backends.gpu.cuda import _import_onnx2torch
 from replaybench.errors import BackendError
 
 torch = pytest.importorskip('torch')
@@ -95,7 +95,7 @@ def _run(module: Any, x: Any, pinned: tuple[str, ...] = ()) -> tuple[int, Any]:
 
 @pytest.mark.parametrize('which', ['bundled', 'yolox_nano'])
 def test_folded_shapes_leave_no_host_read_in_the_forward_pass(which):
-    onnx2torch, _ = _import_onnx2torch()
+    onnx2torch, _ = import_onnx2torch()
     proto = _model(which)
     shape = _input_shape(proto)
     x = torch.from_numpy(np.random.default_rng(0).random(shape, dtype=np.float32))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from html import escape
 from typing import TYPE_CHECKING, NamedTuple
 
 from replaybench.comparison.core import (
@@ -14,10 +13,10 @@ from replaybench.comparison.core import (
 )
 from replaybench.comparison.gate import gate_verdict, method_text
 from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match
+from replaybench.report.markup import escaped, number_text
 from replaybench.report.svg import Label, colour, fit_label, nice_ticks, step_cdf
 from replaybench.results.blocks import BLOCK_FRAMES, MAX_BLOCKS, MIN_BLOCKS
 from replaybench.results.bootstrap import MIN_FRAMES
-from replaybench.textsafe import visible
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -95,19 +94,8 @@ _NAMES: dict[str, str] = {
 _FONT = 'system-ui, -apple-system, Segoe UI, Roboto, sans-serif'
 
 
-def _e(value: object) -> str:
-    """HTML-escaped text, control characters shown as escapes (``replaybench.textsafe``)."""
-    return escape(visible(str(value)), quote=True)
-
-
-def _num(value: float | None, digits: int = 4) -> str:
-    if value is None or not math.isfinite(value):
-        return '–'
-    return f'{value:.{digits}g}'
-
-
 def _swatch(fill: str) -> str:
-    return f'<span class="swatch" style="background:{_e(fill)}"></span>'
+    return f'<span class="swatch" style="background:{escaped(fill)}"></span>'
 
 
 def _pct(ratio: float) -> str:
@@ -120,14 +108,14 @@ def _pct(ratio: float) -> str:
 def _header(comparison: Comparison) -> str:
     base = comparison.baseline_run
     backend = (
-        f' · baseline backend <code>{_e(comparison.baseline_backend)}</code>'
+        f' · baseline backend <code>{escaped(comparison.baseline_backend)}</code>'
         if comparison.baseline_backend
         else ''
     )
     level = round(comparison.confidence * 100)
     return (
         '<header><h1>replaybench comparison</h1>'
-        f'<p class="meta">{len(comparison.runs)} run(s) · baseline <strong>{_e(base.label)}'
+        f'<p class="meta">{len(comparison.runs)} run(s) · baseline <strong>{escaped(base.label)}'
         f'</strong>{backend} · {level}% CIs from {comparison.n_boot} circular block-bootstrap '
         f'resamples (seed {comparison.seed})</p></header>'
     )
@@ -160,7 +148,7 @@ def _inputs_status(comparison: Comparison) -> str:
 def _banner(comparison: Comparison) -> str:
     if not comparison.warnings:
         return ''
-    body = ''.join(f'<li>{_e(w)}</li>' for w in comparison.warnings)
+    body = ''.join(f'<li>{escaped(w)}</li>' for w in comparison.warnings)
     return f'<div class="banner" role="alert"><strong>Warnings</strong><ul>{body}</ul></div>'
 
 
@@ -184,25 +172,25 @@ def _gate(gate: Sequence[GateResult], conditions: Sequence[str], strict: bool, a
         else 'a condition fails when its whole CI lies past the threshold, passes when none of '
         'it does, and is inconclusive when the CI straddles the threshold or there is none'
     )
-    listed = ', '.join(f'<code>{_e(c)}</code>' for c in conditions)
+    listed = ', '.join(f'<code>{escaped(c)}</code>' for c in conditions)
     rows = []
     for r in gate:
         css, _, word = _BADGES[r.verdict]
         verdict = f'<span class="badge {css}">{word}</span>'
         if r.method:
-            verdict += f'<span class="ci">{_e(r.method)}</span>'
+            verdict += f'<span class="ci">{escaped(r.method)}</span>'
         unit = '%' if r.condition.rstrip().endswith('%') else ''
         ci = (
-            f'{_num(r.ci_low)}{unit} … {_num(r.ci_high)}{unit}'
+            f'{number_text(r.ci_low, ".4g")}{unit} … {number_text(r.ci_high, ".4g")}{unit}'
             if r.ci_low is not None and r.ci_high is not None
             else 'no CI'
         )
-        change = f'{_num(r.estimate)}{unit}' if r.estimate is not None else '–'
+        change = f'{number_text(r.estimate, ".4g")}{unit}' if r.estimate is not None else '–'
         rows.append(
-            f'<tr><td>{verdict}</td><td><code>{_e(r.condition)}</code></td><td>{_e(r.run)}</td>'
-            f'<td>{_e(r.backend)}</td><td><code>{_e(r.topic)}</code></td>'
-            f'<td class="n">{_e(change)}</td><td class="n">{_e(ci)}</td>'
-            f'<td>{_e(r.explanation)}</td></tr>',
+            f'<tr><td>{verdict}</td><td><code>{escaped(r.condition)}</code></td><td>{escaped(r.run)}</td>'
+            f'<td>{escaped(r.backend)}</td><td><code>{escaped(r.topic)}</code></td>'
+            f'<td class="n">{escaped(change)}</td><td class="n">{escaped(ci)}</td>'
+            f'<td>{escaped(r.explanation)}</td></tr>',
         )
     table = (
         '<div class="table-wrap"><table><thead><tr><th></th><th>condition</th><th>run</th>'
@@ -212,7 +200,7 @@ def _gate(gate: Sequence[GateResult], conditions: Sequence[str], strict: bool, a
     if not gate:
         table = '<p class="muted">No candidate row to judge.</p>'
     return (
-        f'<h2 id="gate">Gate {badge}</h2><p class="meta">Conditions {listed}; {_e(mode)}. '
+        f'<h2 id="gate">Gate {badge}</h2><p class="meta">Conditions {listed}; {escaped(mode)}. '
         'Change: percent for relative conditions, the metric unit for absolute ones.</p>' + table
     )
 
@@ -238,16 +226,17 @@ def _runs(comparison: Comparison) -> str:
         load = (
             f'{run.load_average:g} / {run.cores} cores'
             if run.load_average is not None and run.cores
-            else _num(run.load_average)
+            else number_text(run.load_average, '.4g')
         )
         rows.append(
-            f'<tr><td>{_swatch(colour(run.index))}{_e(run.label)}'
-            f'<span class="ci">{_e(run.dir)}</span></td><td>{_e(run.status)}</td>'
-            f'<td>{_e(run.cpu_model or "–")}</td><td>{_e(", ".join(run.gpus) or "none")}</td>'
-            f'<td>{_e(run.governor or "unknown")}</td><td class="n">{_e(load)}</td>'
-            f'<td>{_e(engines or "–")}</td>'
-            f'<td><code title="{_e(", ".join(s or "?" for s in run.input_sha256))}">'
-            f'{_e(shas)}</code> {status}</td></tr>',
+            f'<tr><td>{_swatch(colour(run.index))}{escaped(run.label)}'
+            f'<span class="ci">{escaped(run.dir)}</span></td><td>{escaped(run.status)}</td>'
+            f'<td>{escaped(run.cpu_model or "–")}</td>'
+            f'<td>{escaped(", ".join(run.gpus) or "none")}</td>'
+            f'<td>{escaped(run.governor or "unknown")}</td><td class="n">{escaped(load)}</td>'
+            f'<td>{escaped(engines or "–")}</td>'
+            f'<td><code title="{escaped(", ".join(s or "?" for s in run.input_sha256))}">'
+            f'{escaped(shas)}</code> {status}</td></tr>',
         )
     return (
         '<h2 id="runs">Runs</h2><div class="table-wrap"><table><thead><tr><th>run</th>'
@@ -258,10 +247,11 @@ def _runs(comparison: Comparison) -> str:
 
 
 def _timing_cell(m: MetricComparison, role: str) -> str:
-    value = f'{_e(_num(m.value))}'
+    value = f'{escaped(number_text(m.value, ".4g"))}'
     if role != 'candidate':
         ci = (
-            f'<span class="ci">[{_e(_num(m.value_ci[0]))}, {_e(_num(m.value_ci[1]))}]</span>'
+            f'<span class="ci">[{escaped(number_text(m.value_ci[0], ".4g"))}, '
+            f'{escaped(number_text(m.value_ci[1], ".4g"))}]</span>'
             if m.value_ci
             else ''
         )
@@ -271,7 +261,7 @@ def _timing_cell(m: MetricComparison, role: str) -> str:
     ratio = f'×{m.ratio:.3f} ({_pct(m.ratio)})'
     how = method_text(m)
     typical = (
-        f'<span class="ci">typical ×{m.typical_ratio:.3f} ({_e(how)})</span>'
+        f'<span class="ci">typical ×{m.typical_ratio:.3f} ({escaped(how)})</span>'
         if m.typical_ratio is not None
         else ''
     )
@@ -285,22 +275,23 @@ def _timing_cell(m: MetricComparison, role: str) -> str:
             else '<span class="badge ns">not significant</span>'
         )
         detail = f'{typical}<span class="ci">CI ×{lo:.3f} … ×{hi:.3f}</span>{badge}'
-    return f'<td class="n">{value}<span class="ci">{_e(ratio)}</span>{detail}</td>'
+    return f'<td class="n">{value}<span class="ci">{escaped(ratio)}</span>{detail}</td>'
 
 
 def _recorded_cell(m: MetricComparison, role: str) -> str:
     """A recorded latency: as a timing metric where the row has it; for a replayed candidate
     against a recording, the recording's value (the row's own latency is in its median)."""
     if role == 'candidate' and m.value is None and m.baseline is not None:
+        baseline = escaped(number_text(m.baseline, '.4g'))
         return (
-            f'<td class="n">–<span class="ci">baseline recording {_e(_num(m.baseline))}'
-            '</span><span class="ci">this row replays</span></td>'
+            f'<td class="n">–<span class="ci">baseline recording {baseline}</span>'
+            '<span class="ci">this row replays</span></td>'
         )
     return _timing_cell(m, role)
 
 
 def _accuracy_cell(m: MetricComparison, role: str) -> str:
-    value = _e(_num(m.value))
+    value = escaped(number_text(m.value, '.4g'))
     if role != 'candidate' or m.diff is None:
         return f'<td class="n">{value}</td>'
     return f'<td class="n">{value}<span class="ci">Δ {m.diff:+.4f} (no CI)</span></td>'
@@ -350,30 +341,31 @@ def _summary(comparison: Comparison) -> str:
     where = ['run', 'backend', 'topic', 'role']
     head = [*where, 'n', *(_NAMES[m] for m in main)]
     th = ''.join(
-        f'<th class="n">{_e(h)}</th>' if i >= 4 else f'<th>{_e(h)}</th>' for i, h in enumerate(head)
+        f'<th class="n">{escaped(h)}</th>' if i >= 4 else f'<th>{escaped(h)}</th>'
+        for i, h in enumerate(head)
     )
-    more_th = ''.join(f'<th>{_e(h)}</th>' for h in where) + ''.join(
-        f'<th class="n">{_e(_NAMES[m])}</th>' for m in more
+    more_th = ''.join(f'<th>{escaped(h)}</th>' for h in where) + ''.join(
+        f'<th class="n">{escaped(_NAMES[m])}</th>' for m in more
     )
     body, more_body = [], []
     for row in comparison.rows:
         role = row.role
         versus = (
-            f'<span class="ci">vs {_e(row.baseline_backend)}</span>'
+            f'<span class="ci">vs {escaped(row.baseline_backend)}</span>'
             if role == 'candidate' and row.baseline_backend != row.backend
             else ''
         )
         first = [
             f'<td class="run">{_swatch(colour(row.run))}{_label_html(comparison, row)}</td>',
-            f'<td>{_e(row.backend)}{versus}</td>',
-            f'<td><code>{_e(row.topic).replace("/", "/<wbr>")}</code></td>',
-            f'<td>{_e(role)}</td>',
+            f'<td>{escaped(row.backend)}{versus}</td>',
+            f'<td><code>{escaped(row.topic).replace("/", "/<wbr>")}</code></td>',
+            f'<td>{escaped(role)}</td>',
         ]
         cells = [*first, f'<td class="n">{row.measured}</td>', *_cells(row, main)]
         css = 'base' if role == 'baseline' else ''
         body.append(f'<tr class="{css}">{"".join(cells)}</tr>')
         if row.flags:
-            flags = '; '.join(_e(f) for f in row.flags)
+            flags = '; '.join(escaped(f) for f in row.flags)
             body.append(
                 f'<tr class="{css} flagrow"><td></td><td class="flags" colspan="{len(head) - 1}">'
                 f'⚑ {flags}</td></tr>'
@@ -381,7 +373,7 @@ def _summary(comparison: Comparison) -> str:
         more_body.append(f'<tr class="{css}">{"".join([*first, *_cells(row, more)])}</tr>')
     names = ', '.join(_NAMES[m] for m in more)
     details = (
-        f'<details id="summary-more"><summary>More figures: {_e(names)}'
+        f'<details id="summary-more"><summary>More figures: {escaped(names)}'
         '</summary><div class="table-wrap"><table class="summary-more"><thead><tr>'
         f'{more_th}</tr></thead><tbody>{"".join(more_body)}</tbody></table></div></details>'
         if more
@@ -439,9 +431,10 @@ def _interval_chart(bars: Sequence[_Bar], *, title: str, x_label: str, width: in
     parts = [
         (
             f'<svg class="chart" viewBox="0 0 {width} {height}" width="{width}" '
-            f'height="{height}" role="img" aria-label="{_e(title)}" font-family="{_FONT}" '
-            f'font-size="12"><title>{_e(title)}</title>'
-            f'<text x="8" y="18" font-size="14" font-weight="600" fill="#222">{_e(title)}</text>'
+            f'height="{height}" role="img" aria-label="{escaped(title)}" font-family="{_FONT}" '
+            f'font-size="12"><title>{escaped(title)}</title>'
+            '<text x="8" y="18" font-size="14" font-weight="600" fill="#222">'
+            f'{escaped(title)}</text>'
         ),
     ]
     base = top + plot_h
@@ -450,7 +443,7 @@ def _interval_chart(bars: Sequence[_Bar], *, title: str, x_label: str, width: in
         parts.append(
             f'<line x1="{_n(px)}" y1="{top}" x2="{_n(px)}" y2="{_n(base)}" stroke="#e4e4e4"/>'
             f'<text x="{_n(px)}" y="{_n(base + 16)}" text-anchor="middle" fill="#222">'
-            f'{_e(f"{tick:g}")}</text>',
+            f'{escaped(f"{tick:g}")}</text>',
         )
     for i, bar in enumerate(bars):
         y = top + gap + i * (bar_h + gap)
@@ -458,7 +451,7 @@ def _interval_chart(bars: Sequence[_Bar], *, title: str, x_label: str, width: in
         shown = fit_label(bar.label, int(label_w / 6.6))
         parts.append(
             f'<text x="{left - 6}" y="{_n(mid + 4)}" text-anchor="end" fill="#222">'
-            f'<title>{_e(bar.label)}</title>{_e(shown)}</text>',
+            f'<title>{escaped(bar.label)}</title>{escaped(shown)}</text>',
         )
         if bar.value is None:
             parts.append(f'<text x="{left + 4}" y="{_n(mid + 4)}" fill="#666">n/a</text>')
@@ -467,8 +460,8 @@ def _interval_chart(bars: Sequence[_Bar], *, title: str, x_label: str, width: in
         ci_text = f' [{bar.ci[0]:.4g}, {bar.ci[1]:.4g}]' if bar.ci else ''
         parts.append(
             f'<rect x="{left}" y="{_n(y)}" width="{_n(max(x1 - left, 0.5))}" height="{bar_h}" '
-            f'fill="{_e(bar.fill)}" fill-opacity="{bar.opacity:g}"><title>{_e(bar.label)}: '
-            f'{bar.value:.4g}{_e(ci_text)}</title></rect>',
+            f'fill="{escaped(bar.fill)}" fill-opacity="{bar.opacity:g}">'
+            f'<title>{escaped(bar.label)}: {bar.value:.4g}{escaped(ci_text)}</title></rect>',
         )
         end = x1
         if bar.ci is not None:
@@ -481,12 +474,12 @@ def _interval_chart(bars: Sequence[_Bar], *, title: str, x_label: str, width: in
             )
         parts.append(
             f'<text x="{_n(end + 5)}" y="{_n(mid + 4)}" fill="#222">'
-            f'{_e(f"{bar.value:.4g}")}</text>',
+            f'{escaped(f"{bar.value:.4g}")}</text>',
         )
     parts.append(
         f'<path d="M{left} {top}V{_n(base)}H{left + plot_w}" fill="none" stroke="#444"/>'
         f'<text x="{_n(left + plot_w / 2)}" y="{_n(base + 32)}" text-anchor="middle" '
-        f'fill="#222">{_e(x_label)}</text></svg>',
+        f'fill="#222">{escaped(x_label)}</text></svg>',
     )
     return ''.join(parts)
 
@@ -507,8 +500,8 @@ def _label_html(comparison: Comparison, row: Row) -> str:
     """The run label of a summary row: its machine shortened first, the whole as its tooltip."""
     shown = fit_label(_run_label(comparison, row), _CELL_LABEL)
     if shown == row.run_label:
-        return _e(shown)
-    return f'<span title="{_e(row.run_label)}">{_e(shown)}</span>'
+        return escaped(shown)
+    return f'<span title="{escaped(row.run_label)}">{escaped(shown)}</span>'
 
 
 def _groups(comparison: Comparison) -> dict[tuple[str, str], list[Row]]:
@@ -565,7 +558,7 @@ def _charts(comparison: Comparison) -> str:
             title=f'p50 / p99 latency, {level}% CI · {backend} · {topic}',
             x_label='latency (ms)',
         )
-        parts.append(f'<h3>{_e(backend)} · <code>{_e(topic)}</code></h3>')
+        parts.append(f'<h3>{escaped(backend)} · <code>{escaped(topic)}</code></h3>')
         parts.append(f'<div class="charts">{cdf}{whiskers}</div>')
     return ''.join(parts)
 
@@ -611,6 +604,6 @@ def render_comparison_html(
     return (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
         '<meta name="viewport" content="width=device-width, initial-scale=1">'
-        f'<title>replaybench comparison{_e(verdict)}</title>'
+        f'<title>replaybench comparison{escaped(verdict)}</title>'
         f'<style>{_CSS}</style></head><body><main>{"".join(body)}</main></body></html>\n'
     )

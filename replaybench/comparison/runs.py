@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -10,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from replaybench.results.folder import RunData, load_run
 from replaybench.results.intervals import CV_LIMIT
+from replaybench.results.numbers import finite_number
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -42,13 +42,6 @@ SETTINGS_KEYS: tuple[str, ...] = (
 )
 
 _BRANDS = re.compile(r'\((?:R|TM|tm|r)\)')
-
-
-def _num(value: Any) -> float | None:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return None
-    number = float(value)
-    return number if math.isfinite(number) else None
 
 
 def _text(value: Any) -> str | None:
@@ -133,7 +126,7 @@ def _info(index: int, data: RunData) -> RunInfo:
         cpu_model=model,
         cores=cpu.usable_cores or cpu.logical_cores,
         governor=_text(cpu.governor),
-        load_average=_num(load[0]) if load else None,
+        load_average=finite_number(load[0]) if load else None,
         gpus=_gpu_names(run),
         input_sha256=tuple(_text(i.sha256) for i in run.inputs),
         input_paths=tuple(i.path or '?' for i in run.inputs),

@@ -19,15 +19,13 @@ and how well the two agree, in one table narrow enough for a laptop screen.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from html import escape
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-import numpy as np
-
+from replaybench.report.markup import escaped
 from replaybench.results.bootstrap import CONFIDENCE
 from replaybench.results.intervals import measured_series, row_intervals
+from replaybench.results.numbers import finite_number
 from replaybench.results.recorded_latency import replays_recording
-from replaybench.textsafe import visible
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -73,21 +71,14 @@ class TopicHeadline:
     agreement: Agreement | None
 
 
-def _num(value: Any) -> float | None:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return None
-    number = float(value)
-    return number if np.isfinite(number) else None
-
-
 def _map50(row: SummaryRow) -> float | None:
     if row.accuracy is not None:
-        return _num(row.accuracy.map50)
-    return _num(row.map50)
+        return finite_number(row.accuracy.map50)
+    return finite_number(row.map50)
 
 
 def _pair(low: float | None, high: float | None) -> Interval | None:
-    lo, hi = _num(low), _num(high)
+    lo, hi = finite_number(low), finite_number(high)
     return (lo, hi) if lo is not None and hi is not None else None
 
 
@@ -103,7 +94,11 @@ def _intervals(
     )
     if any(held):
         return held
-    points = (_num(row.latency_ms_p50), _num(row.latency_ms_p99), _num(row.throughput_fps))
+    points = (
+        finite_number(row.latency_ms_p50),
+        finite_number(row.latency_ms_p99),
+        finite_number(row.throughput_fps),
+    )
     found = row_intervals(row.backend, row.topic, measured_series(records), points=points)
     return found.fps, found.p50, found.p99
 
@@ -119,7 +114,9 @@ def _agreement(run: RunResult, topic: str, fast: str, accurate: str) -> Agreemen
             frac_fast, frac_acc = entry.matched_frac_b, entry.matched_frac_a
         else:
             continue
-        return Agreement(_num(frac_fast), _num(frac_acc), _num(entry.mean_iou))
+        return Agreement(
+            finite_number(frac_fast), finite_number(frac_acc), finite_number(entry.mean_iou)
+        )
     return None
 
 
@@ -136,7 +133,7 @@ def topic_headlines(
         by_topic.setdefault(row.topic or '?', []).append(row)
     fps_all: dict[str, float] = {}
     for row in rows:
-        fps = _num(row.throughput_fps)
+        fps = finite_number(row.throughput_fps)
         if fps is not None and not replays_recording(row):
             fps_all[row.backend] = fps_all.get(row.backend, 0.0) + fps
     groups: dict[tuple[str, str], list[FrameRecord]] = {}
@@ -145,10 +142,10 @@ def topic_headlines(
     out = []
     for topic, topic_rows in by_topic.items():
         replayed = [r for r in topic_rows if not replays_recording(r)]
-        timed = [r for r in replayed if _num(r.throughput_fps) is not None]
+        timed = [r for r in replayed if finite_number(r.throughput_fps) is not None]
         detectors = [r for r in timed if names.get(r.backend, '') not in REFERENCE_BACKENDS]
         pool = detectors or timed
-        fastest = max(pool, key=lambda r: _num(r.throughput_fps) or 0.0, default=None)
+        fastest = max(pool, key=lambda r: finite_number(r.throughput_fps) or 0.0, default=None)
         scored = [r for r in topic_rows if _map50(r) is not None]
         accurate = max(scored, key=lambda r: _map50(r) or 0.0, default=None)
         fast_name = fastest.backend if fastest is not None else None
@@ -164,12 +161,12 @@ def topic_headlines(
                 topic=topic,
                 fastest=fast_name,
                 recorded_only=not replayed,
-                fps=_num(fastest.throughput_fps) if fastest is not None else None,
+                fps=finite_number(fastest.throughput_fps) if fastest is not None else None,
                 fps_ci=fps_ci,
                 fps_all=fps_all.get(fast_name) if fast_name and len(by_topic) > 1 else None,
-                p50_ms=_num(fastest.latency_ms_p50) if fastest is not None else None,
+                p50_ms=finite_number(fastest.latency_ms_p50) if fastest is not None else None,
                 p50_ci=p50_ci,
-                p99_ms=_num(fastest.latency_ms_p99) if fastest is not None else None,
+                p99_ms=finite_number(fastest.latency_ms_p99) if fastest is not None else None,
                 p99_ci=p99_ci,
                 measured=fastest.measured if fastest is not None else 0,
                 accurate=acc_name,
@@ -183,10 +180,6 @@ def topic_headlines(
 # --------------------------------------------------------------------------- HTML
 
 
-def _e(value: object) -> str:
-    return escape(visible(str(value)), quote=True)
-
-
 def _fmt(value: float | None, digits: int) -> str:
     return '–' if value is None else f'{value:.{digits}f}'
 
@@ -196,10 +189,13 @@ def _ms_digits(value: float | None) -> int:
 
 
 def _with_interval(value: float | None, interval: Interval | None, digits: int) -> str:
-    text = f'<b>{_e(_fmt(value, digits))}</b>'
+    text = f'<b>{escaped(_fmt(value, digits))}</b>'
     if interval is not None:
         lo, hi = interval
-        text += f'<br><span class="muted">{_e(_fmt(lo, digits))}–{_e(_fmt(hi, digits))}</span>'
+        text += (
+            f'<br><span class="muted">{escaped(_fmt(lo, digits))}–'
+            f'{escaped(_fmt(hi, digits))}</span>'
+        )
     return text
 
 
@@ -217,8 +213,9 @@ def _agreement_cell(head: TopicHeadline) -> str:
         return '<span class="muted">not measured</span>'
     iou = f', IoU {found.mean_iou:.2f}' if found.mean_iou is not None else ''
     return (
-        f'{_e(_share(found.matched_fastest))} of {_e(head.fastest)}’s boxes, '
-        f'{_e(_share(found.matched_accurate))} of {_e(head.accurate)}’s matched{_e(iou)}'
+        f'{escaped(_share(found.matched_fastest))} of {escaped(head.fastest)}’s boxes, '
+        f'{escaped(_share(found.matched_accurate))} of {escaped(head.accurate)}’s matched'
+        f'{escaped(iou)}'
     )
 
 
@@ -247,10 +244,10 @@ def headline_html(run: RunResult, rows: Sequence[SummaryRow], frames: Sequence[F
         p50 = _with_interval(head.p50_ms, head.p50_ci, _ms_digits(head.p50_ms))
         p99 = _with_interval(head.p99_ms, head.p99_ci, _ms_digits(head.p99_ms))
         if head.fps_all is not None:
-            fps += f'<br><span class="muted">of {_e(_fmt(head.fps_all, 1))} in all</span>'
+            fps += f'<br><span class="muted">of {escaped(_fmt(head.fps_all, 1))} in all</span>'
         cells = [
-            f'<td><code>{_e(head.topic).replace("/", "/<wbr>")}</code></td>',
-            f'<td>{_e(head.fastest or "–")}</td>'
+            f'<td><code>{escaped(head.topic).replace("/", "/<wbr>")}</code></td>',
+            f'<td>{escaped(head.fastest or "–")}</td>'
             if head.fastest or not head.recorded_only
             else '<td><span class="muted">none replayed: recorded outputs only</span></td>',
             f'<td class="n">{fps}</td>',
@@ -259,8 +256,8 @@ def headline_html(run: RunResult, rows: Sequence[SummaryRow], frames: Sequence[F
         ]
         if scored:
             cells += [
-                f'<td>{_e(head.accurate or "no ground truth")}</td>',
-                f'<td class="n"><b>{_e(_fmt(head.map50, 3))}</b></td>',
+                f'<td>{escaped(head.accurate or "no ground truth")}</td>',
+                f'<td class="n"><b>{escaped(_fmt(head.map50, 3))}</b></td>',
                 f'<td>{_agreement_cell(head)}</td>',
             ]
         body.append(f'<tr>{"".join(cells)}</tr>')
@@ -311,5 +308,5 @@ def headline_html(run: RunResult, rows: Sequence[SummaryRow], frames: Sequence[F
         f'<table id="headline-table" class="{"scored" if scored else "timed"}">'
         f'<colgroup>{cols}</colgroup><thead><tr>{head_row}</tr></thead>'
         f'<tbody>{"".join(body)}</tbody></table>'
-        + ''.join(f'<p class="muted">{_e(note)}</p>' for note in notes)
+        + ''.join(f'<p class="muted">{escaped(note)}</p>' for note in notes)
     )

@@ -8,11 +8,11 @@ header stamp). This module shows them beside the replayed backends' latency of t
 
 from __future__ import annotations
 
-import math
-from html import escape
 from typing import TYPE_CHECKING, Any
 
+from replaybench.report.markup import escaped
 from replaybench.report.svg import colour, step_cdf
+from replaybench.results.numbers import finite_number
 from replaybench.results.recorded_latency import recorded_times
 from replaybench.textsafe import visible
 
@@ -35,20 +35,8 @@ FIGURES: tuple[tuple[str, str, str], ...] = (
 )
 
 
-def _e(value: object) -> str:
-    """HTML-escaped text, control characters shown as escapes (as the rest of the report)."""
-    return escape(visible(str(value)), quote=True)
-
-
-def _num(value: Any) -> float | None:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return None
-    number = float(value)
-    return number if math.isfinite(number) else None
-
-
 def _ms(value: Any) -> str:
-    number = _num(value)
+    number = finite_number(value)
     if number is None:
         return '–'
     return (
@@ -57,7 +45,7 @@ def _ms(value: Any) -> str:
 
 
 def _ci(low: Any, high: Any) -> str:
-    lo, hi = _num(low), _num(high)
+    lo, hi = finite_number(low), finite_number(high)
     return '' if lo is None or hi is None else f'{_ms(lo)}–{_ms(hi)}'
 
 
@@ -68,7 +56,7 @@ def recorded_latency_lines(summaries: Sequence[SummaryRow]) -> list[tuple[str, b
     for s in summaries:
         if s.recorded_outputs is None:
             continue
-        hz = _num(s.recorded_output_hz)
+        hz = finite_number(s.recorded_output_hz)
         parts = [f'{s.recorded_outputs} outputs, {s.recorded_outputs_dropped} frame(s) without one']
         if hz is not None:
             parts[0] += f', {hz:.1f} Hz'
@@ -95,14 +83,14 @@ def _cell(value: str, numeric: bool = True) -> str:
 
 def _with_ci(value: Any, low: Any, high: Any) -> str:
     ci = _ci(low, high)
-    text = _e(_ms(value))
+    text = escaped(_ms(value))
     if ci:
-        text += f'<br><span class="muted ci">{_e(ci)}</span>'
+        text += f'<br><span class="muted ci">{escaped(ci)}</span>'
     return _cell(text)
 
 
 def _swatch(colours: Mapping[str, str], backend: str) -> str:
-    fill = _e(colours.get(backend, '#777'))
+    fill = escaped(colours.get(backend, '#777'))
     return f'<span class="swatch" style="background:{fill}"></span>'
 
 
@@ -112,16 +100,18 @@ def _recorded_rows(row: SummaryRow, colours: Mapping[str, str]) -> list[str]:
     for n, (figure, name, spans) in enumerate(FIGURES):
         counts = ['', '', '']
         if n == 0:
-            hz = _num(row.recorded_output_hz)
+            hz = finite_number(row.recorded_output_hz)
             counts = [
-                _e(str(row.recorded_outputs)),
-                _e(str(row.recorded_outputs_dropped)),
+                escaped(str(row.recorded_outputs)),
+                escaped(str(row.recorded_outputs_dropped)),
                 '–' if hz is None else f'{hz:.2f}',
             ]
         cells = [
-            _cell(_swatch(colours, backend) + _e(backend), numeric=False),
-            _cell(f'<code>{_e(row.topic or "?")}</code>', numeric=False),
-            _cell(f'recorded {_e(name)}<br><span class="muted">{_e(spans)}</span>', False),
+            _cell(_swatch(colours, backend) + escaped(backend), numeric=False),
+            _cell(f'<code>{escaped(row.topic or "?")}</code>', numeric=False),
+            _cell(
+                f'recorded {escaped(name)}<br><span class="muted">{escaped(spans)}</span>', False
+            ),
             _with_ci(
                 getattr(row, f'{figure}_p50'),
                 getattr(row, f'{figure}_p50_ci_low'),
@@ -132,7 +122,7 @@ def _recorded_rows(row: SummaryRow, colours: Mapping[str, str]) -> list[str]:
                 getattr(row, f'{figure}_p99_ci_low'),
                 getattr(row, f'{figure}_p99_ci_high'),
             ),
-            _cell(_e(_ms(getattr(row, f'{figure}_max')))),
+            _cell(escaped(_ms(getattr(row, f'{figure}_max')))),
             *(_cell(c) for c in counts),
         ]
         out.append(f'<tr class="recorded">{"".join(cells)}</tr>')
@@ -142,15 +132,15 @@ def _recorded_rows(row: SummaryRow, colours: Mapping[str, str]) -> list[str]:
 def _replayed_row(row: SummaryRow, colours: Mapping[str, str]) -> str:
     backend = row.backend or '?'
     cells = [
-        _cell(_swatch(colours, backend) + _e(backend), numeric=False),
-        _cell(f'<code>{_e(row.topic or "?")}</code>', numeric=False),
+        _cell(_swatch(colours, backend) + escaped(backend), numeric=False),
+        _cell(f'<code>{escaped(row.topic or "?")}</code>', numeric=False),
         _cell(
             'replayed latency<br><span class="muted">frame released → output (this machine)</span>',
             numeric=False,
         ),
         _with_ci(row.latency_ms_p50, row.latency_ms_p50_ci_low, row.latency_ms_p50_ci_high),
         _with_ci(row.latency_ms_p99, row.latency_ms_p99_ci_low, row.latency_ms_p99_ci_high),
-        _cell(_e(_ms(row.latency_ms_max))),
+        _cell(escaped(_ms(row.latency_ms_max))),
         _cell(''),
         _cell(''),
         _cell(''),
@@ -214,8 +204,8 @@ def recorded_latency_html(
                 body += _recorded_rows(row, colours)
                 if row.recorded_latency_note:
                     notes.append(
-                        f'<li><b>{_e(row.backend)}</b> <code>{_e(topic)}</code>: '
-                        f'{_e(row.recorded_latency_note)}</li>'
+                        f'<li><b>{escaped(row.backend)}</b> <code>{escaped(topic)}</code>: '
+                        f'{escaped(row.recorded_latency_note)}</li>'
                     )
         body += [_replayed_row(r, colours) for r in on_topic if r.recorded_outputs is None]
         chart = _cdf(topic, on_topic, frames, colours)
@@ -235,7 +225,7 @@ def recorded_latency_html(
     notes_html = f'<ul class="recorded-notes">{"".join(notes)}</ul>' if notes else ''
     return (
         '<h2 id="recorded-latency">Recorded latency</h2>'
-        f'<p class="muted">{_e(intro)}</p>'
+        f'<p class="muted">{escaped(intro)}</p>'
         f'<div class="table-wrap"><table id="recorded-latency-table"><thead>{head}</thead>'
         f'<tbody>{"".join(body)}</tbody></table></div>{notes_html}{"".join(charts)}'
     )

@@ -7,10 +7,9 @@ the cell's report.html, and marks the best FPS (and the best mAP) of its row.
 
 from __future__ import annotations
 
-from html import escape
 from typing import TYPE_CHECKING, Any
 
-from replaybench.textsafe import visible
+from replaybench.report.markup import escaped, number_text
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -50,15 +49,6 @@ td.cell.flagged{outline:2px dashed #e0b000;outline-offset:-3px}
 code{font:12px/1.4 ui-monospace,SFMono-Regular,Menlo,Consolas,monospace}
 footer{margin-top:36px;color:var(--muted);font-size:12px}
 """
-
-
-def _e(value: object) -> str:
-    """HTML-escaped text, control characters shown as escapes (``replaybench.textsafe``)."""
-    return escape(visible(str(value)), quote=True)
-
-
-def _num(value: Any, digits: int = 2) -> str:
-    return '-' if value is None else f'{value:.{digits}f}'
 
 
 def _ci(interval: Sequence[float] | None, digits: int = 2) -> str:
@@ -103,37 +93,46 @@ def _cell_html(entry: Mapping[str, Any], best_fps: bool, best_map: bool) -> str:
         classes.append('best')
     if entry.get('flags'):
         classes.append('flagged')
-    parts = [f'<span class="badge {_e(status)}">{_e(status)}</span>']
+    parts = [f'<span class="badge {escaped(status)}">{escaped(status)}</span>']
     if best_fps:
         parts.append(' <span class="badge best">best FPS</span>')
     if best_map:
         parts.append(' <span class="badge best">best mAP</span>')
     m = entry.get('metrics')
     if m:
+        fps, p50, p99, map50 = (
+            number_text(m.get(key), spec, '-')
+            for key, spec in (
+                ('fps', '.1f'),
+                ('p50_ms', '.2f'),
+                ('p99_ms', '.2f'),
+                ('map50', '.3f'),
+            )
+        )
         fps = (
             '<div class="where">recorded outputs: no replay speed</div>'
             if entry['backend'] in _RECORDINGS
-            else f'<div class="n">{_num(m.get("fps"), 1)} FPS{_ci(m.get("fps_ci"), 1)}</div>'
+            else f'<div class="n">{fps} FPS{_ci(m.get("fps_ci"), 1)}</div>'
         )
         parts.append(
-            fps + f'<div class="n">p50 {_num(m.get("p50_ms"))} ms{_ci(m.get("p50_ci"))}</div>'
-            f'<div class="n">p99 {_num(m.get("p99_ms"))} ms{_ci(m.get("p99_ci"))}</div>'
-            f'<div class="n">mAP@0.5 {_num(m.get("map50"), 3)} · {m.get("frames")} frames</div>'
+            fps + f'<div class="n">p50 {p50} ms{_ci(m.get("p50_ci"))}</div>'
+            f'<div class="n">p99 {p99} ms{_ci(m.get("p99_ci"))}</div>'
+            f'<div class="n">mAP@0.5 {map50} · {m.get("frames")} frames</div>'
         )
     if entry.get('hostname') or entry.get('node_id'):
         node = entry.get('hostname') or str(entry.get('node_id'))[:12]
         gpu = f' · GPU {",".join(entry["gpu_ids"])}' if entry.get('gpu_ids') else ''
         concurrency = (entry.get('concurrency') or {}).get('max_cells_on_node')
         shared = f' · {concurrency} cell(s) at once' if concurrency else ''
-        parts.append(f'<div class="where">{_e(node)}{_e(gpu)}{_e(shared)}</div>')
+        parts.append(f'<div class="where">{escaped(node)}{escaped(gpu)}{escaped(shared)}</div>')
     if entry.get('flags'):
-        parts.append(f'<div class="flags">{_e("; ".join(entry["flags"]))}</div>')
+        parts.append(f'<div class="flags">{escaped("; ".join(entry["flags"]))}</div>')
     if entry.get('error'):
-        parts.append(f'<div class="error">{_e(entry["error"])}</div>')
+        parts.append(f'<div class="error">{escaped(entry["error"])}</div>')
     if entry.get('run_dir') and entry.get('has_report'):
-        parts.append(f'<div><a href="{_e(entry["run_dir"])}/report.html">report</a></div>')
+        parts.append(f'<div><a href="{escaped(entry["run_dir"])}/report.html">report</a></div>')
     elif entry.get('run_dir'):
-        parts.append(f'<div><code>{_e(entry["run_dir"])}</code></div>')
+        parts.append(f'<div><code>{escaped(entry["run_dir"])}</code></div>')
     return f'<td class="{" ".join(classes)}">{"".join(parts)}</td>'
 
 
@@ -142,7 +141,7 @@ def _matrix(record: Mapping[str, Any]) -> str:
     report = bool(record.get('settings', {}).get('report', True))
     columns = list(dict.fromkeys(_column(e) for e in entries))
     inputs = {e['input_index']: e['input'] for e in entries}
-    head = ''.join(f'<th>{_e(c)}</th>' for c in columns)
+    head = ''.join(f'<th>{escaped(c)}</th>' for c in columns)
     rows = []
     for number in sorted(inputs):
         mine = [e for e in entries if e['input_index'] == number]
@@ -156,7 +155,7 @@ def _matrix(record: Mapping[str, Any]) -> str:
                 continue
             shown = {**entry, 'has_report': report}
             cells.append(_cell_html(shown, entry['index'] in fps, entry['index'] in maps))
-        rows.append(f'<tr><th>{_e(inputs[number])}</th>{"".join(cells)}</tr>')
+        rows.append(f'<tr><th>{escaped(inputs[number])}</th>{"".join(cells)}</tr>')
     return (
         '<h2>Matrix</h2><div class="table-wrap"><table>'
         f'<tr><th>input \\ backend</th>{head}</tr>{"".join(rows)}</table></div>'
@@ -179,20 +178,21 @@ def _engine(record: Mapping[str, Any]) -> str:
         return '<h2>Ray</h2><p class="meta">No cell ran in this invocation.</p>'
     resources = _resources(engine['resources'])
     nodes = ''.join(
-        f'<tr><td><code>{_e(str(n["node_id"])[:12])}</code>'
+        f'<tr><td><code>{escaped(str(n["node_id"])[:12])}</code>'
         f'{" (head)" if n["node_id"] == engine.get("head_node_id") else ""}</td>'
-        f'<td>{_e(n.get("hostname"))}</td><td>{_e(n.get("ip"))}</td>'
+        f'<td>{escaped(n.get("hostname"))}</td><td>{escaped(n.get("ip"))}</td>'
         f'<td>{"alive" if n.get("alive") else "dead"}</td>'
-        f'<td>{_e(_resources(n["resources"]))}</td></tr>'
+        f'<td>{escaped(_resources(n["resources"]))}</td></tr>'
         for n in engine['nodes']
     )
     placement = engine['placement']
     return (
         '<h2>Ray</h2>'
-        f'<p class="meta">Ray {_e(engine["ray_version"])} · {_e(engine["mode"])} · address '
-        f'<code>{_e(engine.get("address"))}</code> · CPU cells: {_e(placement["cpu_cells"])} · '
-        f'GPU cells: {_e(placement["gpu_cells"])}</p>'
-        f'<p class="meta">Cluster resources: {_e(resources)}</p>'
+        f'<p class="meta">Ray {escaped(engine["ray_version"])} · {escaped(engine["mode"])} · '
+        f'address <code>{escaped(engine.get("address"))}</code> · '
+        f'CPU cells: {escaped(placement["cpu_cells"])} · '
+        f'GPU cells: {escaped(placement["gpu_cells"])}</p>'
+        f'<p class="meta">Cluster resources: {escaped(resources)}</p>'
         '<div class="table-wrap"><table><tr><th>node</th><th>host</th><th>ip</th><th>state</th>'
         f'<th>resources</th></tr>{nodes}</table></div>'
     )
@@ -205,7 +205,7 @@ def _banners(record: Mapping[str, Any]) -> str:
     out = []
     if failed:
         items = ''.join(
-            f'<li><code>{_e(e["cell"])}</code>: {_e(e.get("error"))}</li>' for e in failed
+            f'<li><code>{escaped(e["cell"])}</code>: {escaped(e.get("error"))}</li>' for e in failed
         )
         out.append(
             f'<div class="banner bad"><strong>{len(failed)} cell(s) failed</strong>'
@@ -213,7 +213,8 @@ def _banners(record: Mapping[str, Any]) -> str:
         )
     if flagged:
         items = ''.join(
-            f'<li><code>{_e(e["cell"])}</code>: {_e("; ".join(e["flags"]))}</li>' for e in flagged
+            f'<li><code>{escaped(e["cell"])}</code>: {escaped("; ".join(e["flags"]))}</li>'
+            for e in flagged
         )
         out.append(
             f'<div class="banner"><strong>{len(flagged)} cell(s) measured under different '
@@ -231,17 +232,20 @@ def render_sweep_html(record: Mapping[str, Any]) -> str:
         f'an earlier run), {counts["failed"]} failed, {counts["interrupted"]} interrupted'
     )
     body = [
-        f'<h1>replaybench sweep <span class="badge {_e(status)}">{_e(status)}</span></h1>',
         (
-            f'<p class="meta">{_e(summary)} · started {_e(record["started_at"])} · '
+            '<h1>replaybench sweep '
+            f'<span class="badge {escaped(status)}">{escaped(status)}</span></h1>'
+        ),
+        (
+            f'<p class="meta">{escaped(summary)} · started {escaped(record["started_at"])} · '
             f'{record["wall_s"]:.1f} s</p>'
         ),
-        f'<p class="meta"><code>{_e(" ".join(record["command"]))}</code></p>',
+        f'<p class="meta"><code>{escaped(" ".join(record["command"]))}</code></p>',
         _banners(record),
         _matrix(record),
         _engine(record),
         (
-            f'<footer>replaybench {_e(record["tool"]["version"])} · sweep.json schema '
+            f'<footer>replaybench {escaped(record["tool"]["version"])} · sweep.json schema '
             f'{record["schema_version"]} · sweep.csv has one row per cell</footer>'
         ),
     ]

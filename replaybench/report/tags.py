@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from html import escape
 from typing import TYPE_CHECKING
 
-from replaybench.textsafe import visible
+from replaybench.report.markup import escaped
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -29,16 +28,12 @@ _COLUMNS = (
 )
 
 
-def _e(value: object) -> str:
-    return escape(visible(str(value)), quote=True)
-
-
 def tag_accuracy_html(rows: Sequence[SummaryRow]) -> str:
     """The section, or '' when no row has tag accuracy."""
     scored = [row for row in rows if row.tag_accuracy is not None]
     if not scored:
         return ''
-    head = ''.join(f'<th class="n">{_e(title)}</th>' for _, title, _ in _COLUMNS)
+    head = ''.join(f'<th class="n">{escaped(title)}</th>' for _, title, _ in _COLUMNS)
     body = []
     for row in scored:
         acc = row.tag_accuracy
@@ -46,9 +41,11 @@ def tag_accuracy_html(rows: Sequence[SummaryRow]) -> str:
         cells = []
         for key, _, spec in _COLUMNS:
             value = getattr(acc, key)
-            cells.append(f'<td class="n">{"-" if value is None else _e(format(value, spec))}</td>')
+            cells.append(
+                f'<td class="n">{"-" if value is None else escaped(format(value, spec))}</td>'
+            )
         body.append(
-            f'<tr><td>{_e(row.backend)}</td><td><code>{_e(row.topic)}</code></td>'
+            f'<tr><td>{escaped(row.backend)}</td><td><code>{escaped(row.topic)}</code></td>'
             + ''.join(cells)
             + '</tr>'
         )

@@ -34,7 +34,6 @@ One computation serves run.json, summary.csv, the report and ``replaybench compa
 
 from __future__ import annotations
 
-import math
 import zlib
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -49,6 +48,7 @@ from replaybench.results.bootstrap import (
     percentile_interval,
     replicates,
 )
+from replaybench.results.numbers import finite_number
 from replaybench.results.records import written
 from replaybench.results.repeats import join_repeats
 
@@ -222,19 +222,15 @@ def drift(latency_ms: npt.ArrayLike, confidence: float = CONFIDENCE) -> Drift | 
     return Drift(a, b, b / a, found.ratio_ci, found.method)
 
 
-def _num(value: Any) -> float | None:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return None
-    number = float(value)
-    return number if math.isfinite(number) else None
-
-
 def throttle_warnings(resources: Mapping[str, Any] | None) -> list[str]:
     """Throttling seen in a backend's resource summary (``ResourceSampler.summary()``)."""
     if not resources:
         return []
     out = []
-    high, low = _num(resources.get('cpu_mhz_max')), _num(resources.get('cpu_mhz_min'))
+    high, low = (
+        finite_number(resources.get('cpu_mhz_max')),
+        finite_number(resources.get('cpu_mhz_min')),
+    )
     if high is not None and low is not None and high > 0:
         fall = 1.0 - low / high
         if fall > FREQ_DROP_LIMIT:

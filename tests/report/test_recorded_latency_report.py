@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from replaybench.app.run import RunConfig, run_benchmark
 from replaybench.cli import app
 from replaybench.fixtures.live import write_live_mcap
-from replaybench.report.render import _fmt_fps, _fmt_ms
+from replaybench.report.formats import fmt_fps, fmt_ms
 from replaybench.results.records import read_frames_csv
 
 if TYPE_CHECKING:
@@ -39,9 +39,9 @@ def test_the_report_shows_recorded_latency_beside_replayed_latency(live_run: Run
     section = html[html.index('<h2 id="recorded-latency">') : html.index('<h2 id="latency">')]
     assert section.count('<tr class="recorded">') == 2  # pipeline, capture-to-output
     assert section.count('<tr class="replayed">') == 1  # null
-    assert f'<td class="n">{_fmt_ms(rec.pipeline_ms_p50)}<br>' in section
-    assert f'<td class="n">{_fmt_ms(rec.capture_to_output_ms_p99)}<br>' in section
-    assert f'<td class="n">{_fmt_ms(null.latency_ms_p50)}<br>' in section
+    assert f'<td class="n">{fmt_ms(rec.pipeline_ms_p50)}<br>' in section
+    assert f'<td class="n">{fmt_ms(rec.capture_to_output_ms_p99)}<br>' in section
+    assert f'<td class="n">{fmt_ms(null.latency_ms_p50)}<br>' in section
     assert f'<td class="n">{rec.recorded_outputs_dropped}</td>' in section
     assert 'Recorded and replayed latency CDF' in section
 
@@ -153,9 +153,9 @@ def test_a_recording_is_never_the_fastest_and_shows_its_recorded_rate_and_latenc
     # the Summary: the recording's output rate and pipeline latency, marked recorded
     summary = html[html.index('id="summary-table"') : html.index('id="summary-more"')]
     row = summary[summary.index('recorded</td>') :].split('</tr>')[0]
-    for value in (_fmt_fps(rec.recorded_output_hz), _fmt_ms(rec.pipeline_ms_p50)):
+    for value in (fmt_fps(rec.recorded_output_hz), fmt_ms(rec.pipeline_ms_p50)):
         assert f'>{value}<br><span class="muted">recorded</span></td>' in row
-    assert _fmt_fps(rec.throughput_fps) not in row  # how fast the bag was read: not a speed
+    assert fmt_fps(rec.throughput_fps) not in row  # how fast the bag was read: not a speed
     # the throughput and stage charts: replayed backends only, and the page says why
     charts = html[html.index('<h2 id="throughput">') : html.index('<h2 id="detections">')]
     assert '>hsv</text>' in charts

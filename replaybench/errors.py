@@ -17,6 +17,7 @@ __all__ = [
     'ReplaybenchError',
     'RunAborted',
     'SourceError',
+    'TaskUnavailableError',
     'UsageError',
     'one_line',
 ]
@@ -52,6 +53,10 @@ class BackendFailedError(BackendError):
     """A backend that raised while detecting, with no other backend left to finish the run."""
 
     exit_code = 1
+
+
+class TaskUnavailableError(ReplaybenchError):
+    """A task type whose module or entry point cannot be loaded, or is no task."""
 
 
 class OutputError(ReplaybenchError):

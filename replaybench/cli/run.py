@@ -32,7 +32,21 @@ __all__: list[str] = []
 RECORDED_MARK = '*'
 
 
+#: The tasks' metrics in the summary table (``MetricSpec.terminal_label``): the boxes' of
+#: every backend, before the memory; masks' where a backend segments, last.
+_BOX_METRICS = ('precision50', 'recall50', 'map50')
+_MASK_METRICS = ('miou',)
+
+
 def _print_summary(summaries: list[Summary]) -> None:
+    from replaybench.results.recorded_latency import replays_recording
+    from replaybench.tasks import all_metrics
+
+    specs = {m.name: m for m in all_metrics()}
+    boxes = [specs[name] for name in _BOX_METRICS]
+    # segmentation backends: their mIoU against the ground-truth masks
+    segmented = any(s.segmentation is not None for s in summaries)
+    masks = [specs[name] for name in _MASK_METRICS] if segmented else []
     header: tuple[str, ...] = (
         'backend',
         'topic',
@@ -43,15 +57,10 @@ def _print_summary(summaries: list[Summary]) -> None:
         'p50 ms',
         'p99 ms',
         'det/frame',
-        'P@.5',
-        'R@.5',
-        'mAP@.5',
+        *(str(m.terminal_label) for m in boxes),
         'private MiB',
+        *(str(m.terminal_label) for m in masks),
     )
-    # segmentation backends: their mIoU against the ground-truth masks
-    segmented = any(s.segmentation is not None for s in summaries)
-    header += ('mIoU',) if segmented else ()
-    from replaybench.results.recorded_latency import replays_recording
 
     rows = []
     recorded = False
@@ -82,11 +91,9 @@ def _print_summary(summaries: list[Summary]) -> None:
                 str(s.skipped),
                 *speed,
                 fmt(s.detections_per_frame),
-                fmt(s.precision50, 3),
-                fmt(s.recall50, 3),
-                fmt(s.map50, 3),
+                *(fmt(getattr(s, m.name), m.terminal_digits) for m in boxes),
                 fmt(private, 0),
-                *((fmt(s.miou, 3),) if segmented else ()),
+                *(fmt(getattr(s, m.name), m.terminal_digits) for m in masks),
             )
         )
     widths = [max([len(h), *(len(r[i]) for r in rows)]) for i, h in enumerate(header)]

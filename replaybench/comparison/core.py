@@ -32,9 +32,9 @@ from replaybench.results.bootstrap import (
     percentile_interval,
     replicates,
 )
-from replaybench.results.columns import TAG_SUMMARY_COLUMNS
 from replaybench.results.intervals import interval_rng, measured_series
 from replaybench.results.stats import summarize
+from replaybench.tasks import all_metrics
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -62,15 +62,19 @@ __all__ = [
     'compare_runs',
 ]
 
+_SPECS = [m for m in all_metrics() if m.gate]
+
 #: Timing metrics: compared as candidate / baseline ratios with exact rank intervals.
-TIMING_METRICS: tuple[str, ...] = ('median_ms', 'p99_ms', 'mean_ms', 'fps')
+TIMING_METRICS: tuple[str, ...] = tuple(m.name for m in _SPECS if m.kind == 'timing')
 
-#: Accuracy metrics: compared as candidate - baseline differences of the run.json numbers.
-ACCURACY_METRICS: tuple[str, ...] = ('map50', 'recall50', 'precision50', 'miou', 'pixel_accuracy')
+#: Accuracy metrics: compared as candidate - baseline differences of the run.json numbers (the
+#: registered tasks' accuracy metrics that are not ``appended``: boxes and masks).
+ACCURACY_METRICS: tuple[str, ...] = tuple(m.name for m in _SPECS if m.accuracy and not m.appended)
 
-#: Tag accuracy (tag backends against tag ground truth; the summary.csv names), compared as
-#: accuracy is: point estimates, no interval.
-TAG_METRICS: tuple[str, ...] = TAG_SUMMARY_COLUMNS
+#: The accuracy metrics appended after them (comparison.csv: after ``flags``), compared as
+#: accuracy is: point estimates, no interval. The built-in ones are the tag metrics (tag
+#: backends against tag ground truth; the summary.csv names).
+TAG_METRICS: tuple[str, ...] = tuple(m.name for m in _SPECS if m.accuracy and m.appended)
 
 #: Every metric, in table order; the recorded outputs' latency (``recorded`` backend rows:
 #: ``comparison.recorded``) last, compared as the timing metrics are.

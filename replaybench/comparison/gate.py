@@ -6,18 +6,13 @@ from __future__ import annotations
 import re
 from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench.comparison.core import (
-    ACCURACY_METRICS,
-    METRICS,
-    RECORDED_METRICS,
-    TAG_METRICS,
-    TIMING_METRICS,
-)
+from replaybench.comparison.core import METRICS, RECORDED_METRICS, TIMING_METRICS
 from replaybench.comparison.repeats import CAUTION_ADVICE
 from replaybench.comparison.verdict import Verdict, decide, overall, past
 from replaybench.errors import UsageError
 from replaybench.results.blocks import change_interval, point_value
 from replaybench.results.bootstrap import CONFIDENCE
+from replaybench.tasks import all_metrics
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -25,6 +20,7 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
     from replaybench.comparison.core import Comparison, MetricComparison, Row
+    from replaybench.tasks import MetricSpec
 
 __all__ = [
     'CONDITION_GRAMMAR',
@@ -39,7 +35,9 @@ __all__ = [
     'parse_condition',
 ]
 
-_ALIASES: dict[str, str] = {'p50_ms': 'median_ms', 'throughput_fps': 'fps'}
+#: The compared metrics' specs by name (``replaybench.tasks``): labels, units, formats.
+_SPECS: dict[str, MetricSpec] = {m.name: m for m in all_metrics() if m.name in METRICS}
+_ALIASES: dict[str, str] = {alias: m.name for m in _SPECS.values() for alias in m.aliases}
 
 #: The condition language, as error messages and docs/compare.md state it.
 CONDITION_GRAMMAR = (
@@ -55,36 +53,6 @@ _PATTERN = re.compile(
     r'^\s*(?P<metric>[A-Za-z][A-Za-z0-9_]*)\s*(?P<op><=|>=|<|>)\s*'
     r'(?P<number>[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?)\s*(?P<pct>%?)\s*$'
 )
-
-_UNITS: dict[str, str] = {
-    'median_ms': ' ms',
-    'p99_ms': ' ms',
-    'mean_ms': ' ms',
-    'fps': ' fps',
-    **dict.fromkeys(RECORDED_METRICS, ' ms'),
-}
-_NAMES: dict[str, str] = {
-    'median_ms': 'median latency',
-    'p99_ms': 'p99 latency',
-    'mean_ms': 'mean latency',
-    'fps': 'throughput',
-    'map50': 'mAP@0.5',
-    'recall50': 'recall@0.5',
-    'precision50': 'precision@0.5',
-    'miou': 'mIoU',
-    'pixel_accuracy': 'pixel accuracy',
-    'tag_recall': 'tag recall',
-    'tag_wrong_ids': 'wrong tag ids',
-    'tag_phantoms': 'phantom tags',
-    'tag_corner_rmse_px': 'tag corner RMSE (px)',
-    'tag_trans_err_m': 'tag translation error (m)',
-    'tag_trans_err_pct': 'tag translation error (% of range)',
-    'tag_rot_err_deg': 'tag rotation error (deg)',
-    'recorded_pipeline_ms': 'recorded median pipeline latency',
-    'recorded_pipeline_p99_ms': 'recorded p99 pipeline latency',
-    'recorded_capture_ms': 'recorded median capture-to-output latency',
-    'recorded_capture_p99_ms': 'recorded p99 capture-to-output latency',
-}
 
 
 class Condition(NamedTuple):
@@ -181,17 +149,14 @@ def _typical(m: MetricComparison, condition: Condition) -> float | None:
 
 
 def _value(metric: str, value: float | None) -> str:
-    if value is None:
-        return 'n/a'
-    if metric in ACCURACY_METRICS or metric in TAG_METRICS:
-        return f'{value:.4f}'
-    return f'{value:.4g}{_UNITS.get(metric, "")}'
+    return 'n/a' if value is None else _SPECS[metric].value_text(value)
 
 
 def _change_text(value: float, condition: Condition) -> str:
     if condition.relative:
         return f'{value:+.1f}%'
-    return f'{value:+.4g}{_UNITS.get(condition.metric, "")}'
+    unit = _SPECS[condition.metric].unit
+    return f'{value:+.4g}{f" {unit}" if unit else ""}'
 
 
 def method_text(m: MetricComparison) -> str:
@@ -230,7 +195,7 @@ def _missing_recorded(
 ) -> tuple[Verdict, str] | None:
     """Why a recorded metric has no change, when a side is not a recording or refused it:
     inconclusive (the data cannot decide), never failed; None for the general reasons."""
-    name = _NAMES[condition.metric]
+    name = _SPECS[condition.metric].label
     for side, which, value in ((row, 'this row', m.value), (baseline, 'the baseline', m.baseline)):
         if side is None or value is not None:
             continue
@@ -245,7 +210,7 @@ def _missing_recorded(
 
 
 def _missing(condition: Condition, m: MetricComparison) -> tuple[Verdict, str]:
-    name = _NAMES[condition.metric]
+    name = _SPECS[condition.metric].label
     if m.baseline is not None and m.value is None:
         return 'failed', f'the baseline has {name} but this run does not'
     if m.value is None:
@@ -276,7 +241,7 @@ def _judge(
 ) -> GateResult:
     m = row.metrics[condition.metric]
     where = f'{row.backend} {row.topic} in {row.run_label}'
-    name = _NAMES[condition.metric]
+    name = _SPECS[condition.metric].label
     est, ci = _change(m, condition)
     method = method_text(m)
     if est is None:
@@ -297,7 +262,7 @@ def _judge(
             verdict,
             method,
         )
-    accuracy = condition.metric in ACCURACY_METRICS or condition.metric in TAG_METRICS
+    accuracy = _SPECS[condition.metric].accuracy
     threshold = condition.describe()
     point_past = past(est, condition.op, condition.threshold)
     past_text = 'past' if point_past else 'not past'

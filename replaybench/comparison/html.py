@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 from replaybench.comparison.core import (
     ACCURACY_METRICS,
+    METRICS,
     RECORDED_METRICS,
     TAG_METRICS,
     TIMING_METRICS,
@@ -17,6 +18,7 @@ from replaybench.report.markup import escaped, number_text
 from replaybench.report.svg import Label, colour, fit_label, nice_ticks, step_cdf
 from replaybench.results.blocks import BLOCK_FRAMES, MAX_BLOCKS, MIN_BLOCKS
 from replaybench.results.bootstrap import MIN_FRAMES
+from replaybench.tasks import all_metrics
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -68,28 +70,8 @@ code{font:12px/1.4 ui-monospace,SFMono-Regular,Menlo,Consolas,monospace}
 footer{margin-top:36px;color:var(--muted);font-size:12px}
 """
 
-_NAMES: dict[str, str] = {
-    'median_ms': 'median ms',
-    'p99_ms': 'p99 ms',
-    'mean_ms': 'mean ms',
-    'fps': 'FPS',
-    'map50': 'mAP@0.5',
-    'recall50': 'R@0.5',
-    'precision50': 'P@0.5',
-    'miou': 'mIoU',
-    'pixel_accuracy': 'pixel acc.',
-    'tag_recall': 'tag recall',
-    'tag_wrong_ids': 'wrong ids',
-    'tag_phantoms': 'phantoms',
-    'tag_corner_rmse_px': 'corner px',
-    'tag_trans_err_m': 'trans m',
-    'tag_trans_err_pct': 'trans %',
-    'tag_rot_err_deg': 'rot deg',
-    'recorded_pipeline_ms': 'recorded pipeline ms',
-    'recorded_pipeline_p99_ms': 'recorded pipeline p99 ms',
-    'recorded_capture_ms': 'recorded capture ms',
-    'recorded_capture_p99_ms': 'recorded capture p99 ms',
-}
+#: The compared metrics' table headings (``MetricSpec.short_label``).
+_NAMES: dict[str, str] = {m.name: m.short_label for m in all_metrics() if m.name in METRICS}
 
 _FONT = 'system-ui, -apple-system, Segoe UI, Roboto, sans-serif'
 
@@ -297,8 +279,10 @@ def _accuracy_cell(m: MetricComparison, role: str) -> str:
     return f'<td class="n">{value}<span class="ci">Δ {m.diff:+.4f} (no CI)</span></td>'
 
 
-#: The main accuracy figure of each task, read first: boxes, tags, masks.
-_MAIN_ACCURACY: tuple[str, ...] = ('map50', 'tag_recall', 'miou')
+#: The main accuracy figure of each task, read first (``MetricSpec.main``), in registry order.
+_MAIN_ACCURACY: tuple[str, ...] = tuple(
+    m.name for m in all_metrics() if m.main and m.accuracy and m.name in METRICS
+)
 #: The timing figures read first (the mean is under More figures).
 _MAIN_TIMING: tuple[str, ...] = ('median_ms', 'p99_ms', 'fps')
 #: A recording's main latency, read first where a row has one.

@@ -38,6 +38,7 @@ from replaybench.results.recorded_latency import (
     recorded_times,
 )
 from replaybench.results.records import written
+from replaybench.tasks.common import COMMON_METRICS
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -53,13 +54,9 @@ __all__ = [
     'recorded_series',
 ]
 
-#: The recorded-latency metrics of compare, in table order.
-RECORDED_METRICS: tuple[str, ...] = (
-    'recorded_pipeline_ms',
-    'recorded_pipeline_p99_ms',
-    'recorded_capture_ms',
-    'recorded_capture_p99_ms',
-)
+#: The recorded-latency metrics of compare, in table order (``COMMON_METRICS`` of kind
+#: ``recorded``).
+RECORDED_METRICS: tuple[str, ...] = tuple(m.name for m in COMMON_METRICS if m.kind == 'recorded')
 
 # metric -> (the frames.csv figure, the statistic as blocks.py names it, summary.csv's column)
 _SOURCE: dict[str, tuple[str, str, str]] = {

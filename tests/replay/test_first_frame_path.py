@@ -53,6 +53,10 @@ _LATER = (
     'replaybench.backends.gpu._engines',
     'replaybench.backends.gpu._dnn',
     'rosbags.typesys.stores.ros2_humble',
+    # the tasks' metric specs: the summary and compare read them, after the passes
+    'replaybench.tasks.detections.task',
+    'replaybench.tasks.tags.task',
+    'replaybench.tasks.segmentation.task',
 )
 
 

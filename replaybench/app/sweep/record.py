@@ -15,6 +15,8 @@ from collections import Counter
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, NamedTuple
 
+from replaybench.tasks import all_metrics
+
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
     from pathlib import Path
@@ -27,6 +29,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     'CSV_COLUMNS',
+    'SWEEP_METRICS',
     'CsvLog',
     'NodeSpans',
     'SweepProgress',
@@ -38,6 +41,12 @@ __all__ = [
     'csv_text',
     'flagged',
 ]
+
+#: The tasks' metrics a sweep shows (``MetricSpec.sweep``): the mean over a cell's topics, a
+#: ``CellMetrics`` field and a column of sweep.csv each; the ones not ``appended`` first.
+SWEEP_METRICS: tuple[str, ...] = tuple(
+    m.name for m in sorted(all_metrics(), key=lambda m: m.appended) if m.sweep and m.accuracy
+)
 
 #: sweep.csv columns, in order; ``SweepResult.cells`` has the same columns.
 CSV_COLUMNS: tuple[str, ...] = (
@@ -56,10 +65,7 @@ CSV_COLUMNS: tuple[str, ...] = (
     'p99_ms',
     'p99_low',
     'p99_high',
-    'map50',
-    'miou',
-    'tag_recall',
-    'tag_rot_err_deg',
+    *SWEEP_METRICS,
     'node',
     'gpu',
     'concurrency',
@@ -116,7 +122,8 @@ def _interval(values: Any) -> tuple[float, float] | None:
 
 def cell_metrics(run: RunResult, records: Sequence[FrameRecord], key: str) -> CellMetrics:
     """Frames, FPS, p50 and p99 latency with 95 % block-bootstrap intervals over all the cell's
-    measured frames (every topic together), and mAP@0.5 (the mean over its topics).
+    measured frames (every topic together), and each of ``SWEEP_METRICS`` (mAP@0.5, mIoU, tag
+    recall and rotation error: the mean over the topics that have it; None where none has).
     ``records``: frames.csv's rows as written (``as_written``)."""
     import numpy as np
 
@@ -139,14 +146,9 @@ def cell_metrics(run: RunResult, records: Sequence[FrameRecord], key: str) -> Ce
         p99 = summary.latency_ms_p99 if summary else None
     series = measured_series(records)  # every topic together, in replay order
     reps = replicates(*series, rng=np.random.default_rng(int(key[:16], 16)))
-    maps = [
-        row.accuracy.map50
-        for row in rows
-        if row.accuracy is not None and row.accuracy.map50 is not None
-    ]
 
     def mean_of(name: str) -> float | None:
-        # a task's accuracy over the cell's topics (segmentation: mIoU; tags: recall, rotation)
+        # a task's accuracy over the cell's topics that have it
         values = [v for row in rows if (v := getattr(row, name)) is not None]
         return float(np.mean(values)) if values else None
 
@@ -158,11 +160,8 @@ def cell_metrics(run: RunResult, records: Sequence[FrameRecord], key: str) -> Ce
         p50_ci=_interval(reps.p50) if reps is not None else None,
         p99_ms=p99,
         p99_ci=_interval(reps.p99) if reps is not None else None,
-        map50=float(np.mean(maps)) if maps else None,
-        miou=mean_of('miou'),
-        tag_recall=mean_of('tag_recall'),
-        tag_rot_err_deg=mean_of('tag_rot_err_deg'),
         topics=len({r.topic for r in records}),
+        **{name: mean_of(name) for name in SWEEP_METRICS},
     )
 
 
@@ -274,10 +273,7 @@ def csv_row(cell: SweepCell) -> dict[str, Any]:
         'p99_ms': m.p99_ms if m else None,
         'p99_low': ci(m.p99_ci, 0) if m else None,
         'p99_high': ci(m.p99_ci, 1) if m else None,
-        'map50': m.map50 if m else None,
-        'miou': m.miou if m else None,
-        'tag_recall': m.tag_recall if m else None,
-        'tag_rot_err_deg': m.tag_rot_err_deg if m else None,
+        **{name: getattr(m, name) if m else None for name in SWEEP_METRICS},
         'node': cell.hostname or cell.node_id,
         'gpu': ','.join(cell.gpu_ids),
         'concurrency': cell.concurrency.max_cells_on_node if cell.concurrency else None,

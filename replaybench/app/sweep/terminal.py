@@ -44,6 +44,10 @@ def progress_bar(stream: Any) -> ProgressBar | None:
     return ProgressBar(stream) if callable(isatty) and isatty() else None
 
 
+#: The accuracy column of the cells table.
+_ACCURACY = 'map50'
+
+
 def _fmt(value: Any, digits: int = 2) -> str:
     return '-' if value is None or value == '' else f'{float(value):.{digits}f}'
 
@@ -51,8 +55,22 @@ def _fmt(value: Any, digits: int = 2) -> str:
 def result_lines(result: SweepResult) -> tuple[list[str], list[str]]:
     """What the ``sweep`` command prints: the cells table and where the outputs are (stdout),
     failed and flagged cells (stderr)."""
+    from replaybench.tasks import all_metrics
+
     rows = csv_rows(result.sweep.cells)
-    header = ('input', 'backend', 'params', 'status', 'fps', 'p50 ms', 'p99 ms', 'mAP@.5', 'node')
+    # the boxes' main figure, which every backend has (its terminal heading and digits)
+    (boxes,) = [m for m in all_metrics() if m.name == _ACCURACY]
+    header = (
+        'input',
+        'backend',
+        'params',
+        'status',
+        'fps',
+        'p50 ms',
+        'p99 ms',
+        str(boxes.terminal_label),
+        'node',
+    )
     table = [
         (
             Path(str(r['input'])).name,
@@ -62,7 +80,7 @@ def result_lines(result: SweepResult) -> tuple[list[str], list[str]]:
             _fmt(r['fps'], 1),
             _fmt(r['p50_ms']),
             _fmt(r['p99_ms']),
-            _fmt(r['map50'], 3),
+            _fmt(r[boxes.name], boxes.terminal_digits),
             str(r['node'] or '-') + (f' gpu {r["gpu"]}' if r['gpu'] else ''),
         )
         for r in rows

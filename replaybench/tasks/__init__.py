@@ -1,0 +1,138 @@
+"""Task registry: the built-in task types plus third-party ones found through entry points.
+
+Built-in tasks are named by ``'module:attr'`` strings and imported only when asked for, so that
+nothing of a task is imported before it is needed. Third-party packages register a task object
+in the ``replaybench.tasks`` entry-point group; the entry point's name is the task's name.
+Each task holds its metric specs (``MetricSpec``); ``all_metrics`` gives them with the metrics
+of every task (``COMMON_METRICS``), which compare, its gate, the sweep and the terminal read.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+from typing import TYPE_CHECKING
+
+from replaybench.errors import TaskUnavailableError, UsageError
+from replaybench.tasks.base import MetricSpec, Task
+from replaybench.tasks.common import COMMON_METRICS
+
+if TYPE_CHECKING:
+    from importlib.metadata import EntryPoint
+
+__all__ = [
+    'COMMON_METRICS',
+    'ENTRY_POINT_GROUP',
+    'TASKS',
+    'MetricSpec',
+    'Task',
+    'all_metrics',
+    'get_task',
+    'task_names',
+]
+
+ENTRY_POINT_GROUP = 'replaybench.tasks'
+
+#: Built-in tasks, name -> ``'module:attr'``; imported on first use.
+TASKS: dict[str, str] = {
+    'detections': 'replaybench.tasks.detections.task:TASK',
+    'tags': 'replaybench.tasks.tags.task:TASK',
+    'segmentation': 'replaybench.tasks.segmentation.task:TASK',
+}
+
+_NAME_RE = re.compile(r'[A-Za-z0-9][A-Za-z0-9_-]*\Z')
+
+
+def _entry_points() -> list[EntryPoint]:
+    """Entry points of the task group, in a stable order (name, then target)."""
+    import importlib.metadata  # only third-party tasks need it
+
+    eps = importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
+    return sorted(eps, key=lambda ep: (ep.name, ep.value))
+
+
+def _plugins() -> tuple[dict[str, EntryPoint], dict[str, str]]:
+    """Usable third-party entry points by name, and why the others are refused (by name)."""
+    usable: dict[str, EntryPoint] = {}
+    refused: dict[str, str] = {}
+    for ep in _entry_points():
+        if ep.name in TASKS:
+            refused[ep.name] = f'{ep.value}: name {ep.name!r} is taken by a built-in task'
+        elif not _NAME_RE.match(ep.name):
+            refused[ep.name] = f'{ep.value}: invalid task name {ep.name!r} (letters, digits, _, -)'
+        elif ep.name in usable:
+            refused[ep.name] = (
+                f'{ep.value}: name {ep.name!r} is already registered by {usable[ep.name].value}'
+            )
+        else:
+            usable[ep.name] = ep
+    return usable, refused
+
+
+def task_names() -> list[str]:
+    """Names of every usable task: built-ins first (registry order), then third-party sorted."""
+    return [*TASKS, *sorted(_plugins()[0])]
+
+
+def _check(name: str, obj: object, target: str) -> Task:
+    if not isinstance(obj, Task):
+        msg = f'task {name!r}: {target} is not a task (it needs a name and metrics)'
+        raise TaskUnavailableError(msg)
+    if obj.name != name:
+        msg = f'task {name!r}: {target} declares name {obj.name!r}; it must equal {name!r}'
+        raise TaskUnavailableError(msg)
+    metrics = obj.metrics
+    if not isinstance(metrics, tuple) or not all(isinstance(m, MetricSpec) for m in metrics):
+        msg = f'task {name!r}: {target}: metrics must be a tuple of MetricSpec'
+        raise TaskUnavailableError(msg)
+    return obj
+
+
+def get_task(name: str) -> Task:
+    """The task registered as ``name``.
+
+    Raises ``UsageError`` naming the known tasks when ``name`` is unknown, and
+    ``TaskUnavailableError`` when its module or entry point cannot be loaded or holds no task.
+    """
+    if name in TASKS:
+        target = TASKS[name]
+        module_name, _, attr = target.partition(':')
+        try:
+            obj = getattr(importlib.import_module(module_name), attr)
+        except Exception as exc:  # any import failure makes the task unavailable
+            msg = f'task {name!r}: cannot import {target}: {type(exc).__name__}: {exc}'
+            raise TaskUnavailableError(msg) from exc
+        return _check(name, obj, target)
+    usable, refused = _plugins()
+    if name in usable:
+        ep = usable[name]
+        try:
+            obj = ep.load()
+        except Exception as exc:  # a broken plugin is reported, never imported half
+            msg = f'task {name!r}: cannot load {ep.value}: {type(exc).__name__}: {exc}'
+            raise TaskUnavailableError(msg) from exc
+        return _check(name, obj, ep.value)
+    if name in refused:
+        msg = f'task {name!r}: entry point {refused[name]}'
+        raise TaskUnavailableError(msg)
+    msg = f'unknown task {name!r}; known tasks: {", ".join([*TASKS, *sorted(usable)])}'
+    raise UsageError(msg)
+
+
+def all_metrics() -> tuple[MetricSpec, ...]:
+    """``COMMON_METRICS``, then each task's metrics in ``task_names`` order.
+
+    ``TaskUnavailableError`` when a task cannot be loaded or a metric name (or alias) is
+    declared twice.
+    """
+    declared: list[tuple[str, MetricSpec]] = [('the common metrics', m) for m in COMMON_METRICS]
+    for name in task_names():
+        declared += [(f'task {name!r}', m) for m in get_task(name).metrics]
+    owner: dict[str, str] = {}
+    for where, spec in declared:
+        for known in (spec.name, *spec.aliases):
+            if known in owner:
+                msg = f'metric {known!r} of {where} is declared by {owner[known]} already'
+                raise TaskUnavailableError(msg)
+            owner[known] = where
+    return tuple(spec for _, spec in declared)

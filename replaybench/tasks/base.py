@@ -1,0 +1,82 @@
+"""What a task type is to the rest of replaybench: its name and the metrics it is judged on.
+
+A metric's name, labels, unit, number format, better direction and the tables that show it
+live in one ``MetricSpec``; compare, its gate, comparison.html/.csv/.json, the sweep and the
+terminal tables read them from the registered tasks (``replaybench.tasks.all_metrics``) and
+from ``COMMON_METRICS`` (``replaybench.tasks.common``) instead of keeping lists of their own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal, Protocol, runtime_checkable
+
+__all__ = ['Better', 'MetricKind', 'MetricSpec', 'Task']
+
+#: ``timing``: a latency or a rate of the replay, compared as a ratio with an interval;
+#: ``recorded``: the latency a recording's outputs had on the robot, compared as timings are;
+#: ``accuracy``: a figure against ground truth, compared as a difference of point estimates.
+MetricKind = Literal['timing', 'recorded', 'accuracy']
+#: Which way the metric improves.
+Better = Literal['higher', 'lower']
+
+
+@dataclass(frozen=True, slots=True)
+class MetricSpec:
+    """One metric: how it is named, written and where it is shown."""
+
+    #: its name in summary.csv, run.json, comparison.csv and ``--fail-if`` (``map50``)
+    name: str
+    #: its name in sentences: the gate's lines (``mAP@0.5``, ``p99 latency``)
+    label: str
+    #: its table heading: comparison.html (``R@0.5``, ``p99 ms``)
+    short_label: str
+    better: Better
+    kind: MetricKind = 'accuracy'
+    #: the unit written after a value or a change in the gate's lines (``ms``; '' for none:
+    #: an accuracy metric's label names its unit)
+    unit: str = ''
+    #: the format of a value in the gate's lines (the unit follows it)
+    fmt: str = '.4f'
+    #: ``compare`` compares it and ``--fail-if`` may gate on it
+    gate: bool = True
+    #: a sweep shows it: a column of sweep.csv, the mean over a cell's topics
+    sweep: bool = False
+    #: the task's main figure, shown first in comparison.html's summary
+    main: bool = False
+    #: its columns follow those of the metrics that are not appended (comparison.csv: after
+    #: ``flags``; compare's tables and sweep.csv: after the other accuracy metrics), so that
+    #: readers of the earlier columns keep them; a new task's metrics are appended
+    appended: bool = True
+    #: other names ``--fail-if`` accepts for it (``p50_ms``)
+    aliases: tuple[str, ...] = ()
+    #: its heading in the terminal's tables (``replaybench run``, ``replaybench sweep``);
+    #: None where it is not shown there
+    terminal_label: str | None = None
+    #: digits after the point in the terminal's tables
+    terminal_digits: int = 3
+
+    @property
+    def accuracy(self) -> bool:
+        """An accuracy metric: compared as a difference of point estimates, without interval."""
+        return self.kind == 'accuracy'
+
+    def value_text(self, value: float) -> str:
+        """``value`` as the gate's lines write it: ``0.9120``, ``12.5 ms``."""
+        unit = f' {self.unit}' if self.unit else ''
+        return f'{value:{self.fmt}}{unit}'
+
+
+@runtime_checkable
+class Task(Protocol):
+    """A task type (boxes, AprilTags, segmentation masks): registered in ``replaybench.tasks``."""
+
+    @property
+    def name(self) -> str:
+        """The registry name (``tags``)."""
+        ...
+
+    @property
+    def metrics(self) -> tuple[MetricSpec, ...]:
+        """The task's metrics, in table order."""
+        ...

@@ -1,0 +1,41 @@
+"""The detections task: boxes against Detection2DArray ground truth, at IoU 0.5."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+from replaybench.tasks.base import MetricSpec
+
+__all__ = ['TASK', 'DetectionsTask']
+
+
+class DetectionsTask:
+    """Boxes (``replaybench.results.accuracy``): precision, recall and mAP at IoU 0.5."""
+
+    name: ClassVar[str] = 'detections'
+    metrics: ClassVar[tuple[MetricSpec, ...]] = (
+        MetricSpec(
+            'map50',
+            'mAP@0.5',
+            'mAP@0.5',
+            'higher',
+            sweep=True,
+            main=True,
+            appended=False,
+            terminal_label='mAP@.5',
+        ),
+        MetricSpec(
+            'recall50', 'recall@0.5', 'R@0.5', 'higher', appended=False, terminal_label='R@.5'
+        ),
+        MetricSpec(
+            'precision50',
+            'precision@0.5',
+            'P@0.5',
+            'higher',
+            appended=False,
+            terminal_label='P@.5',
+        ),
+    )
+
+
+TASK = DetectionsTask()

@@ -1,0 +1,31 @@
+"""The segmentation task: label masks against ground-truth masks."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+from replaybench.tasks.base import MetricSpec
+
+__all__ = ['TASK', 'SegmentationTask']
+
+
+class SegmentationTask:
+    """Masks (``replaybench.results.segmentation``): mean IoU over classes, pixel accuracy."""
+
+    name: ClassVar[str] = 'segmentation'
+    metrics: ClassVar[tuple[MetricSpec, ...]] = (
+        MetricSpec(
+            'miou',
+            'mIoU',
+            'mIoU',
+            'higher',
+            sweep=True,
+            main=True,
+            appended=False,
+            terminal_label='mIoU',
+        ),
+        MetricSpec('pixel_accuracy', 'pixel accuracy', 'pixel acc.', 'higher', appended=False),
+    )
+
+
+TASK = SegmentationTask()

@@ -1,0 +1,2 @@
+"""AprilTags with pose scored against tag ground truth (``replaybench.fiducials``,
+``replaybench.results.tags``); the task is ``replaybench.tasks.tags.task``."""

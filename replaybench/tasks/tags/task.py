@@ -1,0 +1,27 @@
+"""The tags task: tag ids, corners and poses against tag ground truth."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+from replaybench.tasks.base import MetricSpec
+
+__all__ = ['TASK', 'TagsTask']
+
+
+class TagsTask:
+    """AprilTags (``replaybench.results.tags``): the summary.csv tag columns, in their order."""
+
+    name: ClassVar[str] = 'tags'
+    metrics: ClassVar[tuple[MetricSpec, ...]] = (
+        MetricSpec('tag_recall', 'tag recall', 'tag recall', 'higher', sweep=True, main=True),
+        MetricSpec('tag_wrong_ids', 'wrong tag ids', 'wrong ids', 'lower'),
+        MetricSpec('tag_phantoms', 'phantom tags', 'phantoms', 'lower'),
+        MetricSpec('tag_corner_rmse_px', 'tag corner RMSE (px)', 'corner px', 'lower'),
+        MetricSpec('tag_trans_err_m', 'tag translation error (m)', 'trans m', 'lower'),
+        MetricSpec('tag_trans_err_pct', 'tag translation error (% of range)', 'trans %', 'lower'),
+        MetricSpec('tag_rot_err_deg', 'tag rotation error (deg)', 'rot deg', 'lower', sweep=True),
+    )
+
+
+TASK = TagsTask()

@@ -1,0 +1,228 @@
+"""Task registry: built-in tasks resolved on use, third-party tasks through the entry-point
+group, clear errors, and every metric compare and the sweep know coming from a task's spec."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+import textwrap
+from typing import TYPE_CHECKING
+
+import pytest
+
+from replaybench.app.sweep.record import CSV_COLUMNS as SWEEP_CSV_COLUMNS
+from replaybench.app.sweep.record import SWEEP_METRICS
+from replaybench.comparison import ACCURACY_METRICS, METRICS, RECORDED_METRICS, TIMING_METRICS
+from replaybench.comparison.core import TAG_METRICS
+from replaybench.comparison.output import CSV_COLUMNS as COMPARISON_CSV_COLUMNS
+from replaybench.errors import TaskUnavailableError, UsageError
+from replaybench.results.columns import TAG_SUMMARY_COLUMNS
+from replaybench.results.model import SummaryRow
+from replaybench.results.sweepfile import CellMetrics
+from replaybench.tasks import (
+    COMMON_METRICS,
+    ENTRY_POINT_GROUP,
+    TASKS,
+    MetricSpec,
+    Task,
+    all_metrics,
+    get_task,
+    task_names,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+    from pathlib import Path
+
+PLUGIN = """
+from replaybench.tasks import MetricSpec
+
+
+class ToyTask:
+    name = 'toy'
+    metrics = (MetricSpec('toy_score', 'toy score', 'score', 'higher', sweep=True),)
+
+
+class Misnamed:
+    name = 'something-else'
+    metrics = ()
+
+
+class Clashing:
+    name = 'clash'
+    metrics = (MetricSpec('map50', 'mAP again', 'mAP', 'higher'),)
+
+
+TASK = ToyTask()
+MISNAMED = Misnamed()
+CLASHING = Clashing()
+NOT_A_TASK = 42
+"""
+
+
+@pytest.fixture
+def plugin_module(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[str]:
+    """A real importable module holding third-party task objects."""
+    name = f'rb_toy_task_{tmp_path.name.replace("-", "_")}'
+    (tmp_path / f'{name}.py').write_text(PLUGIN, encoding='utf-8')
+    monkeypatch.syspath_prepend(str(tmp_path))
+    yield name
+    sys.modules.pop(name, None)
+
+
+def distribution(tmp_path: Path, **targets: str) -> None:
+    """An installed distribution (a .dist-info folder on sys.path) declaring task entry points."""
+    dist = tmp_path / 'rb_toy_tasks-0.3.dist-info'
+    dist.mkdir()
+    (dist / 'METADATA').write_text(
+        'Metadata-Version: 2.1\nName: rb-toy-tasks\nVersion: 0.3\n', encoding='utf-8'
+    )
+    lines = '\n'.join(f'{name} = {target}' for name, target in targets.items())
+    (dist / 'entry_points.txt').write_text(f'[{ENTRY_POINT_GROUP}]\n{lines}\n', encoding='utf-8')
+
+
+def test_built_in_tasks_are_module_strings_resolved_on_first_use() -> None:
+    child = textwrap.dedent("""
+        import json, sys
+        import replaybench.tasks as registry
+        watched = [target.partition(':')[0] for target in registry.TASKS.values()]
+        before = [m for m in watched if m in sys.modules]
+        names = registry.task_names()
+        listed = [m for m in watched if m in sys.modules]
+        task = registry.get_task('tags')
+        after = [m for m in watched if m in sys.modules]
+        same = task is sys.modules['replaybench.tasks.tags.task'].TASK
+        print(json.dumps([before, names, listed, after, same]))
+        """)
+    found = subprocess.run(
+        [sys.executable, '-c', child], capture_output=True, text=True, check=True
+    ).stdout
+    before, names, listed, after, same = json.loads(found)
+    assert before == []
+    assert names[:3] == ['detections', 'tags', 'segmentation']
+    assert listed == []  # listing the names imports no task
+    assert after == ['replaybench.tasks.tags.task']
+    assert same is True
+
+
+def test_built_in_tasks_are_tasks_named_as_registered() -> None:
+    assert list(TASKS) == ['detections', 'tags', 'segmentation']
+    for name in TASKS:
+        task = get_task(name)
+        assert isinstance(task, Task)
+        assert task.name == name
+        assert task.metrics
+        assert all(isinstance(m, MetricSpec) for m in task.metrics)
+
+
+def test_an_unknown_task_is_a_usage_error_listing_the_known_ones() -> None:
+    with pytest.raises(
+        UsageError, match=r"unknown task 'stereo'; known tasks: detections, tags, segmentation"
+    ):
+        get_task('stereo')
+
+
+def test_an_installed_distribution_registers_a_task_through_the_entry_point_group(
+    tmp_path: Path, plugin_module: str
+) -> None:
+    distribution(tmp_path, toy=f'{plugin_module}:TASK')
+    assert task_names() == ['detections', 'tags', 'segmentation', 'toy']
+    task = get_task('toy')
+    assert type(task).__module__ == plugin_module
+    assert [m.name for m in task.metrics] == ['toy_score']
+    names = [m.name for m in all_metrics()]
+    assert names[-1] == 'toy_score'  # after the built-in tasks' metrics
+    assert names[:-1] == [m.name for m in registry_metrics_without_plugins()]
+
+
+def registry_metrics_without_plugins() -> list[MetricSpec]:
+    return [*COMMON_METRICS, *(m for name in TASKS for m in get_task(name).metrics)]
+
+
+def test_broken_entry_points_are_refused_with_one_line_naming_them(
+    tmp_path: Path, plugin_module: str
+) -> None:
+    distribution(
+        tmp_path,
+        gone='rb_no_such_module_anywhere:TASK',
+        misnamed=f'{plugin_module}:MISNAMED',
+        number=f'{plugin_module}:NOT_A_TASK',
+        tags=f'{plugin_module}:TASK',
+    )
+    assert task_names() == ['detections', 'tags', 'segmentation', 'gone', 'misnamed', 'number']
+    with pytest.raises(TaskUnavailableError, match=r"task 'gone': cannot load .*ModuleNotFound"):
+        get_task('gone')
+    with pytest.raises(TaskUnavailableError, match=r"declares name 'something-else'"):
+        get_task('misnamed')
+    with pytest.raises(TaskUnavailableError, match=r'NOT_A_TASK is not a task'):
+        get_task('number')
+    # a name taken by a built-in keeps the built-in
+    assert get_task('tags') is sys.modules['replaybench.tasks.tags.task'].TASK
+    with pytest.raises(TaskUnavailableError) as failed:
+        all_metrics()
+    assert '\n' not in str(failed.value)
+
+
+def test_a_metric_name_declared_by_two_tasks_is_refused(tmp_path: Path, plugin_module: str) -> None:
+    distribution(tmp_path, clash=f'{plugin_module}:CLASHING')
+    with pytest.raises(
+        TaskUnavailableError,
+        match=r"metric 'map50' of task 'clash' is declared by task 'detections' already",
+    ):
+        all_metrics()
+
+
+def test_metric_names_and_aliases_are_unique() -> None:
+    known = [n for m in all_metrics() for n in (m.name, *m.aliases)]
+    assert len(known) == len(set(known))
+
+
+def test_every_metric_compare_knows_comes_from_a_spec_in_table_order() -> None:
+    specs = {m.name: m for m in all_metrics()}
+    assert set(METRICS) <= set(specs)
+    assert all(specs[m].gate for m in METRICS)
+    assert TIMING_METRICS == ('median_ms', 'p99_ms', 'mean_ms', 'fps')
+    assert all(specs[m].kind == 'timing' for m in TIMING_METRICS)
+    assert all(specs[m].kind == 'recorded' for m in RECORDED_METRICS)
+    assert all(specs[m].accuracy and not specs[m].appended for m in ACCURACY_METRICS)
+    assert all(specs[m].accuracy and specs[m].appended for m in TAG_METRICS)
+    assert METRICS == TIMING_METRICS + ACCURACY_METRICS + TAG_METRICS + RECORDED_METRICS
+    # comparison.csv: the appended accuracy metrics after ``flags``
+    flags = COMPARISON_CSV_COLUMNS.index('flags')
+    assert COMPARISON_CSV_COLUMNS.index(f'{ACCURACY_METRICS[-1]}_delta') < flags
+    assert COMPARISON_CSV_COLUMNS.index(TAG_METRICS[0]) > flags
+
+
+def test_the_tag_task_declares_the_summary_csv_tag_columns_in_their_order() -> None:
+    assert tuple(m.name for m in get_task('tags').metrics) == TAG_SUMMARY_COLUMNS
+
+
+def test_every_accuracy_metric_is_a_summary_row_field() -> None:
+    fields = {f.name for f in dataclasses.fields(SummaryRow)}
+    assert {m.name for m in all_metrics() if m.accuracy} <= fields
+
+
+def test_the_sweep_shows_the_metrics_whose_spec_says_so() -> None:
+    shown = {m.name for m in all_metrics() if m.sweep}
+    assert set(SWEEP_METRICS) == shown
+    assert SWEEP_METRICS == ('map50', 'miou', 'tag_recall', 'tag_rot_err_deg')
+    start = SWEEP_CSV_COLUMNS.index('p99_high') + 1
+    assert SWEEP_CSV_COLUMNS[start : start + len(SWEEP_METRICS)] == SWEEP_METRICS
+    assert shown <= {f.name for f in dataclasses.fields(CellMetrics)}
+
+
+def test_a_spec_writes_values_as_the_gate_does() -> None:
+    specs = {m.name: m for m in all_metrics()}
+    assert specs['p99_ms'].value_text(12.345678) == '12.35 ms'
+    assert specs['fps'].value_text(250.0) == '250 fps'
+    assert specs['map50'].value_text(0.5) == '0.5000'
+    assert specs['tag_rot_err_deg'].value_text(1.25) == '1.2500'
+
+
+def test_common_metrics_belong_to_no_task() -> None:
+    common = {m.name for m in COMMON_METRICS}
+    for name in TASKS:
+        assert common.isdisjoint(m.name for m in get_task(name).metrics)
+    assert all(not m.accuracy for m in COMMON_METRICS)

@@ -24,7 +24,9 @@ from replaybench.textsafe import visible
 
 if TYPE_CHECKING:
     from replaybench.replay.runner import RunConfig, RunOutcome
+    from replaybench.results.model import RunResult
     from replaybench.results.stats import Summary
+    from replaybench.tasks import MetricSpec
 
 __all__: list[str] = []
 
@@ -32,21 +34,32 @@ __all__: list[str] = []
 RECORDED_MARK = '*'
 
 
-#: The tasks' metrics in the summary table (``MetricSpec.terminal_label``): the boxes' of
-#: every backend, before the memory; masks' where a backend segments, last.
-_BOX_METRICS = ('precision50', 'recall50', 'map50')
-_MASK_METRICS = ('miou',)
+def _task_columns(summaries: list[Summary]) -> tuple[list[MetricSpec], list[MetricSpec]]:
+    """The tasks' metrics in the summary table (``TaskViews.terminal_metrics``), in the tasks'
+    order: (before the memory column: the tasks shown for every row, as boxes are; after it:
+    the others, where some row has the task's summary, as a segmentation backend has)."""
+    from replaybench.tasks import get_task, task_names, task_views
+
+    always: list[MetricSpec] = []
+    scored: list[MetricSpec] = []
+    for name in task_names():
+        task = get_task(name)
+        views = task_views(task)
+        specs = {m.name: m for m in task.metrics}
+        shown = [specs[metric] for metric in views.terminal_metrics]
+        if views.terminal == 'always':
+            always += shown
+        elif views.summary_field is not None and any(
+            getattr(s, views.summary_field, None) is not None for s in summaries
+        ):
+            scored += shown
+    return always, scored
 
 
 def _print_summary(summaries: list[Summary]) -> None:
     from replaybench.results.recorded_latency import replays_recording
-    from replaybench.tasks import all_metrics
 
-    specs = {m.name: m for m in all_metrics()}
-    boxes = [specs[name] for name in _BOX_METRICS]
-    # segmentation backends: their mIoU against the ground-truth masks
-    segmented = any(s.segmentation is not None for s in summaries)
-    masks = [specs[name] for name in _MASK_METRICS] if segmented else []
+    boxes, masks = _task_columns(summaries)
     header: tuple[str, ...] = (
         'backend',
         'topic',
@@ -179,11 +192,24 @@ def _run_until_stopped(config: RunConfig, progress: RunProgress) -> RunOutcome:
         return run_benchmark(config, progress=progress, stop=token, notice=progress.notice)
 
 
+def _task_lines(run: RunResult) -> list[str]:
+    """The lines each task prints after the table (``TaskViews.terminal_lines``: the tags'
+    size hints), in the tasks' order."""
+    from replaybench.tasks import get_task, load_view, task_names, task_views
+
+    lines: list[str] = []
+    for name in task_names():
+        task = get_task(name)
+        target = task_views(task).terminal_lines
+        if target is not None:
+            lines += load_view(task, target)(run)
+    return lines
+
+
 def _show_run(outcome: RunOutcome) -> int:
     """Print a finished run (the table, its warnings, the folder); its exit status."""
     from replaybench.backends.gpu import engine_lines
     from replaybench.report.recorded import recorded_latency_lines
-    from replaybench.results.tags import tag_lines
 
     _print_summary(outcome.summaries)
     for line, is_warning in recorded_latency_lines(outcome.summaries):
@@ -209,7 +235,7 @@ def _show_run(outcome: RunOutcome) -> int:
             )
     for line in engine_lines(outcome.run):
         echo(line)
-    for line in tag_lines(outcome.run):
+    for line in _task_lines(outcome.run):
         echo(line)
     assert outcome.run_dir is not None  # the command line always writes a folder
     report = outcome.run_dir / 'report.html'

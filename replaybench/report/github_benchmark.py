@@ -7,7 +7,8 @@ customSmallerIsBetter`` or ``customBiggerIsBetter``, a JSON array of
 
 - ``DIR/smaller_is_better.json``: per (backend, topic) the median, p99 and mean latency (ms);
 - ``DIR/bigger_is_better.json``: per (backend, topic) the throughput (frames/s) and, with ground
-  truth, mAP@0.5, recall@0.5 and precision@0.5.
+  truth, the tasks' tracked metrics (``MetricSpec.tracked``: the boxes' mAP@0.5, recall@0.5 and
+  precision@0.5), where the row has the task's summary.
 
 Names are ``<backend> <topic> <metric>``, the same for every run of the same backends and bag,
 so the action lines up the same series across commits. ``range`` is the half-width of the 95 %
@@ -25,6 +26,7 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from replaybench.results.model import RunResult, SummaryRow
+    from replaybench.tasks import MetricSpec
 
 __all__ = ['BIGGER_FILE', 'SMALLER_FILE', 'github_benchmark', 'write_github_benchmark']
 
@@ -36,7 +38,6 @@ _LATENCY = (
     ('p99 latency', 'latency_ms_p99', 'latency_ms_p99_ci_low', 'latency_ms_p99_ci_high'),
     ('mean latency', 'latency_ms_mean', None, None),
 )
-_ACCURACY = (('mAP@0.5', 'map50'), ('recall@0.5', 'recall50'), ('precision@0.5', 'precision50'))
 
 
 def _number(value: Any) -> float | None:
@@ -75,8 +76,22 @@ def _extra(run: RunResult, row: SummaryRow) -> str:
     return '; '.join(parts)
 
 
+def _tracked() -> list[tuple[str, MetricSpec]]:
+    """(the ``SummaryRow`` field of the task's summary, metric) of each task's tracked metric."""
+    from replaybench.tasks import get_task, task_names, task_views
+
+    tracked = []
+    for name in task_names():
+        task = get_task(name)
+        field = task_views(task).summary_field
+        if field is not None:
+            tracked += [(field, m) for m in task.metrics if m.tracked]
+    return tracked
+
+
 def github_benchmark(run: RunResult) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """(smaller is better, bigger is better) entries of ``run``'s summary rows."""
+    tracked = _tracked()
     smaller: list[dict[str, Any]] = []
     bigger: list[dict[str, Any]] = []
     for row in run.summary_rows:
@@ -90,11 +105,12 @@ def github_benchmark(run: RunResult) -> tuple[list[dict[str, Any]], list[dict[st
         if fps is not None:
             span = _range(row, 'throughput_fps_ci_low', 'throughput_fps_ci_high')
             bigger.append(_entry(f'{key} throughput', 'frames/s', fps, span, extra))
-        if row.accuracy is not None:
-            for label, field in _ACCURACY:
-                value = _number(getattr(row.accuracy, field))
-                if value is not None:
-                    bigger.append(_entry(f'{key} {label}', 'fraction', value, None, extra))
+        for field, metric in tracked:
+            if getattr(row, field, None) is None:
+                continue
+            value = _number(getattr(row, metric.name, None))
+            if value is not None:
+                bigger.append(_entry(f'{key} {metric.label}', 'fraction', value, None, extra))
     return smaller, bigger
 
 

@@ -2,8 +2,11 @@
 
 The page is put together here from its sections, each in its module: the header, warnings and
 cards (``cards``), the headline (``headline``), the Summary (``summary``), recorded latency
-(``recorded``), tag accuracy (``tags``), the charts (``plots``), agreement (``agreement``),
-resource use (``resources``), the samples (``gallery``) and the run's details (``details``).
+(``recorded``), the charts (``plots``), agreement (``agreement``), resource use
+(``resources``), the samples (``gallery``) and the run's details (``details``). Each registered
+task adds its parts (``taskviews``): its main figure and columns in the Summary, a panel under
+it (the boxes' average precision per class) and a section after the recorded latency (tag
+accuracy).
 """
 
 from __future__ import annotations
@@ -26,9 +29,9 @@ from replaybench.report.page import page_html
 from replaybench.report.plots import plots_html
 from replaybench.report.recorded import recorded_latency_html
 from replaybench.report.resources import resources_html
-from replaybench.report.summary import accuracy_details_html, summary_html
+from replaybench.report.summary import summary_html
 from replaybench.report.svg import colour
-from replaybench.report.tags import tag_accuracy_html
+from replaybench.report.taskviews import report_parts
 from replaybench.results.atomic import write_text_atomic
 from replaybench.results.folder import load_run
 from replaybench.results.intervals import with_intervals
@@ -90,6 +93,7 @@ def render_html(data: RunData) -> str:
     colours = {b: colour(i) for i, b in enumerate(backends)}
     topics = _topic_order(frames, rows)
     status = run.status
+    parts = report_parts()
     body = [
         header_html(run),
         banner_html(run, frames, rows),
@@ -100,10 +104,10 @@ def render_html(data: RunData) -> str:
         settings_html(run),
         '</div>',
         '<h2 id="summary">Summary</h2>',
-        summary_html(rows, colours),
-        accuracy_details_html(rows),
+        summary_html(rows, colours, parts),
+        *(panel(rows) for panel in parts.summary_panels),
         recorded_latency_html(rows, frames, colours),
-        tag_accuracy_html(rows),
+        *(section(rows) for section in parts.sections),
         plots_html(frames, rows, backends, topics, colours),
         agreement_html(run, colours),
         resources_html(run, colours),

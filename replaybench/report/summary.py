@@ -1,4 +1,5 @@
-"""report.html's Summary table, its intervals, and the average precision per class."""
+"""report.html's Summary table and its intervals; the tasks' main figures and columns in it
+come from the registered tasks (``replaybench.report.taskviews``)."""
 
 from __future__ import annotations
 
@@ -6,42 +7,18 @@ from typing import TYPE_CHECKING, Any
 
 from replaybench.report.formats import fmt, fmt_fps, fmt_ms, fmt_value
 from replaybench.report.markup import escaped
+from replaybench.report.taskviews import main_value
 from replaybench.results.numbers import finite_number
 from replaybench.results.recorded_latency import replays_recording
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
 
+    from replaybench.report.taskviews import ReportParts
     from replaybench.results.model import SummaryRow
 
-__all__ = ['accuracy_details_html', 'summary_html']
+__all__ = ['summary_html']
 
-
-def _accuracy_value(row: SummaryRow, key: str) -> float | None:
-    """A row's accuracy figure: from its full ``accuracy`` when it has one."""
-    value: float | None = getattr(row.accuracy if row.accuracy is not None else row, key)
-    return value
-
-
-def _map50(row: SummaryRow) -> float | None:
-    return _accuracy_value(row, 'map50')
-
-
-def _tag_recall(row: SummaryRow) -> float | None:
-    return row.tag_accuracy.recall if row.tag_accuracy is not None else row.tag_recall
-
-
-def _miou(row: SummaryRow) -> float | None:
-    return row.miou
-
-
-#: The main accuracy figure of each task, the one a reader looks for first: boxes' mAP@0.5,
-#: tags' recall, masks' mIoU (title, figure of a row).
-_MAIN_ACCURACY: tuple[tuple[str, Callable[[SummaryRow], float | None]], ...] = (
-    ('mAP@0.5', _map50),
-    ('tag recall', _tag_recall),
-    ('mIoU', _miou),
-)
 
 _RECORDED_TIP = (
     "recorded: the robot's node, from the bag (output rate; pipeline latency, output log time "
@@ -90,16 +67,21 @@ def _topic_html(topic: str) -> str:
     return f'<code>{escaped(topic).replace("/", "/<wbr>")}</code>'
 
 
-def summary_html(rows: Sequence[SummaryRow], colours: Mapping[str, str]) -> str:
-    """The figures read first (frames, drops, FPS, p50, p99, the task's main accuracy), narrow
-    enough for a laptop's screen; the others in a table that opens below it."""
-    accuracy = any(r.accuracy is not None or r.map50 is not None for r in rows)
-    main = [(t, get) for t, get in _MAIN_ACCURACY if any(get(r) is not None for r in rows)]
+def summary_html(rows: Sequence[SummaryRow], colours: Mapping[str, str], parts: ReportParts) -> str:
+    """The figures read first (frames, drops, FPS, p50, p99, each task's main figure where a
+    row has it), narrow enough for a laptop's screen; the others, the tasks' columns among
+    them, in a table that opens below it."""
+    main = [m for m in parts.main if any(main_value(r, m) is not None for r in rows)]
     head = ['backend', 'topic', 'measured', 'dropped', 'FPS', 'p50 ms', 'p99 ms']
-    head += [title for title, _ in main]
+    head += [m.short_label for m in main]
     more_head = ['backend', 'topic', 'skipped', 'p95 ms', 'max ms', 'jitter ms', 'det/frame']
-    if accuracy:
-        more_head += ['P@0.5', 'R@0.5', 'mAP@0.5:0.95']
+    task_cells: list[list[str]] = [[] for _ in rows]
+    for columns in parts.more_columns:
+        headings, cells = columns(rows)
+        if headings:
+            more_head += headings
+            for mine, texts in zip(task_cells, cells, strict=True):
+                mine += texts
 
     def th(names: Sequence[str]) -> str:
         return ''.join(
@@ -108,7 +90,7 @@ def summary_html(rows: Sequence[SummaryRow], colours: Mapping[str, str]) -> str:
         )
 
     body, more = [], []
-    for row in rows:
+    for row, task_texts in zip(rows, task_cells, strict=True):
         backend = row.backend or '?'
         swatch = f'<span class="swatch" style="background:{colours.get(backend, "#777")}"></span>'
         where = [
@@ -120,7 +102,7 @@ def summary_html(rows: Sequence[SummaryRow], colours: Mapping[str, str]) -> str:
             f'<td class="n">{escaped(fmt_value(row.measured))}</td>',
             f'<td class="n">{escaped(fmt_value(row.dropped))}</td>',
             *_speed_cells(row),
-            *(f'<td class="n">{escaped(fmt(get(row), 3))}</td>' for _, get in main),
+            *(f'<td class="n">{escaped(fmt(main_value(row, m), 3))}</td>' for m in main),
         ]
         body.append(f'<tr>{"".join(cells)}</tr>')
         recorded = replays_recording(row)
@@ -132,12 +114,8 @@ def summary_html(rows: Sequence[SummaryRow], colours: Mapping[str, str]) -> str:
                 for v in (row.latency_ms_p95, row.latency_ms_max, row.jitter_ms)
             ),
             f'<td class="n">{escaped(fmt(row.detections_per_frame))}</td>',
+            *(f'<td class="n">{escaped(text)}</td>' for text in task_texts),
         ]
-        if accuracy:
-            extra.extend(
-                f'<td class="n">{escaped(fmt(_accuracy_value(row, key), 3))}</td>'
-                for key in ('precision50', 'recall50', 'map50_95')
-            )
         more.append(f'<tr>{"".join(extra)}</tr>')
     notes = (
         'Statistics cover measured frames only (processed, after warm-up). '
@@ -171,35 +149,3 @@ def _with_ci(
     if finite_number(low) is not None and finite_number(high) is not None:
         cell += f'<br><span class="muted ci">{escaped(fmt(low))}–{escaped(fmt(high))}</span>'
     return cell + '</td>'
-
-
-def accuracy_details_html(rows: Sequence[SummaryRow]) -> str:
-    parts = []
-    for row in rows:
-        acc = row.accuracy
-        if acc is None or (not acc.ap50 and not acc.ap50_95):
-            continue
-        ap50, ap50_95 = acc.ap50, acc.ap50_95
-        labels = sorted(set(ap50) | set(ap50_95))
-        body = ''.join(
-            f'<tr><td>{escaped(label)}</td><td class="n">{escaped(fmt(ap50.get(label), 3))}</td>'
-            f'<td class="n">{escaped(fmt(ap50_95.get(label), 3))}</td></tr>'
-            for label in labels
-        )
-        counts = ', '.join(
-            f'{name} {value}'
-            for name, value in (('frames', acc.frames), ('n_gt', acc.n_gt), ('n_det', acc.n_det))
-            if value is not None
-        )
-        parts.append(
-            f'<h3>{escaped(row.backend or "?")} · <code>{escaped(row.topic or "?")}</code></h3>'
-            + (f'<p class="muted">{escaped(counts)}</p>' if counts else '')
-            + '<table><thead><tr><th>class</th><th class="n">AP@0.5</th>'
-            f'<th class="n">AP@0.5:0.95</th></tr></thead><tbody>{body}</tbody></table>',
-        )
-    if not parts:
-        return ''
-    return '<details><summary>Average precision per class</summary>' + ''.join(parts) + '</details>'
-
-
-# --------------------------------------------------------------------------- plots

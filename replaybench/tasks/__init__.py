@@ -5,16 +5,19 @@ nothing of a task is imported before it is needed. Third-party packages register
 in the ``replaybench.tasks`` entry-point group; the entry point's name is the task's name.
 Each task holds its metric specs (``MetricSpec``); ``all_metrics`` gives them with the metrics
 of every task (``COMMON_METRICS``), which compare, its gate, the sweep and the terminal read.
+A task's views (``TaskViews``: its report panels, its columns and lines on the terminal) are
+``'module:attr'`` strings too, imported by ``load_view`` when the report or the terminal shows
+them.
 """
 
 from __future__ import annotations
 
 import importlib
 import re
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import TaskUnavailableError, UsageError
-from replaybench.tasks.base import MetricSpec, Task
+from replaybench.tasks.base import MetricSpec, Task, TaskViews
 from replaybench.tasks.common import COMMON_METRICS
 
 if TYPE_CHECKING:
@@ -26,9 +29,12 @@ __all__ = [
     'TASKS',
     'MetricSpec',
     'Task',
+    'TaskViews',
     'all_metrics',
     'get_task',
+    'load_view',
     'task_names',
+    'task_views',
 ]
 
 ENTRY_POINT_GROUP = 'replaybench.tasks'
@@ -136,3 +142,37 @@ def all_metrics() -> tuple[MetricSpec, ...]:
                 raise TaskUnavailableError(msg)
             owner[known] = where
     return tuple(spec for _, spec in declared)
+
+
+_NO_VIEWS = TaskViews()
+
+
+def task_views(task: Task) -> TaskViews:
+    """``task``'s views; none (``TaskViews()``) for a task without a ``views`` attribute.
+
+    ``TaskUnavailableError`` when ``views`` is there but no ``TaskViews``, or names a terminal
+    metric that is not one of the task's metrics with a ``terminal_label``.
+    """
+    views = getattr(task, 'views', _NO_VIEWS)
+    if not isinstance(views, TaskViews):
+        msg = f'task {task.name!r}: views must be a TaskViews, not {type(views).__name__}'
+        raise TaskUnavailableError(msg)
+    labelled = {m.name for m in task.metrics if m.terminal_label is not None}
+    for name in views.terminal_metrics:
+        if name not in labelled:
+            msg = f'task {task.name!r}: terminal metric {name!r} is no metric of it with a label'
+            raise TaskUnavailableError(msg)
+    return views
+
+
+def load_view(task: Task, target: str) -> Any:
+    """The object a view's ``'module:attr'`` string names, imported now.
+
+    ``TaskUnavailableError`` naming the task and the target when it cannot be imported.
+    """
+    module_name, _, attr = target.partition(':')
+    try:
+        return getattr(importlib.import_module(module_name), attr)
+    except Exception as exc:  # any import failure makes the view unavailable
+        msg = f'task {task.name!r}: cannot import view {target}: {type(exc).__name__}: {exc}'
+        raise TaskUnavailableError(msg) from exc

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, Protocol, runtime_checkable
 
-__all__ = ['Better', 'MetricKind', 'MetricSpec', 'Task']
+__all__ = ['Better', 'MetricKind', 'MetricSpec', 'Task', 'TaskViews', 'TerminalColumns']
 
 #: ``timing``: a latency or a rate of the replay, compared as a ratio with an interval;
 #: ``recorded``: the latency a recording's outputs had on the robot, compared as timings are;
@@ -19,6 +19,10 @@ __all__ = ['Better', 'MetricKind', 'MetricSpec', 'Task']
 MetricKind = Literal['timing', 'recorded', 'accuracy']
 #: Which way the metric improves.
 Better = Literal['higher', 'lower']
+#: Where ``replaybench run``'s table shows a task's metrics (those with a ``terminal_label``):
+#: ``always``: for every row, before the memory column (every backend has boxes);
+#: ``scored``: after the memory column, and only where a row has the task's summary.
+TerminalColumns = Literal['always', 'scored']
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,6 +59,8 @@ class MetricSpec:
     terminal_label: str | None = None
     #: digits after the point in the terminal's tables
     terminal_digits: int = 3
+    #: ``report --github-benchmark`` tracks it (bigger_is_better.json, unit ``fraction``)
+    tracked: bool = False
 
     @property
     def accuracy(self) -> bool:
@@ -65,6 +71,33 @@ class MetricSpec:
         """``value`` as the gate's lines write it: ``0.9120``, ``12.5 ms``."""
         unit = f' {self.unit}' if self.unit else ''
         return f'{value:{self.fmt}}{unit}'
+
+
+@dataclass(frozen=True, slots=True)
+class TaskViews:
+    """How a task shows on report.html and the terminal, beside its metrics' specs.
+
+    Each view is a ``'module:attr'`` string, imported when it is shown (the report, the end of a
+    run), never with the task; None where the task has no such view. A task without a
+    ``views`` attribute has none (``replaybench.tasks.task_views``).
+    """
+
+    #: the ``SummaryRow`` field holding a row's full summary of the task (``accuracy``,
+    #: ``tag_accuracy``, ``segmentation``): a row is the task's where it is not None
+    summary_field: str | None = None
+    #: ``(rows) -> str``: HTML right under report.html's Summary table ('' for none)
+    summary_panel: str | None = None
+    #: ``(rows) -> (headings, cells)``: the task's columns of the Summary's "More figures"
+    #: table, one tuple of texts per row (no headings: none shown)
+    more_columns: str | None = None
+    #: ``(rows) -> str``: the task's section of report.html, after the recorded latency
+    section_panel: str | None = None
+    #: ``(run) -> list[str]``: lines ``replaybench run`` prints after its table
+    terminal_lines: str | None = None
+    #: the task's metrics in ``replaybench run``'s table, in its order (each has a
+    #: ``terminal_label``), and where they go
+    terminal_metrics: tuple[str, ...] = ()
+    terminal: TerminalColumns = 'scored'
 
 
 @runtime_checkable

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from replaybench.tasks.base import MetricSpec
+from replaybench.tasks.base import MetricSpec, TaskViews
 
 __all__ = ['TASK', 'DetectionsTask']
 
@@ -23,9 +23,16 @@ class DetectionsTask:
             main=True,
             appended=False,
             terminal_label='mAP@.5',
+            tracked=True,
         ),
         MetricSpec(
-            'recall50', 'recall@0.5', 'R@0.5', 'higher', appended=False, terminal_label='R@.5'
+            'recall50',
+            'recall@0.5',
+            'R@0.5',
+            'higher',
+            appended=False,
+            terminal_label='R@.5',
+            tracked=True,
         ),
         MetricSpec(
             'precision50',
@@ -34,7 +41,16 @@ class DetectionsTask:
             'higher',
             appended=False,
             terminal_label='P@.5',
+            tracked=True,
         ),
+    )
+    #: the report's parts live in the report layer (report/detections.py), imported there
+    views: ClassVar[TaskViews] = TaskViews(
+        summary_field='accuracy',
+        summary_panel='replaybench.report.detections:accuracy_details_html',
+        more_columns='replaybench.report.detections:more_columns',
+        terminal_metrics=('precision50', 'recall50', 'map50'),
+        terminal='always',
     )
 
 

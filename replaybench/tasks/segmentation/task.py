@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from replaybench.tasks.base import MetricSpec
+from replaybench.tasks.base import MetricSpec, TaskViews
 
 __all__ = ['TASK', 'SegmentationTask']
 
@@ -26,6 +26,7 @@ class SegmentationTask:
         ),
         MetricSpec('pixel_accuracy', 'pixel accuracy', 'pixel acc.', 'higher', appended=False),
     )
+    views: ClassVar[TaskViews] = TaskViews(summary_field='segmentation', terminal_metrics=('miou',))
 
 
 TASK = SegmentationTask()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from replaybench.tasks.base import MetricSpec
+from replaybench.tasks.base import MetricSpec, TaskViews
 
 __all__ = ['TASK', 'TagsTask']
 
@@ -21,6 +21,13 @@ class TagsTask:
         MetricSpec('tag_trans_err_m', 'tag translation error (m)', 'trans m', 'lower'),
         MetricSpec('tag_trans_err_pct', 'tag translation error (% of range)', 'trans %', 'lower'),
         MetricSpec('tag_rot_err_deg', 'tag rotation error (deg)', 'rot deg', 'lower', sweep=True),
+    )
+    #: the report's section lives in the report layer (report/tags.py), the terminal's lines
+    #: beside the tag scoring (results/tags.py); both imported where shown
+    views: ClassVar[TaskViews] = TaskViews(
+        summary_field='tag_accuracy',
+        section_panel='replaybench.report.tags:tag_accuracy_html',
+        terminal_lines='replaybench.results.tags:tag_lines',
     )
 
 

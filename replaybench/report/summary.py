@@ -77,10 +77,10 @@ def summary_html(rows: Sequence[SummaryRow], colours: Mapping[str, str], parts: 
     more_head = ['backend', 'topic', 'skipped', 'p95 ms', 'max ms', 'jitter ms', 'det/frame']
     task_cells: list[list[str]] = [[] for _ in rows]
     for columns in parts.more_columns:
-        headings, cells = columns(rows)
+        headings, by_row = columns(rows)
         if headings:
             more_head += headings
-            for mine, texts in zip(task_cells, cells, strict=True):
+            for mine, texts in zip(task_cells, by_row, strict=True):
                 mine += texts
 
     def th(names: Sequence[str]) -> str:

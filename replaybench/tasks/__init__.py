@@ -5,16 +5,19 @@ nothing of a task is imported before it is needed. Third-party packages register
 in the ``replaybench.tasks`` entry-point group; the entry point's name is the task's name.
 Each task holds its metric specs (``MetricSpec``); ``all_metrics`` gives them with the metrics
 of every task (``COMMON_METRICS``), which compare, its gate, the sweep and the terminal read.
+Each task also declares the recorded outputs the ``recorded`` backend reads of it
+(``Task.recorded_readers``; ``replaybench.replay.recorded.RECORDED_READERS`` gathers them).
 """
 
 from __future__ import annotations
 
 import importlib
 import re
+from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 from replaybench.errors import TaskUnavailableError, UsageError
-from replaybench.tasks.base import MetricSpec, Task
+from replaybench.tasks.base import LazyMapping, MetricSpec, Task
 from replaybench.tasks.common import COMMON_METRICS
 
 if TYPE_CHECKING:
@@ -24,6 +27,7 @@ __all__ = [
     'COMMON_METRICS',
     'ENTRY_POINT_GROUP',
     'TASKS',
+    'LazyMapping',
     'MetricSpec',
     'Task',
     'all_metrics',
@@ -76,7 +80,8 @@ def task_names() -> list[str]:
 
 def _check(name: str, obj: object, target: str) -> Task:
     if not isinstance(obj, Task):
-        msg = f'task {name!r}: {target} is not a task (it needs a name and metrics)'
+        needs = 'a name, metrics and recorded_readers'
+        msg = f'task {name!r}: {target} is not a task (it needs {needs})'
         raise TaskUnavailableError(msg)
     if obj.name != name:
         msg = f'task {name!r}: {target} declares name {obj.name!r}; it must equal {name!r}'
@@ -84,6 +89,9 @@ def _check(name: str, obj: object, target: str) -> Task:
     metrics = obj.metrics
     if not isinstance(metrics, tuple) or not all(isinstance(m, MetricSpec) for m in metrics):
         msg = f'task {name!r}: {target}: metrics must be a tuple of MetricSpec'
+        raise TaskUnavailableError(msg)
+    if not isinstance(obj.recorded_readers, Mapping):
+        msg = f'task {name!r}: {target}: recorded_readers must be a mapping (empty for none)'
         raise TaskUnavailableError(msg)
     return obj
 

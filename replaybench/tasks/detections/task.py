@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
-from replaybench.tasks.base import MetricSpec
+from replaybench.tasks.base import LazyMapping, MetricSpec
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from replaybench.decode.recorded import OutputReader
 
 __all__ = ['TASK', 'DetectionsTask']
 
@@ -35,6 +40,11 @@ class DetectionsTask:
             appended=False,
             terminal_label='P@.5',
         ),
+    )
+
+    #: ``replaybench.tasks.detections.recorded``, imported when the ``recorded`` backend reads it
+    recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(
+        'replaybench.tasks.detections.recorded:READERS'
     )
 
 

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
-from replaybench.tasks.base import MetricSpec
+from replaybench.tasks.base import LazyMapping, MetricSpec
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from replaybench.decode.recorded import OutputReader
 
 __all__ = ['TASK', 'SegmentationTask']
 
@@ -25,6 +30,11 @@ class SegmentationTask:
             terminal_label='mIoU',
         ),
         MetricSpec('pixel_accuracy', 'pixel accuracy', 'pixel acc.', 'higher', appended=False),
+    )
+
+    #: ``replaybench.tasks.segmentation.recorded``, imported when the ``recorded`` backend reads it
+    recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(
+        'replaybench.tasks.segmentation.recorded:READERS'
     )
 
 

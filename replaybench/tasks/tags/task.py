@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
-from replaybench.tasks.base import MetricSpec
+from replaybench.tasks.base import LazyMapping, MetricSpec
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from replaybench.decode.recorded import OutputReader
 
 __all__ = ['TASK', 'TagsTask']
 
@@ -21,6 +26,11 @@ class TagsTask:
         MetricSpec('tag_trans_err_m', 'tag translation error (m)', 'trans m', 'lower'),
         MetricSpec('tag_trans_err_pct', 'tag translation error (% of range)', 'trans %', 'lower'),
         MetricSpec('tag_rot_err_deg', 'tag rotation error (deg)', 'rot deg', 'lower', sweep=True),
+    )
+
+    #: ``replaybench.tasks.tags.recorded``, imported when the ``recorded`` backend reads it
+    recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(
+        'replaybench.tasks.tags.recorded:READERS'
     )
 
 

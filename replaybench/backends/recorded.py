@@ -1,8 +1,8 @@
 """The ``recorded`` backend: outputs a robot already recorded in the bag, scored like a backend.
 
 It runs nothing: for each replayed image it returns the output recorded on the chosen topic with
-the same frame_id and header stamp, read by the topic's type
-(``replaybench.replay.recorded.RECORDED_READERS``): a Detection2DArray's boxes, an
+the same frame_id and header stamp, read by the topic's type (the tasks' readers,
+``replaybench.replay.recorded.RECORDED_READERS``): a Detection2DArray's boxes, an
 AprilTagDetectionArray's tags (a ``TagResult``, as the tag backends return it) or a label-mask
 Image's mask (as a segmentation backend returns it). A frame without such a message gets its
 reader's ``missing`` result: no detections, no tags (both scored as misses), no mask (not
@@ -32,12 +32,6 @@ __all__ = ['RecordedBackend']
 
 _NO_STAGES = StageTimes()
 _NOTHING = BackendResult((), _NO_STAGES)
-#: Who made a task's outputs on the robot (the ``latency`` line of ``info``).
-_PRODUCERS: dict[str, str] = {
-    'detections': 'the detector',
-    'tags': 'the tag detector',
-    'segmentation': 'the segmentation node',
-}
 
 
 class RecordedBackend:
@@ -101,8 +95,9 @@ class RecordedBackend:
         return found.result
 
     def info(self) -> dict[str, Any]:
-        tasks = sorted({r.task for r in self._readers.values()}) or ['detections']
-        made_by = ' and '.join(_PRODUCERS.get(task, 'the node') for task in tasks)
+        # who made the outputs on the robot, one per task (by the task's name)
+        producers = {r.task: r.producer for r in self._readers.values()}
+        made_by = ' and '.join(producers[task] for task in sorted(producers)) or 'the detector'
         return {
             'topic': self.topic,
             'messages': len(self._table),

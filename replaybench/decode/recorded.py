@@ -1,18 +1,11 @@
 """Perception outputs recorded in a bag (what the robot's own nodes published): how one is read.
 
 The ``recorded`` backend replays a recorded output topic as if a backend had produced it. Which
-message types it reads is one table, ``replaybench.replay.recorded.RECORDED_READERS``: a message
-type (ROS 2 spelling, ``vision_msgs/msg/Detection2DArray``) -> an ``OutputReader``. This module
-holds the reader's parts and two of the readers:
-
-* ``read_detection2d_array`` (task ``detections``): a Detection2DArray's boxes, as a detector
-  returns them;
-* ``read_label_mask`` (task ``segmentation``): a ``mono8`` (or ``mono16`` with ids up to 255)
-  Image of class ids, as the ``BackendResult.mask`` of a segmentation backend; an Image that is
-  not a label mask (``rgb8``, a ``16UC1`` depth image) is refused with a ``UsageError``.
-
-The tags' reader (AprilTagDetectionArray -> ``TagResult``) is
-``replaybench.fiducials.recorded.read_tag_array_output``. An ``OutputReader`` provides:
+message types it reads, each task declares (``Task.recorded_readers``: a message type in ROS 2
+spelling, ``vision_msgs/msg/Detection2DArray``, -> an ``OutputReader``; the readers are in
+``replaybench/tasks/<task>/recorded.py``); ``replaybench.replay.recorded.RECORDED_READERS``
+gathers them from the registered tasks. This module holds what every reader shares. An
+``OutputReader`` provides:
 
 * ``task``: the task type the output belongs to (``'detections'``); ``outputs``: what its
   messages hold, in notes and errors (``'detections'``, ``'tags'``, ``'masks'``);
@@ -24,7 +17,11 @@ The tags' reader (AprilTagDetectionArray -> ``TagResult``) is
   the only such topic besides the ground truth (False for types also used for other data, such
   as ``sensor_msgs/msg/Image``, which camera topics use too);
 * ``missing``: what a frame without a recorded output gets (no detections, an empty
-  ``TagResult`` so the frame counts against tag recall; no mask, so the frame is not scored).
+  ``TagResult`` so the frame counts against tag recall; no mask, so the frame is not scored);
+* ``unusable``: what the values ``read`` leaves out are, in the input's notes;
+* ``producer``: who made the outputs on the robot (the ``latency`` line of the backend's info);
+* ``scores_boxes``: whether a frame's boxes are scored against box ground truth (not those of
+  recorded masks: a frame without its mask has no boxes either).
 
 ``read_recorded_outputs`` reads a topic through its reader into a table keyed by (frame_id,
 stamp_ns), keeping each output's log time: the time the recorder logged it, from which
@@ -36,9 +33,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from replaybench.decode.detections import decode_detections
-from replaybench.errors import DecodeError, UsageError
-from replaybench.types import BackendResult, LabelMask
+from replaybench.errors import DecodeError
+from replaybench.types import BackendResult
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -46,15 +42,7 @@ if TYPE_CHECKING:
     from replaybench.decode.kinds import MessageSource
     from replaybench.types import RawMessage
 
-__all__ = [
-    'MASK_ENCODINGS',
-    'OutputReader',
-    'RecordedMessage',
-    'RecordedOutput',
-    'read_detection2d_array',
-    'read_label_mask',
-    'read_recorded_outputs',
-]
+__all__ = ['OutputReader', 'RecordedMessage', 'RecordedOutput', 'read_recorded_outputs']
 
 _NOTHING = BackendResult(())
 
@@ -90,47 +78,17 @@ class OutputReader:
     outputs: str = ''
     #: the result of a frame without a recorded output
     missing: BackendResult = _NOTHING
+    #: what the values ``read`` leaves out are (``RecordedMessage.left_out``), in notes
+    unusable: str = 'unusable value(s)'
+    #: who made the outputs on the robot, in the ``latency`` line of the backend's info
+    producer: str = 'the node'
+    #: whether a frame's boxes are scored against box ground truth
+    scores_boxes: bool = True
 
     @property
     def noun(self) -> str:
         """What the outputs are called: ``outputs``, else the task's name."""
         return self.outputs or self.task
-
-
-def read_detection2d_array(raw: RawMessage) -> RecordedMessage:
-    found = decode_detections(raw)
-    return RecordedMessage(
-        found.frame_id, found.stamp_ns, BackendResult(found.detections), found.nonfinite
-    )
-
-
-#: Image encodings read as label masks (as ``decode_image`` names them).
-MASK_ENCODINGS = ('mono8', 'mono16')
-
-
-def read_label_mask(raw: RawMessage) -> RecordedMessage:
-    """A mono8 / mono16 Image of class ids as a segmentation backend's mask (class names are
-    not recorded: ids stand for them). ``UsageError`` for an image that is not a label mask,
-    ``DecodeError`` for a mono16 mask with an id above 255. The masks of the topic are held for
-    the run, one ``H x W`` byte array each, as a pass holds its backends' masks."""
-    import numpy as np
-
-    from replaybench.decode.image import decode_image
-
-    frame = decode_image(raw)
-    if frame.encoding not in MASK_ENCODINGS or frame.is_depth:
-        msg = (
-            f'{raw.topic} holds {frame.source_encoding} images, not label masks (mono8 or mono16 '
-            'class ids): the recorded backend reads an Image topic as label masks'
-        )
-        raise UsageError(msg)
-    image = frame.image.reshape(frame.height, frame.width)
-    if frame.encoding == 'mono16' and image.size and int(image.max()) > 255:
-        msg = f'a mask with class id {int(image.max())}: ids above 255 are not read'
-        raise DecodeError(msg)
-    labels = np.array(image, dtype=np.uint8, order='C')
-    mask = LabelMask(labels, ())
-    return RecordedMessage(frame.frame_id, frame.stamp_ns, BackendResult((), mask=mask))
 
 
 def read_recorded_outputs(
@@ -158,12 +116,7 @@ def read_recorded_outputs(
             left_out += found.left_out
             with_left_out += 1
     if notes is not None and left_out:
-        if reader.task == 'detections':
-            what = f'{left_out} detection(s) with a NaN or infinite box or score'
-        elif reader.task == 'tags':
-            what = f'{left_out} tag(s) with a NaN or infinite corner'
-        else:
-            what = f'{left_out} unusable value(s)'
+        what = f'{left_out} {reader.unusable}'
         notes.append(f'{topic}: left out {what} in {with_left_out} message(s)')
     if notes is not None and skipped:
         notes.append(f'{topic}: {skipped} recorded message(s) could not be read: {first_error}')

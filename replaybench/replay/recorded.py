@@ -1,10 +1,11 @@
 """The runner's side of recorded outputs: which message types the ``recorded`` backend reads
-(``RECORDED_READERS``), which topic it replays, its outputs read by type (the readers of
-``replaybench.decode.recorded`` and ``replaybench.fiducials.recorded``), and each frame's
+(``RECORDED_READERS``), which topic it replays, its outputs read by type, and each frame's
 recorded latency (``replaybench.results.recorded_latency``).
 
 ``RECORDED_READERS`` maps a message type (ROS 2 spelling) to its ``OutputReader``
-(``replaybench.decode.recorded`` says what an entry provides); three types are read:
+(``replaybench.decode.recorded`` says what an entry provides), gathered from the registered
+tasks' ``recorded_readers`` (``replaybench/tasks/<task>/recorded.py``) when first read, so that
+a run without the ``recorded`` backend imports none of them. The built-in tasks read three:
 
 * ``vision_msgs/msg/Detection2DArray`` (task ``detections``): the boxes;
 * ``isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray`` (task ``tags``): a ``TagResult``
@@ -15,21 +16,15 @@ recorded latency (``replaybench.results.recorded_latency``).
 
 from __future__ import annotations
 
+from collections.abc import MutableMapping
 from typing import TYPE_CHECKING, NamedTuple, TypeVar
 
-from replaybench.decode.recorded import (
-    OutputReader,
-    read_detection2d_array,
-    read_label_mask,
-    read_recorded_outputs,
-)
-from replaybench.errors import UsageError
-from replaybench.fiducials.recorded import read_tag_array_output
-from replaybench.fiducials.types import TagResult
+from replaybench.decode.recorded import OutputReader, read_recorded_outputs
+from replaybench.errors import TaskUnavailableError, UsageError
 from replaybench.results.recorded_latency import RecordedTimes, recorded_times
 
 if TYPE_CHECKING:
-    from collections.abc import Collection, Mapping, Sequence
+    from collections.abc import Collection, Iterator, Mapping, Sequence
     from pathlib import Path
 
     from replaybench.decode.recorded import RecordedOutput
@@ -47,6 +42,7 @@ __all__ = [
     'readable_types',
     'recorded_candidates',
     'recorded_note',
+    'task_readers',
     'without_recorded',
 ]
 
@@ -56,16 +52,60 @@ _T = TypeVar('_T')
 NOT_RECORDED = RecordedTimes(None, None, None)
 
 
-#: message type (ROS 2 spelling) -> its reader. Adding a task's recorded output is one entry.
-RECORDED_READERS: Mapping[str, OutputReader] = {
-    'vision_msgs/msg/Detection2DArray': OutputReader('detections', read_detection2d_array),
-    'isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray': OutputReader(
-        'tags', read_tag_array_output, missing=TagResult(())
-    ),
-    'sensor_msgs/msg/Image': OutputReader(
-        'segmentation', read_label_mask, candidate=False, outputs='masks'
-    ),
-}
+def task_readers() -> dict[str, OutputReader]:
+    """Every registered task's recorded readers, by message type, in the registry's order;
+    ``TaskUnavailableError`` when two tasks declare the same message type or an entry is not
+    an ``OutputReader``."""
+    from replaybench.tasks import get_task, task_names
+
+    readers: dict[str, OutputReader] = {}
+    owners: dict[str, str] = {}
+    for name in task_names():
+        for msgtype, reader in get_task(name).recorded_readers.items():
+            if msgtype in owners:
+                msg = (
+                    f'task {name!r}: recorded message type {msgtype} is read by task '
+                    f'{owners[msgtype]!r} already'
+                )
+                raise TaskUnavailableError(msg)
+            if not isinstance(reader, OutputReader):
+                msg = f'task {name!r}: the recorded reader of {msgtype} is not an OutputReader'
+                raise TaskUnavailableError(msg)
+            readers[msgtype] = reader
+            owners[msgtype] = name
+    return readers
+
+
+class _RecordedReaders(MutableMapping[str, OutputReader]):
+    """``RECORDED_READERS``: the tasks' readers (``task_readers``), gathered when first read."""
+
+    def __init__(self) -> None:
+        self._table: dict[str, OutputReader] | None = None
+
+    def _readers(self) -> dict[str, OutputReader]:
+        if self._table is None:
+            self._table = task_readers()
+        return self._table
+
+    def __getitem__(self, msgtype: str) -> OutputReader:
+        return self._readers()[msgtype]
+
+    def __setitem__(self, msgtype: str, reader: OutputReader) -> None:
+        self._readers()[msgtype] = reader
+
+    def __delitem__(self, msgtype: str) -> None:
+        del self._readers()[msgtype]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._readers())
+
+    def __len__(self) -> int:
+        return len(self._readers())
+
+
+#: message type (ROS 2 spelling) -> its reader, from the registered tasks' ``recorded_readers``
+#: (read on first use). A task's recorded output is one entry of its ``recorded_readers``.
+RECORDED_READERS: MutableMapping[str, OutputReader] = _RecordedReaders()
 
 
 def readable_types() -> str:
@@ -168,9 +208,10 @@ def without_recorded(path: Path, topics: list[_T], recorded_topic: str) -> list[
 
 def boxes_scored(reader: OutputReader | None, timed: bool) -> bool:
     """Whether a frame's boxes are scored against box ground truth: not for a backend replaying
-    recorded masks (a frame without its mask has no boxes either: it is left unscored, as a
-    segmentation backend's frames are)."""
-    return timed or reader is None or reader.task != 'segmentation'
+    recorded outputs whose reader says they are not (``OutputReader.scores_boxes``: masks; a
+    frame without its mask has no boxes either: it is left unscored, as a segmentation
+    backend's frames are)."""
+    return timed or reader is None or reader.scores_boxes
 
 
 def frame_recorded_times(

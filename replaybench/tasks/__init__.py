@@ -8,16 +8,19 @@ of every task (``COMMON_METRICS``), which compare, its gate, the sweep and the t
 A task's views (``TaskViews``: its report panels, its columns and lines on the terminal) are
 ``'module:attr'`` strings too, imported by ``load_view`` when the report or the terminal shows
 them.
+Each task also declares the recorded outputs the ``recorded`` backend reads of it
+(``Task.recorded_readers``; ``replaybench.replay.recorded.RECORDED_READERS`` gathers them).
 """
 
 from __future__ import annotations
 
 import importlib
 import re
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import TaskUnavailableError, UsageError
-from replaybench.tasks.base import MetricSpec, Task, TaskViews
+from replaybench.tasks.base import LazyMapping, MetricSpec, Task, TaskViews
 from replaybench.tasks.common import COMMON_METRICS
 
 if TYPE_CHECKING:
@@ -27,6 +30,7 @@ __all__ = [
     'COMMON_METRICS',
     'ENTRY_POINT_GROUP',
     'TASKS',
+    'LazyMapping',
     'MetricSpec',
     'Task',
     'TaskViews',
@@ -82,7 +86,8 @@ def task_names() -> list[str]:
 
 def _check(name: str, obj: object, target: str) -> Task:
     if not isinstance(obj, Task):
-        msg = f'task {name!r}: {target} is not a task (it needs a name and metrics)'
+        needs = 'a name, metrics and recorded_readers'
+        msg = f'task {name!r}: {target} is not a task (it needs {needs})'
         raise TaskUnavailableError(msg)
     if obj.name != name:
         msg = f'task {name!r}: {target} declares name {obj.name!r}; it must equal {name!r}'
@@ -90,6 +95,9 @@ def _check(name: str, obj: object, target: str) -> Task:
     metrics = obj.metrics
     if not isinstance(metrics, tuple) or not all(isinstance(m, MetricSpec) for m in metrics):
         msg = f'task {name!r}: {target}: metrics must be a tuple of MetricSpec'
+        raise TaskUnavailableError(msg)
+    if not isinstance(obj.recorded_readers, Mapping):
+        msg = f'task {name!r}: {target}: recorded_readers must be a mapping (empty for none)'
         raise TaskUnavailableError(msg)
     return obj
 

@@ -1,4 +1,5 @@
-"""What a task type is to the rest of replaybench: its name and the metrics it is judged on.
+"""What a task type is to the rest of replaybench: its name, the metrics it is judged on and
+the recorded outputs of it that the ``recorded`` backend reads.
 
 A metric's name, labels, unit, number format, better direction and the tables that show it
 live in one ``MetricSpec``; compare, its gate, comparison.html/.csv/.json, the sweep and the
@@ -8,10 +9,25 @@ from ``COMMON_METRICS`` (``replaybench.tasks.common``) instead of keeping lists 
 
 from __future__ import annotations
 
+import importlib
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import Literal, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Literal, Protocol, TypeVar, runtime_checkable
 
-__all__ = ['Better', 'MetricKind', 'MetricSpec', 'Task', 'TaskViews', 'TerminalColumns']
+if TYPE_CHECKING:
+    from replaybench.decode.recorded import OutputReader
+
+__all__ = [
+    'Better',
+    'LazyMapping',
+    'MetricKind',
+    'MetricSpec',
+    'Task',
+    'TaskViews',
+    'TerminalColumns',
+]
+
+_V = TypeVar('_V')
 
 #: ``timing``: a latency or a rate of the replay, compared as a ratio with an interval;
 #: ``recorded``: the latency a recording's outputs had on the robot, compared as timings are;
@@ -100,6 +116,36 @@ class TaskViews:
     terminal: TerminalColumns = 'scored'
 
 
+class LazyMapping(Mapping[str, _V]):
+    """A mapping held in another module (``'module:attr'``), imported when first read: a task
+    declares its recorded readers so, and nothing of them is imported before they are used."""
+
+    __slots__ = ('_table', 'target')
+
+    def __init__(self, target: str) -> None:
+        self.target = target
+        self._table: Mapping[str, _V] | None = None
+
+    def _load(self) -> Mapping[str, _V]:
+        if self._table is None:
+            module_name, _, attr = self.target.partition(':')
+            table: Mapping[str, _V] = getattr(importlib.import_module(module_name), attr)
+            self._table = table
+        return self._table
+
+    def __getitem__(self, key: str) -> _V:
+        return self._load()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._load())
+
+    def __len__(self) -> int:
+        return len(self._load())
+
+    def __repr__(self) -> str:
+        return f'LazyMapping({self.target!r})'
+
+
 @runtime_checkable
 class Task(Protocol):
     """A task type (boxes, AprilTags, segmentation masks): registered in ``replaybench.tasks``."""
@@ -112,4 +158,10 @@ class Task(Protocol):
     @property
     def metrics(self) -> tuple[MetricSpec, ...]:
         """The task's metrics, in table order."""
+        ...
+
+    @property
+    def recorded_readers(self) -> Mapping[str, OutputReader]:
+        """What the ``recorded`` backend reads of this task: a message type (ROS 2 spelling)
+        -> its reader (``replaybench.decode.recorded.OutputReader``); empty for none."""
         ...

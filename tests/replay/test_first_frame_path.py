@@ -57,6 +57,10 @@ _LATER = (
     'replaybench.tasks.detections.task',
     'replaybench.tasks.tags.task',
     'replaybench.tasks.segmentation.task',
+    # the tasks' recorded readers: only the recorded backend reads them, before its passes
+    'replaybench.tasks.detections.recorded',
+    'replaybench.tasks.tags.recorded',
+    'replaybench.tasks.segmentation.recorded',
 )
 
 

@@ -43,16 +43,19 @@ from replaybench.tasks import MetricSpec
 class ToyTask:
     name = 'toy'
     metrics = (MetricSpec('toy_score', 'toy score', 'score', 'higher', sweep=True),)
+    recorded_readers = {}
 
 
 class Misnamed:
     name = 'something-else'
     metrics = ()
+    recorded_readers = {}
 
 
 class Clashing:
     name = 'clash'
     metrics = (MetricSpec('map50', 'mAP again', 'mAP', 'higher'),)
+    recorded_readers = {}
 
 
 TASK = ToyTask()

@@ -9,7 +9,7 @@ import subprocess
 import sys
 import textwrap
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import pytest
 
@@ -47,6 +47,7 @@ def lines(run):
 class ToyTask:
     name = 'toy'
     metrics = (SCORE,)
+    recorded_readers: dict[str, object] = {}
     views = TaskViews(
         summary_field='toy_summary',
         section_panel=f'{__name__}:section',
@@ -59,18 +60,21 @@ class ToyTask:
 class BadViews:
     name = 'badviews'
     metrics = ()
+    recorded_readers: dict[str, object] = {}
     views = {'section_panel': 'x:y'}
 
 
 class UnknownColumn:
     name = 'unknowncolumn'
     metrics = (MetricSpec('plain', 'plain', 'plain', 'higher'),)
+    recorded_readers: dict[str, object] = {}
     views = TaskViews(terminal_metrics=('plain',))
 
 
 class Missing:
     name = 'missing'
     metrics = ()
+    recorded_readers: dict[str, object] = {}
     views = TaskViews(section_panel='rb_no_such_module_here:panel')
 
 
@@ -210,5 +214,6 @@ def test_a_task_without_views_has_none() -> None:
     class Plain:
         name = 'plain'
         metrics = ()
+        recorded_readers: ClassVar[dict[str, Any]] = {}
 
     assert task_views(Plain()) == TaskViews()

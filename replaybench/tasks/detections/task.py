@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
-from replaybench.tasks.base import MetricSpec, TaskViews
+from replaybench.tasks.base import LazyMapping, MetricSpec, TaskViews
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from replaybench.decode.recorded import OutputReader
 
 __all__ = ['TASK', 'DetectionsTask']
 
@@ -51,6 +56,11 @@ class DetectionsTask:
         more_columns='replaybench.report.detections:more_columns',
         terminal_metrics=('precision50', 'recall50', 'map50'),
         terminal='always',
+    )
+
+    #: ``replaybench.tasks.detections.recorded``, imported when the ``recorded`` backend reads it
+    recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(
+        'replaybench.tasks.detections.recorded:READERS'
     )
 
 

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
-from replaybench.tasks.base import MetricSpec, TaskViews
+from replaybench.tasks.base import LazyMapping, MetricSpec, TaskViews
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from replaybench.decode.recorded import OutputReader
 
 __all__ = ['TASK', 'SegmentationTask']
 
@@ -27,6 +32,11 @@ class SegmentationTask:
         MetricSpec('pixel_accuracy', 'pixel accuracy', 'pixel acc.', 'higher', appended=False),
     )
     views: ClassVar[TaskViews] = TaskViews(summary_field='segmentation', terminal_metrics=('miou',))
+
+    #: ``replaybench.tasks.segmentation.recorded``, imported when the ``recorded`` backend reads it
+    recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(
+        'replaybench.tasks.segmentation.recorded:READERS'
+    )
 
 
 TASK = SegmentationTask()

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
-from replaybench.tasks.base import MetricSpec, TaskViews
+from replaybench.tasks.base import LazyMapping, MetricSpec, TaskViews
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from replaybench.decode.recorded import OutputReader
 
 __all__ = ['TASK', 'TagsTask']
 
@@ -28,6 +33,11 @@ class TagsTask:
         summary_field='tag_accuracy',
         section_panel='replaybench.report.tags:tag_accuracy_html',
         terminal_lines='replaybench.results.tags:tag_lines',
+    )
+
+    #: ``replaybench.tasks.tags.recorded``, imported when the ``recorded`` backend reads it
+    recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(
+        'replaybench.tasks.tags.recorded:READERS'
     )
 
 

@@ -1,19 +1,21 @@
 """Recorded AprilTag outputs: an AprilTagDetectionArray a robot's tag node published, read as the
-``TagResult`` a tag backend returns for the frame (the ``recorded`` backend's reader of that
-type, ``replaybench.replay.recorded.RECORDED_READERS``)."""
+``TagResult`` a tag backend returns for the frame (the tags task's ``recorded_readers``; the
+message is parsed by ``replaybench.fiducials.msgs``)."""
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from replaybench.decode.recorded import RecordedMessage
-from replaybench.fiducials.msgs import decode_tag_array
+from replaybench.decode.recorded import OutputReader, RecordedMessage
+from replaybench.fiducials.msgs import APRILTAG_DETECTION_ARRAY, decode_tag_array
 from replaybench.fiducials.types import TagResult, tag_box
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
     from replaybench.types import RawMessage
 
-__all__ = ['read_tag_array_output']
+__all__ = ['READERS', 'read_tag_array_output']
 
 
 def read_tag_array_output(raw: RawMessage) -> RecordedMessage:
@@ -34,3 +36,16 @@ def read_tag_array_output(raw: RawMessage) -> RecordedMessage:
         tuple(boxes), tags=tuple(usable), camera_frame=found.frame_id if posed else '', note=note
     )
     return RecordedMessage(found.frame_id, found.stamp_ns, result, len(found.tags) - len(usable))
+
+
+#: message type (ROS 2 spelling) -> its reader; a frame without a recorded message gets no
+#: tags, so it counts against tag recall
+READERS: Mapping[str, OutputReader] = {
+    APRILTAG_DETECTION_ARRAY: OutputReader(
+        'tags',
+        read_tag_array_output,
+        missing=TagResult(()),
+        unusable='tag(s) with a NaN or infinite corner',
+        producer='the tag detector',
+    ),
+}

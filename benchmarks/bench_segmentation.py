@@ -16,7 +16,7 @@ session, one intra-op thread, for two models:
   without a target, because its inference (a few ms) is of the order of the per-frame argmax
   and map back, which any segmentation pipeline has to do.
 
-Mask bytes: the detections.mcap bytes one 1920x1080 label mask costs as written
+Mask bytes: the outputs.mcap bytes one 1920x1080 label mask costs as written
 (``DetectionsWriter``: zstd chunks of ``CHUNK_SIZE``), for the mono8 mask alone and with the
 rgb8 colour copy of ``--annotations``: the file with the scene frames' masks minus the file
 without, per frame (a figure, no target).
@@ -218,7 +218,7 @@ def _ms_sampler(name: str, work: Callable[[int], object], count: int) -> Sampler
 
 
 def _mcap_bytes(ctx: Context, *, annotations: bool) -> tuple[float, int]:
-    """detections.mcap bytes per 1080p mask, and the frames written."""
+    """outputs.mcap bytes per 1080p mask, and the frames written."""
     from replaybench.backends.hsv_seg import HsvSegBackend
     from replaybench.sinks.masks import add_mask
     from replaybench.sinks.mcap_writer import DetectionsWriter

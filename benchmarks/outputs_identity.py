@@ -3,13 +3,19 @@
 ``python -m benchmarks.outputs_identity make DIR`` runs a set of cases (several fixtures,
 backends, rates and output options, through the command line and through ``rb.run`` in
 memory and into a folder) into ``DIR``; ``python -m benchmarks.outputs_identity check REF NEW``
-compares two such folders: detections.mcap and the sample pictures byte for byte, frames.csv,
+compares two such folders: outputs.mcap and the sample pictures byte for byte, frames.csv,
 summary.csv and run.json cell by cell, timing values aside (a timing value is compared only
 for being present or empty). Columns and keys that a newer engine adds (``ADDED_COLUMNS``,
 ``ADDED_KEYS``) may be missing from the reference: the new outputs must then hold them empty,
 or at the value an older output stands for (``repeat`` 0: a single pass; none of the cases uses
 what they report). run.json's ``settings`` without ``repeat`` reads as ``repeat`` 1. Exit
 status 0 when every case is identical, 1 otherwise, with one line per difference.
+
+A reference made before the run folder's MCAP was named outputs.mcap (run.json schema_version
+1: ``detections.mcap``, ``outputs.detections_mcap``) is compared as its newer layout: its
+detections.mcap against the new outputs.mcap byte for byte, its metadata.yaml (``--format
+rosbag2``) with that file name changed, and its run.json's ``schema_version`` 1 and
+``outputs.detections_mcap`` as 2 and ``outputs.outputs_mcap`` (``OLDER_LAYOUT``).
 
 A reference made before the recorded-latency columns (``RECORDED_ADDED``) is compared without
 them: the new outputs may hold those columns beside the reference's (the ``recorded`` case
@@ -19,6 +25,7 @@ fills them), and every other cell must still match.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 import re
@@ -299,6 +306,9 @@ def _diff(a: Any, b: Any, where: str, out: list[str]) -> None:
 
 #: a run.json setting added since, and the value an older run.json stands for
 _ADDED_SETTING = ('repeat', 1)
+#: run.json schema_version 1 -> 2: (the MCAP's older file name, its newer one, the older and
+#: newer key of ``outputs`` naming it)
+OLDER_LAYOUT = ('detections.mcap', 'outputs.mcap', 'detections_mcap', 'outputs_mcap')
 
 
 def _csv(path: Path) -> list[dict[str, str]]:
@@ -347,17 +357,133 @@ def _with_added_setting(document: dict[str, Any]) -> dict[str, Any]:
     return document
 
 
+def _as_newer(document: dict[str, Any]) -> dict[str, Any]:
+    """A run.json (or API document) of schema_version 1 in the layout of 2 (``OLDER_LAYOUT``):
+    the key naming the MCAP renamed in its place, and its value the newer file name."""
+    if document.get('schema_version') != 1:
+        return document
+    old_file, new_file, old_key, new_key = OLDER_LAYOUT
+    outputs = document.get('outputs')
+    if isinstance(outputs, dict) and old_key in outputs:
+        document['outputs'] = {
+            (new_key if k == old_key else k): (new_file if v == old_file else v)
+            for k, v in outputs.items()
+        }
+    return {**document, 'schema_version': 2}
+
+
+def _older(folder: Path) -> bool:
+    """Whether ``folder`` is a run folder of run.json schema_version 1 (detections.mcap)."""
+    old_file, new_file = OLDER_LAYOUT[:2]
+    return (folder / old_file).is_file() and not (folder / new_file).is_file()
+
+
+def _ref_bytes(path: Path) -> bytes:
+    """A reference file's bytes; an older run folder's metadata.yaml naming the newer MCAP."""
+    data = path.read_bytes()
+    if path.name == 'metadata.yaml' and _older(path.parent):
+        old_file, new_file = OLDER_LAYOUT[:2]
+        data = data.replace(old_file.encode(), new_file.encode())
+    return data
+
+
+def _ref_name(ref: Path, path: Path) -> str:
+    """A reference file's name relative to ``ref``; an older run folder's MCAP by its newer name."""
+    old_file, new_file = OLDER_LAYOUT[:2]
+    if path.name == old_file and _older(path.parent):
+        path = path.with_name(new_file)
+    return path.relative_to(ref).as_posix()
+
+
+def _shifted(record: Any, delta: int, after: int) -> Any:
+    """A summary record of a reference's MCAP with the file offsets past ``after`` moved by
+    ``delta`` (what a shorter or longer rosbag2 metadata record at ``after`` moves them by); the
+    footer's CRC of the summary left out (it covers those offsets)."""
+    from mcap.records import AttachmentIndex, ChunkIndex, Footer, MetadataIndex, SummaryOffset
+
+    if isinstance(record, ChunkIndex):
+        offsets = {k: v + delta for k, v in record.message_index_offsets.items()}
+        return dataclasses.replace(
+            record,
+            chunk_start_offset=record.chunk_start_offset + delta,
+            message_index_offsets=offsets,
+        )
+    if isinstance(record, MetadataIndex) and record.offset == after:
+        return dataclasses.replace(record, length=record.length + delta)
+    if isinstance(record, MetadataIndex | AttachmentIndex) and record.offset > after:
+        return dataclasses.replace(record, offset=record.offset + delta)
+    if isinstance(record, SummaryOffset):
+        return dataclasses.replace(record, group_start=record.group_start + delta)
+    if isinstance(record, Footer):
+        return dataclasses.replace(
+            record,
+            summary_start=record.summary_start + delta,
+            summary_offset_start=record.summary_offset_start + delta,
+            summary_crc=0,
+        )
+    return record
+
+
+def _same_mcap_renamed(ref: bytes, new: bytes) -> bool:
+    """Whether ``new`` is the MCAP ``ref`` (an older run folder's detections.mcap) written as
+    outputs.mcap: the file name in its rosbag2 metadata record (which names the bag's file, as
+    ``ros2 bag record`` writes it) is the one difference. The header and the whole data section
+    after that record (chunks, message indexes) are compared byte for byte, the record by
+    content with the name changed, the summary record by record, its offsets moved by the
+    difference in length."""
+    import io
+
+    from mcap.records import DataEnd, Footer, Metadata, MetadataIndex
+    from mcap.stream_reader import StreamReader
+
+    def records(data: bytes) -> list[Any]:
+        return list(StreamReader(io.BytesIO(data), skip_magic=False).records)
+
+    old_file, new_file = OLDER_LAYOUT[:2]
+    rec_a, rec_b = records(ref), records(new)
+    index = [
+        next(r for r in recs if isinstance(r, MetadataIndex) and r.name == 'rosbag2')
+        for recs in (rec_a, rec_b)
+    ]
+    meta = [
+        next(r for r in recs if isinstance(r, Metadata) and r.name == 'rosbag2')
+        for recs in (rec_a, rec_b)
+    ]
+    start_a, start_b = (
+        next(r for r in recs if isinstance(r, Footer)).summary_start for recs in (rec_a, rec_b)
+    )
+    delta = start_b - start_a
+    end_a, end_b = index[0].offset + index[0].length, index[1].offset + index[1].length
+    renamed = {k: v.replace(old_file, new_file) for k, v in meta[0].metadata.items()}
+    summary_a = rec_a[next(i for i, r in enumerate(rec_a) if isinstance(r, DataEnd)) :]
+    summary_b = rec_b[next(i for i, r in enumerate(rec_b) if isinstance(r, DataEnd)) :]
+    return (
+        index[0].offset == index[1].offset
+        and end_b - end_a == delta
+        and ref[: index[0].offset] == new[: index[1].offset]
+        and ref[end_a:start_a] == new[end_b:start_b]
+        and renamed == meta[1].metadata
+        and [_shifted(r, delta, index[0].offset) for r in summary_a]
+        == [_shifted(r, 0, index[1].offset) for r in summary_b]
+        and ref[-8:] == new[-8:]
+    )
+
+
 def _compare_folder(ref: Path, new: Path, where: str, out: list[str]) -> None:
-    names_ref = sorted(p.relative_to(ref).as_posix() for p in ref.rglob('*') if p.is_file())
+    files_ref = {_ref_name(ref, p): p for p in ref.rglob('*') if p.is_file()}
+    names_ref = sorted(files_ref)
     names_new = sorted(p.relative_to(new).as_posix() for p in new.rglob('*') if p.is_file())
     if names_ref != names_new:
         out.append(f'{where}: files {names_ref} != {names_new}')
     for name in names_ref:
-        a, b = ref / name, new / name
+        a, b = files_ref[name], new / name
         if not b.exists():
             continue
-        if name.endswith(('.mcap', '.jpg', '.png', '.yaml')):
-            if a.read_bytes() != b.read_bytes():
+        if a.name == OLDER_LAYOUT[0] and b.name == OLDER_LAYOUT[1]:
+            if not _same_mcap_renamed(a.read_bytes(), b.read_bytes()):
+                out.append(f'{where}/{name}: not the reference {a.name} renamed')
+        elif name.endswith(('.mcap', '.jpg', '.png', '.yaml')):
+            if _ref_bytes(a) != b.read_bytes():
                 out.append(f'{where}/{name}: bytes differ')
         elif name.endswith('.csv'):
             rows_a, rows_b = _csv(a), _csv(b)
@@ -369,13 +495,13 @@ def _compare_folder(ref: Path, new: Path, where: str, out: list[str]) -> None:
             _diff(rows_a, rows_b, f'{where}/{name}', out)
         elif Path(name).name == 'run.json':
             _diff(
-                _masked(_with_added_setting(json.loads(a.read_text(encoding='utf-8')))),
+                _masked(_with_added_setting(_as_newer(json.loads(a.read_text(encoding='utf-8'))))),
                 _masked(_with_added_setting(json.loads(b.read_text(encoding='utf-8')))),
                 f'{where}/{name}',
                 out,
             )
         elif name.endswith('.json'):  # an API result document
-            da = json.loads(a.read_text(encoding='utf-8'))
+            da = _as_newer(json.loads(a.read_text(encoding='utf-8')))
             db = json.loads(b.read_text(encoding='utf-8'))
             _diff(_frames_records(da), _frames_records(db), f'{where}/{name}:frames', out)
             da, db = _with_added_setting(da), _with_added_setting(db)

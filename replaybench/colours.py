@@ -1,5 +1,5 @@
 """The colour of each backend, by index: one palette for the report's charts and for the
-Foxglove annotations in detections.mcap, so a backend looks the same in both."""
+Foxglove annotations in outputs.mcap, so a backend looks the same in both."""
 
 from __future__ import annotations
 

@@ -108,7 +108,7 @@ def test_an_api_run_and_a_cli_run_of_one_bag_give_equal_frames_and_identical_det
     frames_cli = _read_frames_csv_with_pandas(cli / 'frames.csv')
     assert len(frames_api) == 40  # 2 backends x 2 topics x 10 frames
     assert_frame_equal(frames_api[FIXED_COLUMNS], frames_cli[FIXED_COLUMNS])
-    assert (api / 'detections.mcap').read_bytes() == (cli / 'detections.mcap').read_bytes()
+    assert (api / 'outputs.mcap').read_bytes() == (cli / 'outputs.mcap').read_bytes()
     assert res.status == 'complete'
 
 

@@ -35,7 +35,7 @@ def test_run_writes_the_five_outputs_and_hsv_matches_the_ground_truth(tmp_path):
         app, ['run', str(RAW), '--backend', 'hsv', '--backend', 'null', '--out', str(out)]
     )
     assert result.exit_code == 0, result.output
-    for name in ('detections.mcap', 'frames.csv', 'summary.csv', 'run.json', 'report.html'):
+    for name in ('outputs.mcap', 'frames.csv', 'summary.csv', 'run.json', 'report.html'):
         assert (out / name).is_file(), name
     assert list((out / 'samples').iterdir())
     run = json.loads((out / 'run.json').read_text())
@@ -62,7 +62,7 @@ def test_two_runs_give_identical_detections_in_the_same_order(tmp_path):
             app, ['run', str(RAW), '-b', 'hsv', '--out', str(out), '--no-report']
         )
         assert result.exit_code == 0, result.output
-        with (out / 'detections.mcap').open('rb') as f:
+        with (out / 'outputs.mcap').open('rb') as f:
             payloads.append(
                 [(c.topic, m.log_time, m.data) for _, c, m in make_reader(f).iter_messages()]
             )

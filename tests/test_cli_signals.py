@@ -114,7 +114,7 @@ def test_an_interrupt_ends_the_run_with_outputs_finalized_and_exit_130(tmp_path,
         rows = list(csv.DictReader(f))
     assert 0 < len(rows) < FRAMES
     assert [int(row['seq']) for row in rows] == list(range(len(rows)))
-    with (out / 'detections.mcap').open('rb') as f:
+    with (out / 'outputs.mcap').open('rb') as f:
         messages = [m for _, ch, m in make_reader(f).iter_messages() if 'replaybench' in ch.topic]
     assert len(messages) == len(rows)
     assert (out / 'report.html').is_file()

@@ -4,7 +4,7 @@ The bag is written with the real mcap writer and rosbags serialisation. Whatever
 shows - ``info`` and ``run`` on a pipe and on a terminal, ``compare``, report.html,
 comparison.html, frames.csv, summary.csv, comparison.csv - holds the control characters as
 visible escapes (``\\x1b``), CSV cells of bag text that a spreadsheet would run as a formula
-start with an apostrophe, and run.json and detections.mcap keep the true names.
+start with an apostrophe, and run.json and outputs.mcap keep the true names.
 """
 
 from __future__ import annotations
@@ -307,14 +307,14 @@ def test_report_html_shows_names_and_labels_escaped(hostile_runs):
     assert r'@SUM(A1)\u202eyellow\x9b2J' in html
 
 
-def test_run_json_and_detections_mcap_keep_the_true_names(hostile_runs):
+def test_run_json_and_outputs_mcap_keep_the_true_names(hostile_runs):
     root, _ = hostile_runs
     run = json.loads((root / 'a' / 'run.json').read_text(encoding='utf-8'))
     assert {t['name'] for inp in run['inputs'] for t in inp['topics']} == {TOPIC, FORMULA_TOPIC}
     assert {s['topic'] for s in run['summary']} == {TOPIC, FORMULA_TOPIC}
     assert any(repr(ENCODING) in reason for reason in run['skipped'])
     channel = detections_channel('recorded', TOPIC)
-    with open_source(root / 'a' / 'detections.mcap') as source:
+    with open_source(root / 'a' / 'outputs.mcap') as source:
         found = [decode_detections(raw) for raw in source.messages(topics=[channel])]
     assert found
     assert {gt.frame_id for gt in found} == {FRAME_ID}

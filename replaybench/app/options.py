@@ -184,12 +184,12 @@ class RunOptions:
     annotations: bool = _opt(
         False,
         '--annotations',
-        'Also write Foxglove ImageAnnotations (boxes and labels) into detections.mcap.',
+        'Also write Foxglove ImageAnnotations (boxes and labels) into outputs.mcap.',
     )
     copy_images: bool = _opt(
         False,
         '--copy-images',
-        'Copy the replayed image messages into detections.mcap (docs/foxglove.md).',
+        'Copy the replayed image messages into outputs.mcap (docs/foxglove.md).',
     )
     detections_format: str = _opt(
         'mcap',

@@ -1,7 +1,7 @@
 """``replaybench run`` as an application: the replay engine, then the report.
 
 The engine (``replaybench.replay.runner``) opens the inputs, drives the backends and writes
-what a run measures (detections.mcap, frames.csv, summary.csv, run.json). This layer adds what
+what a run measures (outputs.mcap, frames.csv, summary.csv, run.json). This layer adds what
 is drawn from those results, the sample pictures and report.html (``ReportRenderer``), so that
 the engine imports nothing from ``replaybench.report``.
 """

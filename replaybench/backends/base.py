@@ -99,7 +99,7 @@ class Backend(Protocol):
       ``prepare(RecordedDetections)``.
     * ``reads_camera_info``: True (default): ``detect`` may read ``frame.camera_info``; False:
       it never does, so its frames come without one (None) and a run of such backends reads
-      the bag's CameraInfo messages only after its passes, for detections.mcap.
+      the bag's CameraInfo messages only after its passes, for outputs.mcap.
 
     Optional methods: ``prepare(recorded)`` (above); ``forget_warmup()``: the runner calls it
     after detects that are neither timed nor recorded (the warm-up detect of a topic too short

@@ -129,7 +129,7 @@ class RunConfig:
 
 
 def backend_label(name: str) -> str:
-    """The label a backend carries in frames.csv, summary.csv and detections.mcap's topics."""
+    """The label a backend carries in frames.csv, summary.csv and outputs.mcap's topics."""
     return name.replace('-', '_')
 
 

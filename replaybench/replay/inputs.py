@@ -161,7 +161,7 @@ def open_input(
             end_ns = (start_ns if start_ns is not None else first) + round(options.duration_s * _NS)
         info_topics = [t.name for t in all_topics if message_kind(t.msgtype) == 'camera_info']
         # read when first used: by the first pass of a backend that reads camera infos, or
-        # after the passes for detections.mcap (``decoder``, ``output.copy_camera_infos``)
+        # after the passes for outputs.mcap (``decoder``, ``output.copy_camera_infos``)
         camera_infos = CameraInfoIndex.deferred(source, info_topics)
         notes: list[str] = []
         ground_truth: DetectionTable = {}

@@ -1,4 +1,4 @@
-"""The run folder's files as the engine writes them: detections.mcap (with the camera infos
+"""The run folder's files as the engine writes them: outputs.mcap (with the camera infos
 and, on request, the replayed images), frames.csv, summary.csv, run.json, and the sample
 frames read again for the renderer. In memory (no folder) the writers are ``Discard``.
 """
@@ -12,7 +12,7 @@ from replaybench.decode import decode_image, to_bgr8
 from replaybench.errors import DecodeError
 from replaybench.replay.inputs import replayed
 from replaybench.results.records import FramesCsvWriter
-from replaybench.results.runfolder import with_filename
+from replaybench.results.runfolder import OUTPUTS_MCAP, with_filename
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -68,7 +68,7 @@ class Renderer(Protocol):
 
 
 class Discard:
-    """The frames.csv and detections.mcap writers of a run made in memory: nothing is kept."""
+    """The frames.csv and outputs.mcap writers of a run made in memory: nothing is kept."""
 
     def __enter__(self) -> Discard:
         return self
@@ -94,8 +94,8 @@ class Discard:
 
 @contextlib.contextmanager
 def writers(options: OutputOptions) -> Iterator[tuple[FrameSink, DetectionsSink]]:
-    """frames.csv's and detections.mcap's writers, open for the passes (``Discard`` in
-    memory). An ``OSError`` that names no file is detections.mcap's (frames.csv names its
+    """frames.csv's and outputs.mcap's writers, open for the passes (``Discard`` in
+    memory). An ``OSError`` that names no file is outputs.mcap's (frames.csv names its
     own)."""
     out = options.out
     if out is None:
@@ -107,18 +107,18 @@ def writers(options: OutputOptions) -> Iterator[tuple[FrameSink, DetectionsSink]
         with (
             FramesCsvWriter(out / 'frames.csv') as frames_csv,
             DetectionsWriter(
-                out / 'detections.mcap',
+                out / OUTPUTS_MCAP,
                 annotations=options.annotations,
                 backends=list(options.backend_labels),
             ) as detections_out,
         ):
             yield frames_csv, detections_out
     except OSError as err:
-        raise with_filename(err, out / 'detections.mcap') from None
+        raise with_filename(err, out / OUTPUTS_MCAP) from None
 
 
 def camera_info_channels(inputs: Sequence[OpenedInput], writer: DetectionsSink) -> None:
-    """detections.mcap's channels of the camera infos, made before the passes in the order
+    """outputs.mcap's channels of the camera infos, made before the passes in the order
     ``copy_camera_infos`` would make them (the first decodable message of each topic), so that
     the messages can be copied after the passes without changing a byte of the file."""
     for inp in inputs:
@@ -127,7 +127,7 @@ def camera_info_channels(inputs: Sequence[OpenedInput], writer: DetectionsSink) 
 
 
 def copy_camera_infos(inputs: Sequence[OpenedInput], writer: DetectionsSink) -> None:
-    """Every input's camera infos into detections.mcap, once each (by topic and log time)."""
+    """Every input's camera infos into outputs.mcap, once each (by topic and log time)."""
     seen: set[tuple[str, int]] = set()
     for inp in inputs:
         for info in inp.camera_infos.all():
@@ -139,7 +139,7 @@ def copy_camera_infos(inputs: Sequence[OpenedInput], writer: DetectionsSink) -> 
 
 
 def copy_images(inputs: Sequence[OpenedInput], writer: DetectionsSink) -> dict[int, str]:
-    """--copy-images: the replayed image messages into detections.mcap, once each.
+    """--copy-images: the replayed image messages into outputs.mcap, once each.
 
     Returns a warning per input whose messages could not all be copied.
     """
@@ -182,11 +182,11 @@ def _sample_image(source: Source, topic: str, sample: Sample) -> Any:
 
 
 def write_detections_metadata(options: OutputOptions) -> None:
-    """--format rosbag2: metadata.yaml beside detections.mcap, which makes the folder a bag."""
+    """--format rosbag2: metadata.yaml beside outputs.mcap, which makes the folder a bag."""
     if options.detections_format == 'rosbag2' and options.out is not None:
         from replaybench.sinks.rosbag2 import write_rosbag2_metadata
 
-        write_rosbag2_metadata(options.out / 'detections.mcap')
+        write_rosbag2_metadata(options.out / OUTPUTS_MCAP)
 
 
 def write_summary(options: OutputOptions, summaries: Sequence[Summary]) -> None:

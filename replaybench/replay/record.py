@@ -35,6 +35,7 @@ from replaybench.results.model import (
     TopicMeta,
 )
 from replaybench.results.recorded_latency import with_recorded_latency
+from replaybench.results.runfolder import OUTPUTS_MCAP
 from replaybench.results.stats import Summary, repeat_statistics, summarize
 
 if TYPE_CHECKING:
@@ -286,7 +287,7 @@ def run_result(
         warnings=tuple(warnings),
         repeats=repeat_statistics(records) if config.repeat > 1 else None,
         outputs=RunOutputs(
-            detections_mcap='detections.mcap',
+            outputs_mcap=OUTPUTS_MCAP,
             frames_csv='frames.csv',
             summary_csv='summary.csv',
             report='report.html' if report else None,

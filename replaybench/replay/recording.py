@@ -3,14 +3,14 @@
 ``Recorder.take`` runs after each pass (also one cut short) and turns every ``LogEntry`` into
 its ``FrameRecord`` (a frames.csv row) and, for a frame the backend processed, into what its
 ``BackendResult`` leads to (``Recorder.task_outputs``): the detections message in
-detections.mcap, the detections kept for scoring against ground truth and for the agreement
+outputs.mcap, the detections kept for scoring against ground truth and for the agreement
 between backends, and the boxes drawn on the sample picture. A new task type (a result the
 backend returns beside its detections) plugs in there: its sink's writer call, what its
 metrics need kept, and its count in the record.
 
 With ``--repeat N`` every pass has its own warm-up and its records carry its number
 (``FrameRecord.repeat``); the later passes detect the same frames again, so only the first
-pass's results lead to task outputs (detections.mcap holds each frame once, and the scores,
+pass's results lead to task outputs (outputs.mcap holds each frame once, and the scores,
 the agreement and the sample describe the frames it wrote).
 """
 
@@ -243,12 +243,12 @@ class Recorder:
     def task_outputs(self, done: Pass, entry: LogEntry, result: BackendResult) -> dict[str, Any]:
         """What a processed frame's result leads to besides its record: the task-type seam.
 
-        Detections: their message in detections.mcap (the sink), the detections kept for the
+        Detections: their message in outputs.mcap (the sink), the detections kept for the
         agreement between backends and, where the frame has ground truth, for scoring (the
         metrics, ``replaybench.replay.record.summaries``), and the sample's boxes.
         A label mask (a segmentation backend): written, scored against its ground-truth mask
         and kept for the agreement (``replaybench.replay.segmentation``), its detections not
-        scored. Tags (a ``TagResult``): their messages in detections.mcap and their score
+        scored. Tags (a ``TagResult``): their messages in outputs.mcap and their score
         against the frame's tag ground truth (``TagScores``). Returns the task's own
         ``FrameRecord`` fields: the frame's mIoU and pixel accuracy, and the tag columns (none
         for a backend that finds no tags).

@@ -1,4 +1,4 @@
-"""The replay engine: inputs x backends -> run folder (detections.mcap, frames.csv,
+"""The replay engine: inputs x backends -> run folder (outputs.mcap, frames.csv,
 summary.csv, run.json), or a run held in memory.
 
 Backends run one after another over the same frames (``--repeat N``: N times each, interleaved

@@ -4,7 +4,7 @@ A backend that returns ``BackendResult.mask`` is a segmentation backend. When th
 records one of its frames (after the timed pass, ``Recorder.task_outputs`` in
 ``replaybench.replay.recording``), ``Segmentation.add``
 
-* stages the mask in detections.mcap (``replaybench.sinks.masks``);
+* stages the mask in outputs.mcap (``replaybench.sinks.masks``);
 * scores it against the frame's ground-truth mask, when there is one: the input's mask topic
   (``/ground_truth/labels`` by default, matched by frame_id and header stamp) or a folder of
   PNG masks named ``<stamp_ns>.png`` (``MaskFolder``); the frame's own mIoU and pixel accuracy

@@ -1,5 +1,5 @@
 """The tag task in the engine: tag ground truth read from an input, and each tag backend's tags
-written into detections.mcap and scored per frame.
+written into outputs.mcap and scored per frame.
 
 ``read_tag_truth`` runs when an input opens (``replaybench.replay.inputs.open_input``);
 ``TagScores`` is kept by the ``Recorder`` (``Recorder.task_outputs`` calls ``frame`` after the

@@ -6,8 +6,9 @@ order, tuples as arrays, NaN and infinities as null, fields marked ``omit_none``
 None. Writing is atomic (``write_json_atomic``). Reading refuses, with a ``SourceError`` naming
 the file, what is not such a file: not JSON, not an object, no valid ``schema_version``, a
 newer one than this replaybench knows, or a value of the wrong type (``run.json:
-settings.rate: expected a string, found 3``). Keys it does not know are ignored and keys it
-misses take the field's default, so files of older replaybench versions still read.
+settings.rate: expected a string, found 3``). Keys it does not know are ignored, a field's key
+of an older schema_version (``json_older`` in its metadata) is read when the key is missing,
+and keys it misses take the field's default, so files of older replaybench versions still read.
 
 With ``REPLAYBENCH_CHECK_SCHEMAS=1`` in the environment each document is also validated
 against its JSON Schema (``replaybench/schemas/``) before it is written, and an
@@ -206,6 +207,8 @@ def _build(cls: type[_T], data: Mapping[str, Any], where: str, strict: bool) -> 
     values: dict[str, Any] = {}
     for f in fields:
         key = _key(f)
+        if key not in data:
+            key = f.metadata.get('json_older', key)  # the key of an older schema_version
         if key in data:
             values[f.name] = _decode(hints[f.name], data[key], _at(where, key), strict)
     return cls(**values)

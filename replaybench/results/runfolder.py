@@ -38,7 +38,11 @@ try:
 except ImportError:  # pragma: no cover - not POSIX: no lock
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ['RunFolder', 'check_out_dir', 'with_filename']
+__all__ = ['OUTPUTS_MCAP', 'RunFolder', 'check_out_dir', 'with_filename']
+
+#: The run folder's MCAP: every backend's outputs, whatever its task (run.json
+#: ``outputs.outputs_mcap``; detections.mcap in a run folder of run.json schema_version 1).
+OUTPUTS_MCAP = 'outputs.mcap'
 
 
 def with_filename(err: OSError, path: str | Path) -> OSError:

@@ -1,6 +1,6 @@
 """Display colours of class ids: id 0 black, the others spread evenly around the hue circle.
 
-The same palette colours the rgb8 masks in detections.mcap and the mask thumbnails of the
+The same palette colours the rgb8 masks in outputs.mcap and the mask thumbnails of the
 report, so a class has one colour everywhere. Colours depend on the id only.
 """
 

@@ -1,4 +1,4 @@
-"""Label masks into detections.mcap: ``sensor_msgs/msg/Image`` per frame, for Foxglove and ROS.
+"""Label masks into outputs.mcap: ``sensor_msgs/msg/Image`` per frame, for Foxglove and ROS.
 
 For each frame a segmentation backend labels, ``labels_channel(backend, image_topic)`` gets a
 ``mono8`` Image of the class ids (0..255, the frame's size) with the source frame's header

@@ -1,4 +1,4 @@
-"""Tag outputs in detections.mcap: Isaac's AprilTagDetectionArray, TF, and image annotations.
+"""Tag outputs in outputs.mcap: Isaac's AprilTagDetectionArray, TF, and image annotations.
 
 Per processed frame of a tag backend (``TagResult``), beside its Detection2DArray:
 
@@ -40,7 +40,7 @@ __all__ = [
     'write_tags',
 ]
 
-# ranks in detections.mcap's tie order (replaybench.sinks.mcap_writer): detections, annotations
+# ranks in outputs.mcap's tie order (replaybench.sinks.mcap_writer): detections, annotations
 _DETECTIONS, _ANNOTATIONS = 1, 2
 
 

@@ -22,7 +22,7 @@ pytestmark = pytest.mark.usefixtures('ray_local')
 
 REPO = Path(__file__).resolve().parents[2]
 SCHEMA = REPO / 'replaybench' / 'schemas' / 'sweep.schema.json'
-RUN_FILES = {'detections.mcap', 'frames.csv', 'summary.csv', 'run.json', 'report.html'}
+RUN_FILES = {'outputs.mcap', 'frames.csv', 'summary.csv', 'run.json', 'report.html'}
 
 
 def _sweep(inputs: list[Path], out: Path, **options: Any) -> SweepResult:
@@ -120,7 +120,7 @@ def test_a_local_sweep_of_two_bags_and_two_backends_writes_four_run_folders_and_
     assert seen[-1].running == seen[-1].failed == 0
 
 
-def test_a_cell_writes_the_same_detections_mcap_as_a_standalone_run(
+def test_a_cell_writes_the_same_outputs_mcap_as_a_standalone_run(
     bags: dict[str, Path], tmp_path: Path
 ) -> None:
     result = _sweep([bags['a']], tmp_path / 'sw', backends=['hsv', 'onnx-cpu'], max_frames=12)
@@ -147,8 +147,8 @@ def test_a_cell_writes_the_same_detections_mcap_as_a_standalone_run(
             check=False,
         )
         assert proc.returncode == 0, proc.stderr
-        mine = (tmp_path / 'sw' / cell['run_dir'] / 'detections.mcap').read_bytes()
-        assert mine == (alone / 'detections.mcap').read_bytes()
+        mine = (tmp_path / 'sw' / cell['run_dir'] / 'outputs.mcap').read_bytes()
+        assert mine == (alone / 'outputs.mcap').read_bytes()
         theirs = json.loads((alone / 'run.json').read_text(encoding='utf-8'))
         run = json.loads(
             (tmp_path / 'sw' / cell['run_dir'] / 'run.json').read_text(encoding='utf-8')

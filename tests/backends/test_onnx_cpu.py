@@ -253,7 +253,7 @@ def _bag(path: Path, image_rgb: np.ndarray, frames: int = 1) -> Path:
 
 def _written(run_dir: Path, topic: str = '/camera/image') -> list[tuple[Detection, ...]]:
     channel = detections_channel('onnx_cpu', topic)
-    with open_source(run_dir / 'detections.mcap') as source:
+    with open_source(run_dir / 'outputs.mcap') as source:
         return [decode_detections(raw).detections for raw in source.messages(topics=[channel])]
 
 

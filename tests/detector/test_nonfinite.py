@@ -2,7 +2,7 @@
 
 Real ONNX graphs (``onnxgraph.write_model``) run through onnxruntime: the CLI end to end, the
 ``onnx-cpu`` backend for every family, and the GPU pipeline's torch ops on the CPU against
-the numpy decoders. Nothing non-finite may reach detections.mcap, frames.csv or summary.csv.
+the numpy decoders. Nothing non-finite may reach outputs.mcap, frames.csv or summary.csv.
 """
 
 from __future__ import annotations
@@ -249,7 +249,7 @@ def test_a_model_that_outputs_nan_and_inf_runs_to_the_end_through_the_cli(tmp_pa
     assert run['status'] == 'complete'
 
     channel = detections_channel('onnx_cpu', '/camera/image')
-    with open_source(out / 'detections.mcap') as source:
+    with open_source(out / 'outputs.mcap') as source:
         written = [decode_detections(raw).detections for raw in source.messages(topics=[channel])]
     assert len(written) == 3
     for dets in written:

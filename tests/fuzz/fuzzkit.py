@@ -708,7 +708,7 @@ def check_run_folder(code: int, out: Path) -> tuple[dict[str, Any] | None, list[
     assert ok == run['counts']['processed']
     from mcap.reader import make_reader
 
-    with (out / 'detections.mcap').open('rb') as handle:
+    with (out / 'outputs.mcap').open('rb') as handle:
         mcap_reader = make_reader(handle, validate_crcs=True)
         topics = [channel.topic for _, channel, _ in mcap_reader.iter_messages()]
     detections = sum(t.startswith('/replaybench/') and t.endswith('/detections') for t in topics)

@@ -142,7 +142,7 @@ def test_rosbag2_negative_timestamps_are_replayed_at_log_time_zero(tmp_path):
     assert any('negative timestamps' in w for w in warnings)
 
 
-def test_rosbag2_negative_timestamps_do_not_break_the_detections_mcap(tmp_path):
+def test_rosbag2_negative_timestamps_do_not_break_the_outputs_mcap(tmp_path):
     # Before the fix the negative log time reached the detections MCAP writer: struct.error.
     db3 = negative_time_db3(tmp_path)
     case = write_case(tmp_path, {db3.name: db3.read_bytes()})
@@ -165,7 +165,7 @@ def test_run_with_an_image_topic_but_no_complete_image_exits_cleanly(tmp_path):
     cleanup(case, outcome.out)
 
 
-def test_bag_image_stamped_after_2038_replays_into_the_detections_mcap(tmp_path):
+def test_bag_image_stamped_after_2038_replays_into_the_outputs_mcap(tmp_path):
     """A ROS 1 stamp is u32 seconds; ROS 2 Time.sec is int32.
 
     Reported to the lead: ``msgs.serialize_detections`` raised struct.error for such stamps.

@@ -1,5 +1,5 @@
 """A run whose backends never read a frame's camera info (``reads_camera_info`` False) reads
-the bag's CameraInfo messages after its passes, and writes the same detections.mcap as a run
+the bag's CameraInfo messages after its passes, and writes the same outputs.mcap as a run
 whose backend reads them before its first frame."""
 
 from __future__ import annotations
@@ -72,6 +72,6 @@ def test_a_backend_that_reads_camera_infos_gets_them_and_the_outputs_are_the_sam
     first_frame = events.index('frame')
     assert events[:first_frame].count('info') == events.count('info') > 2
     assert all(info is not None for info in _Reading.infos)
-    detections = (silent / 'detections.mcap').read_bytes()
-    assert detections == (tmp_path / 'reading' / 'detections.mcap').read_bytes()
+    detections = (silent / 'outputs.mcap').read_bytes()
+    assert detections == (tmp_path / 'reading' / 'outputs.mcap').read_bytes()
     assert b'/camera/camera_info' in detections

@@ -161,7 +161,7 @@ def test_detections_are_written_once_however_many_passes(tmp_path):
     from mcap.reader import make_reader
 
     run_dir = _run(tmp_path, 'run', {'a': [1.0]}, repeat=3)
-    with (run_dir / 'detections.mcap').open('rb') as f:
+    with (run_dir / 'outputs.mcap').open('rb') as f:
         topics = [c.topic for _, c, _ in make_reader(f).iter_messages()]
     assert sum(t.endswith('/detections') for t in topics) == FRAMES
 

@@ -318,7 +318,7 @@ def test_a_backend_that_raises_is_stopped_and_recorded_while_the_others_finish(
     assert run['counts']['frames'] == len(rows) == 25
     measured = {s['backend']: s['measured'] for s in run['summary']}
     assert measured == {'boom': 5, 'null': 20}
-    with (outcome.run_dir / 'detections.mcap').open('rb') as f:
+    with (outcome.run_dir / 'outputs.mcap').open('rb') as f:
         channels = [ch.topic for _, ch, _ in make_reader(f).iter_messages()]
     assert sum('/replaybench/boom/' in c for c in channels) == 5
     assert sum('/replaybench/null/' in c for c in channels) == 20
@@ -359,7 +359,7 @@ def test_run_json_is_written_last_after_the_report_and_the_folder_is_swapped_in_
     names = [Path(dst).name for _, dst in _RENAMES]
     assert names[-2:] == ['run.json', 'run']
     assert names.index('report.html') < names.index('run.json')
-    assert {'frames.csv', 'detections.mcap', 'summary.csv'} <= set(names[:-2])
+    assert {'frames.csv', 'outputs.mcap', 'summary.csv'} <= set(names[:-2])
     assert Path(_RENAMES[-1][1]) == out
     assert Path(_RENAMES[-1][0]).name.startswith('.run.tmp-')
 

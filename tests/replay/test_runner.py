@@ -264,7 +264,7 @@ def test_an_interrupted_run_leaves_valid_finalized_outputs_marked_interrupted(tm
     assert len(_rows(outcome.run_dir)) == 7
     from mcap.reader import make_reader
 
-    with (outcome.run_dir / 'detections.mcap').open('rb') as f:
+    with (outcome.run_dir / 'outputs.mcap').open('rb') as f:
         messages = list(make_reader(f).iter_messages())
     assert len([m for m in messages if m[1].topic.startswith('/replaybench/')]) == 7
     assert not list(outcome.run_dir.glob('*.part'))

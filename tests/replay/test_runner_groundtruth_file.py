@@ -79,7 +79,7 @@ def test_a_file_that_does_not_name_its_topic_needs_one_with_two_cameras(tmp_path
     assert not (tmp_path / 'a').exists()
 
 
-def test_annotations_and_copied_images_land_in_detections_mcap(tmp_path: Path) -> None:
+def test_annotations_and_copied_images_land_in_outputs_mcap(tmp_path: Path) -> None:
     out = tmp_path / 'run'
     run_benchmark(
         RunConfig(
@@ -91,7 +91,7 @@ def test_annotations_and_copied_images_land_in_detections_mcap(tmp_path: Path) -
             max_frames=4,
         )
     )
-    with (out / 'detections.mcap').open('rb') as f:
+    with (out / 'outputs.mcap').open('rb') as f:
         summary = make_reader(f).get_summary()
     assert summary is not None
     assert summary.statistics is not None

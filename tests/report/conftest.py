@@ -213,7 +213,7 @@ def make_run(tmp_path: Path) -> MakeRun:
             'counts': _counts(records),
             'skipped': {f'bad jpeg {HOSTILE}': skipped} if skipped else {},
             'outputs': {
-                'detections_mcap': 'detections.mcap',
+                'outputs_mcap': 'outputs.mcap',
                 'frames_csv': 'frames.csv',
                 'summary_csv': 'summary.csv',
                 'report': 'report.html',

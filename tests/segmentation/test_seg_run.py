@@ -1,5 +1,5 @@
 """A segmentation run end to end: fixture bags with ground-truth masks through the real
-writers and readers, masks in detections.mcap, scores in frames.csv, summary.csv and run.json."""
+writers and readers, masks in outputs.mcap, scores in frames.csv, summary.csv and run.json."""
 
 from __future__ import annotations
 
@@ -102,8 +102,8 @@ def test_masks_reach_the_mcap_pixel_for_pixel_with_the_frame_header(
 ) -> None:
     out = tmp_path / 'run'
     run_benchmark(_config(bag, out, annotations=True))
-    written = _images(out / 'detections.mcap', '/replaybench/hsv_seg/camera/image_raw/labels')
-    colour = _images(out / 'detections.mcap', '/replaybench/hsv_seg/camera/image_raw/labels_rgb')
+    written = _images(out / 'outputs.mcap', '/replaybench/hsv_seg/camera/image_raw/labels')
+    colour = _images(out / 'outputs.mcap', '/replaybench/hsv_seg/camera/image_raw/labels_rgb')
     assert len(written) == len(colour) == FRAMES
     for index, ((stamp, frame_id, encoding, labels), rgb) in enumerate(
         zip(written, colour, strict=True)
@@ -113,7 +113,7 @@ def test_masks_reach_the_mcap_pixel_for_pixel_with_the_frame_header(
         assert np.array_equal(labels, expected)
         assert rgb[2] == 'rgb8'
         assert np.array_equal(rgb[3], palette()[expected])
-    with (out / 'detections.mcap').open('rb') as stream:
+    with (out / 'outputs.mcap').open('rb') as stream:
         records = {m.name: m.metadata for m in make_reader(stream).iter_metadata()}
     names = json.loads(records['replaybench.segmentation']['hsv_seg'])
     assert names == ['background', 'red', 'green', 'blue', 'yellow']
@@ -267,7 +267,7 @@ def test_two_runs_write_the_same_masks_byte_for_byte(bag: Path, tmp_path: Path) 
     first, second = tmp_path / 'a', tmp_path / 'b'
     for out in (first, second):
         run_benchmark(_config(bag, out, backends=['hsv-seg', 'onnx-seg'], annotations=True))
-    assert (first / 'detections.mcap').read_bytes() == (second / 'detections.mcap').read_bytes()
+    assert (first / 'outputs.mcap').read_bytes() == (second / 'outputs.mcap').read_bytes()
     columns = ('backend', 'seq', 'miou', 'pixel_accuracy')
     rows = []
     for out in (first, second):

@@ -1,4 +1,4 @@
-"""Reruns of one bag write the same detections.mcap, byte for byte (the CLI, real bags)."""
+"""Reruns of one bag write the same outputs.mcap, byte for byte (the CLI, real bags)."""
 
 from __future__ import annotations
 
@@ -32,17 +32,17 @@ def _detections(bag: Path, out: Path) -> bytes:
         ],
     )
     assert result.exit_code == 0, result.output
-    return (out / 'detections.mcap').read_bytes()
+    return (out / 'outputs.mcap').read_bytes()
 
 
 @pytest.mark.parametrize('bag', ['rgb8.bag', 'bgr8_rosbag2', 'jpeg.mcap'])
-def test_two_runs_of_the_same_bag_write_byte_identical_detections_mcap(
+def test_two_runs_of_the_same_bag_write_byte_identical_outputs_mcap(
     tmp_path: Path, bag: str
 ) -> None:
     first = _detections(BAGS / bag, tmp_path / 'a')
     second = _detections(BAGS / bag, tmp_path / 'b')
     assert first == second
-    with (tmp_path / 'a' / 'detections.mcap').open('rb') as stream:
+    with (tmp_path / 'a' / 'outputs.mcap').open('rb') as stream:
         reader = make_reader(stream)
         header = reader.get_header()
         summary = reader.get_summary()

@@ -1,4 +1,4 @@
-"""detections.mcap read by the readers of the robotics toolchain, for every input and output kind.
+"""outputs.mcap read by the readers of the robotics toolchain, for every input and output kind.
 
 Inputs: ROS 2 MCAP, Foxglove protobuf MCAP, rosbag2 (sqlite3), ROS 1 bag. Outputs: detections
 only, with --annotations, with --annotations --copy-images. Each output is read with
@@ -245,7 +245,7 @@ def _expected_topics(bag: Path, output: str) -> dict[str, int]:
 
 @pytest.fixture(scope='module')
 def outputs() -> dict[tuple[str, str], tuple[Path, Path]]:
-    """(input, detections.mcap) per input kind and output kind, shared by the tests below."""
+    """(input, outputs.mcap) per input kind and output kind, shared by the tests below."""
     return {}
 
 
@@ -269,7 +269,7 @@ def _run(
                 **OUTPUTS[out],  # type: ignore[arg-type]
             )
         )
-        outputs[key] = (bag, base / 'run' / 'detections.mcap')
+        outputs[key] = (bag, base / 'run' / 'outputs.mcap')
     return outputs[key]
 
 
@@ -392,8 +392,8 @@ def test_a_rerun_writes_a_byte_identical_file(tmp_path: Path) -> None:
     second = run_benchmark(RunConfig(out_dir=tmp_path / 'b', **config))  # type: ignore[arg-type]
     assert first.run_dir is not None
     assert second.run_dir is not None
-    data = (first.run_dir / 'detections.mcap').read_bytes()
-    assert data == (second.run_dir / 'detections.mcap').read_bytes()
+    data = (first.run_dir / 'outputs.mcap').read_bytes()
+    assert data == (second.run_dir / 'outputs.mcap').read_bytes()
     assert len(data) > 10_000
 
 
@@ -408,7 +408,7 @@ def test_the_rosbag2_record_and_metadata_yaml_describe_the_same_bag(tmp_path: Pa
         )
     )
     assert outcome.run_dir is not None
-    path = outcome.run_dir / 'detections.mcap'
+    path = outcome.run_dir / 'outputs.mcap'
     with path.open('rb') as stream:
         (record,) = list(make_reader(stream).iter_metadata())
     assert record.name == 'rosbag2'

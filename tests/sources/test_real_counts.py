@@ -106,7 +106,7 @@ def test_a_null_run_replays_every_frame_the_official_reader_counts(
     )
     assert {s.topic: s.frames for s in outcome.run.summary_rows} == official
     assert outcome.run_dir is not None
-    with (outcome.run_dir / 'detections.mcap').open('rb') as stream:
+    with (outcome.run_dir / 'outputs.mcap').open('rb') as stream:
         summary = make_reader(stream).get_summary()
     assert summary is not None
     assert summary.statistics is not None

@@ -17,6 +17,7 @@ from replaybench.results.model.detections import AgreementRow
 from replaybench.results.model.segmentation import SegmentationAgreementRow
 from replaybench.results.model.summary import RepeatStats, SummaryRow
 from replaybench.results.records import FrameRecord
+from replaybench.results.runfolder import OUTPUTS_MCAP
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -35,8 +36,10 @@ __all__ = [
     'RunSettings',
 ]
 
-#: Version of the run.json layout; readers refuse files with a newer one.
-RUN_SCHEMA_VERSION = 1
+#: Version of the run.json layout; readers refuse files with a newer one. 2: the run folder's
+#: MCAP is outputs.mcap, named by ``outputs.outputs_mcap`` (1: detections.mcap, named by
+#: ``outputs.detections_mcap``, which still reads).
+RUN_SCHEMA_VERSION = 2
 
 
 @dataclass(frozen=True, slots=True)
@@ -185,13 +188,22 @@ class RunCounts:
 
 @dataclass(frozen=True, slots=True)
 class RunOutputs:
-    """The run folder's files, relative to it (``report`` None without report.html)."""
+    """The run folder's files, relative to it (``report`` None without report.html).
 
-    detections_mcap: str = 'detections.mcap'
+    ``outputs_mcap`` reads the key ``detections_mcap`` of a run.json of schema_version 1
+    (``'detections.mcap'``), so it names the MCAP of older run folders too.
+    """
+
+    outputs_mcap: str = field(default=OUTPUTS_MCAP, metadata={'json_older': 'detections_mcap'})
     frames_csv: str = 'frames.csv'
     summary_csv: str = 'summary.csv'
     report: str | None = None
     samples: tuple[str, ...] = ()
+
+    @property
+    def detections_mcap(self) -> str:
+        """The older name of ``outputs_mcap`` (run.json schema_version 1)."""
+        return self.outputs_mcap
 
 
 @dataclass(frozen=True, slots=True)

@@ -43,6 +43,8 @@ class GpuTagBackend:
     description: ClassVar[str] = 'AprilTag on the GPU (cuAprilTags binding; example plugin)'
     #: the runner samples this GPU and a sweep cell holds one
     device: ClassVar[str] = 'cuda'
+    #: its results are ``TagResult``s: written and scored as tags (``Backend.task``)
+    task: ClassVar[str] = 'tags'
     #: the Python module of the binding (an assumption of this example)
     binding: ClassVar[str] = 'cuapriltags'
 

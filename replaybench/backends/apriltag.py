@@ -51,6 +51,8 @@ class AprilTagBackend:
 
     name: ClassVar[str] = 'apriltag'
     description: ClassVar[str] = 'AprilTag 3 tags (pupil-apriltags): ids, corners, 6-DoF poses'
+    #: Its results are ``TagResult``s (``Backend.task``).
+    task: ClassVar[str] = 'tags'
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()

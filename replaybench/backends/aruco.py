@@ -64,6 +64,8 @@ class ArucoBackend:
 
     name: ClassVar[str] = 'aruco'
     description: ClassVar[str] = 'OpenCV ArUco detector, AprilTag dictionary: ids, corners, poses'
+    #: Its results are ``TagResult``s (``Backend.task``).
+    task: ClassVar[str] = 'tags'
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()

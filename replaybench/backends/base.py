@@ -15,17 +15,21 @@ if TYPE_CHECKING:
     from replaybench.types import BackendResult, Frame
 
 __all__ = [
+    'DEFAULT_TASK',
     'DEVICES',
     'Availability',
     'Backend',
     'BackendOptions',
     'BackendTraits',
     'RecordedDetections',
+    'backend_task',
     'backend_traits',
 ]
 
 #: Where a backend's ``detect`` runs (``Backend.device``): the CPU, or one CUDA GPU.
 DEVICES: tuple[str, ...] = ('cpu', 'cuda')
+#: The task of a backend that declares none (``Backend.task``): boxes.
+DEFAULT_TASK = 'detections'
 
 
 class Availability(NamedTuple):
@@ -100,6 +104,12 @@ class Backend(Protocol):
     * ``reads_camera_info``: True (default): ``detect`` may read ``frame.camera_info``; False:
       it never does, so its frames come without one (None) and a run of such backends reads
       the bag's CameraInfo messages only after its passes, for outputs.mcap.
+    * ``task``: the task its results are of, a name in ``replaybench.tasks`` (``'detections'``,
+      the default: boxes; ``'tags'``: a ``TagResult``; ``'segmentation'``: a ``mask``). A backend
+      that knows its task only from its model sets ``self.task`` in ``open()`` (``cuda``); one
+      whose task differs between inputs says it per input with ``task_of(input_index)``
+      (``recorded``: each input's recorded topic). The runner reads it once per backend and
+      input after ``open()`` (``backend_task``) and refuses a task that is not registered.
 
     Optional methods: ``prepare(recorded)`` (above); ``forget_warmup()``: the runner calls it
     after detects that are neither timed nor recorded (the warm-up detect of a topic too short
@@ -131,6 +141,15 @@ class BackendTraits(NamedTuple):
     measures_latency: bool = True
     uses_recorded_detections: bool = False
     reads_camera_info: bool = True
+    #: the task declared by the class (``backend_task`` gives the one after ``open()``)
+    task: str = DEFAULT_TASK
+
+
+def _task_name(name: str, task: object) -> str:
+    if not isinstance(task, str) or not task:
+        msg = f'backend {name!r} declares task {task!r}; it must be the name of a task'
+        raise BackendUnavailableError(msg)
+    return task
 
 
 def backend_traits(backend: object) -> BackendTraits:
@@ -148,4 +167,21 @@ def backend_traits(backend: object) -> BackendTraits:
             msg = f'backend {name!r} declares {trait} {value!r}; it must be True or False'
             raise BackendUnavailableError(msg)
         flags.append(value)
-    return BackendTraits(str(device), *flags)
+    task = _task_name(name, getattr(backend, 'task', DEFAULT_TASK))
+    measures_latency, uses_recorded_detections, reads_camera_info = flags
+    return BackendTraits(
+        str(device), measures_latency, uses_recorded_detections, reads_camera_info, task
+    )
+
+
+def backend_task(backend: object, input_index: int) -> str:
+    """The task of an opened backend's results on input ``input_index``: its ``task_of``
+    where it has one, else its ``task`` (``'detections'`` where it declares none).
+
+    ``BackendUnavailableError`` naming the backend when it is not a name; whether the task is
+    registered the runner checks (``replaybench.replay.sessions.open_backends``)."""
+    name = getattr(backend, 'name', type(backend).__name__)
+    task_of = getattr(backend, 'task_of', None)
+    if callable(task_of):
+        return _task_name(name, task_of(input_index))
+    return _task_name(name, getattr(backend, 'task', DEFAULT_TASK))

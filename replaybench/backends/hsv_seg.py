@@ -285,6 +285,8 @@ class HsvSegBackend(ColourMorphology):
     description: ClassVar[str] = (
         'OpenCV HSV colour segmentation: per-pixel class ids, hsv config and morphology (CPU)'
     )
+    #: Its results carry a label mask (``Backend.task``).
+    task: ClassVar[str] = 'segmentation'
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()

@@ -57,6 +57,8 @@ class OnnxSegBackend:
         'ONNX Runtime CPU segmentation: [1,C,H,W] / [1,H,W,C] scores or class-id outputs (--model)'
     )
     providers: ClassVar[tuple[str, ...]] = ('CPUExecutionProvider',)
+    #: Its results carry a label mask (``Backend.task``).
+    task: ClassVar[str] = 'segmentation'
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()

@@ -73,6 +73,12 @@ class RecordedBackend:
         reader = self._readers.get(input_index)
         return 'detections' if reader is None else reader.noun
 
+    def task_of(self, input_index: int) -> str:
+        """The task of the outputs recorded in input ``input_index``: its topic's reader's
+        (``Backend.task``); boxes for an input without a reader."""
+        reader = self._readers.get(input_index)
+        return 'detections' if reader is None else reader.task
+
     def open(self) -> None:
         """Nothing to load: ``prepare`` gave the recorded messages."""
 

@@ -68,7 +68,15 @@ class Renderer(Protocol):
 
 
 class Discard:
-    """The frames.csv and outputs.mcap writers of a run made in memory: nothing is kept."""
+    """The frames.csv and outputs.mcap writers of a run made in memory: nothing is kept.
+
+    It is an ``OutputWriter`` (``replaybench.sinks.writer``) that keeps nothing, so the tasks'
+    sinks call it as they call outputs.mcap's writer.
+    """
+
+    #: what it is given is dropped (``OutputWriter.keeps``), and it writes no annotations
+    keeps: bool = False
+    annotations: bool = False
 
     def __enter__(self) -> Discard:
         return self
@@ -90,6 +98,17 @@ class Discard:
 
     def add_raw(self, *args: object) -> None:
         """A copied image message: dropped."""
+
+    def add_message(self, *args: object, **kwargs: object) -> None:
+        """A task's result message: dropped."""
+
+    def add_metadata(self, *args: object) -> None:
+        """A metadata record: dropped."""
+
+    def colour(self, backend: str) -> str:
+        """No colour: nothing is drawn."""
+        del backend
+        return ''
 
 
 @contextlib.contextmanager

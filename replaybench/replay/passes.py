@@ -17,7 +17,7 @@ import math
 from itertools import islice
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from replaybench.backends.base import backend_traits
+from replaybench.backends.base import DEFAULT_TASK, backend_traits
 from replaybench.errors import DecodeError, one_line
 from replaybench.replay.config import default_warmup
 from replaybench.replay.inputs import decoder, replayed
@@ -189,12 +189,20 @@ class Replay:
 class Pass:
     """One backend over one input: fetch, decode, detect; one ``LogEntry`` per frame in
     ``log``, whose times are relative to ``t0``. ``repeat``: which of the backend's passes over
-    the inputs it is (``--repeat N``: 0 to N - 1)."""
+    the inputs it is (``--repeat N``: 0 to N - 1). ``task``: the task of the backend's results
+    on this input (``replaybench.backends.base.backend_task``, read once after ``open()``)."""
 
     def __init__(
-        self, replay: Replay, label: str, backend: Backend, inp: OpenedInput, repeat: int = 0
+        self,
+        replay: Replay,
+        label: str,
+        backend: Backend,
+        inp: OpenedInput,
+        repeat: int = 0,
+        task: str = DEFAULT_TASK,
     ) -> None:
         self.replay = replay
+        self.task = task
         self.repeat = repeat
         self.label = label
         self.backend = backend

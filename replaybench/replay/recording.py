@@ -4,9 +4,10 @@
 its ``FrameRecord`` (a frames.csv row) and, for a frame the backend processed, into what its
 ``BackendResult`` leads to (``Recorder.task_outputs``): the detections message in
 outputs.mcap, the detections kept for scoring against ground truth and for the agreement
-between backends, and the boxes drawn on the sample picture. A new task type (a result the
-backend returns beside its detections) plugs in there: its sink's writer call, what its
-metrics need kept, and its count in the record.
+between backends, and the boxes drawn on the sample picture. Every task has boxes; what a
+task does beside them (its messages, its scores, its frames.csv fields) is its
+``TaskRecording``, loaded once per run from the task the backend declares (``Pass.task``,
+``Backend.task``; the task's ``recording``, ``replaybench.tasks.task_recording``).
 
 With ``--repeat N`` every pass has its own warm-up and its records carry its number
 (``FrameRecord.repeat``); the later passes detect the same frames again, so only the first
@@ -19,32 +20,30 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING, Any, Protocol
 
-from replaybench.replay.recorded import (
-    NOT_RECORDED,
-    boxes_scored,
-    frame_recorded_times,
-    recorded_note,
-)
-from replaybench.replay.segmentation import NO_MASK, Segmentation
+from replaybench.replay.recorded import NOT_RECORDED, frame_recorded_times, recorded_note
+from replaybench.replay.segmentation import Segmentation
 from replaybench.replay.tags import TagScores
 from replaybench.results.records import FrameRecord
 from replaybench.types import BackendResult, StageTimes
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
 
     from replaybench.replay.inputs import OpenedInput
     from replaybench.replay.passes import LogEntry, Pass, Warmups
-    from replaybench.types import CameraInfo, Detection, LabelMask, RawMessage
+    from replaybench.types import CameraInfo, Detection, RawMessage
 
-__all__ = ['DetectionsSink', 'FrameSink', 'Recorder', 'Sample']
+__all__ = ['DetectionsSink', 'FrameSink', 'Recorder', 'Sample', 'TaskRecording']
 
 #: (input, seq) -> detections of one (backend label, topic)
 FrameDetections = dict[tuple[int, int], tuple['Detection', ...]]
 #: a ground-truth frame: (input, frame_id, stamp_ns) for a topic, (input, topic, seq) for a file
 TruthKey = tuple[int, str, int]
+#: a processed frame: (topic, seq, log_time_ns, stamp_ns, frame_id)
+FrameKey = tuple[str, int, int, int, str]
 
 _NOT_TIMED = StageTimes()
+_NO_COLUMNS: Mapping[str, Any] = {}
 
 
 class FrameSink(Protocol):
@@ -73,6 +72,62 @@ class DetectionsSink(Protocol):
     def add_camera_info_channel(self, topic: str, /) -> Any: ...
 
     def add_raw(self, raw: RawMessage, /) -> Any: ...
+
+    # what the tasks' sinks call (``replaybench.sinks.writer.OutputWriter``)
+    @property
+    def keeps(self) -> bool: ...
+
+    @property
+    def annotations(self) -> bool: ...
+
+    def colour(self, backend: str, /) -> str: ...
+
+    def add_message(
+        self,
+        topic: str,
+        msgtype: str,
+        log_time_ns: int,
+        data: bytes | memoryview,
+        /,
+        *,
+        annotation: bool = False,
+    ) -> None: ...
+
+    def add_metadata(self, name: str, data: dict[str, str], /) -> None: ...
+
+
+class TaskRecording(Protocol):
+    """A task's part of recording the processed frames of its backends (the task's
+    ``recording``: ``(recorder) -> TaskRecording``), made once per run, called per frame of
+    the first pass after the pass, outside any timed region."""
+
+    @property
+    def scores_boxes(self) -> bool:
+        """Whether the frame's boxes are scored against box ground truth (not a mask's)."""
+        ...
+
+    @property
+    def writes_first(self) -> bool:
+        """Whether its messages go before the frame's detections message (their channels
+        come first in outputs.mcap), else after it."""
+        ...
+
+    def frame(
+        self,
+        writer: DetectionsSink,
+        label: str,
+        inp: OpenedInput,
+        key: FrameKey,
+        result: BackendResult,
+    ) -> Mapping[str, Any]:
+        """The frame's outputs written into ``writer`` and scored; the task's own
+        ``FrameRecord`` fields of it (none: an empty mapping)."""
+        ...
+
+    def sample(self, result: BackendResult) -> Any:
+        """What the sample picture draws of the frame beside its boxes (a mask's labels), or
+        None."""
+        ...
 
 
 class Sample:
@@ -129,15 +184,33 @@ class Recorder:
         #: the tag backends' tags scored against tag ground truth (replaybench.replay.tags)
         self.tags = TagScores()
         self._taken: dict[tuple[str, int, str], int] = {}
+        #: each declared task's part of recording a frame (None: boxes only), by task name
+        self._recordings: dict[str, TaskRecording | None] = {}
+
+    def task_recording(self, name: str) -> TaskRecording | None:
+        """The ``TaskRecording`` of the registered task ``name``, made on the first call
+        (None for a task that names none: its frames are recorded as boxes only)."""
+        if name in self._recordings:
+            return self._recordings[name]
+        from replaybench.tasks import get_task, load_view, task_recording
+
+        found = get_task(name)
+        target = task_recording(found)
+        made: TaskRecording | None = None
+        if target is not None:
+            made = load_view(found, target, 'recording')(self)
+        self._recordings[name] = made
+        return made
 
     def take(self, done: Pass) -> float:
         """Turn the pass's log into records and frames.csv rows, detections messages, scores
         and the sample; the log is emptied. Returns the seconds it took (wall clock)."""
         began = time.perf_counter()
         entries, done.log = done.log, []
+        recording = self.task_recording(done.task)
         for entry in entries:
             if isinstance(entry.outcome, BackendResult):
-                self._processed(done, entry, entry.outcome)
+                self._processed(done, entry, entry.outcome, recording)
             else:
                 self._unprocessed(done, entry, entry.outcome)
         return time.perf_counter() - began
@@ -180,7 +253,13 @@ class Recorder:
             )
         )
 
-    def _processed(self, done: Pass, entry: LogEntry, result: BackendResult) -> None:
+    def _processed(
+        self,
+        done: Pass,
+        entry: LogEntry,
+        result: BackendResult,
+        recording: TaskRecording | None = None,
+    ) -> None:
         """``latency = queue wait + read/decode + backend``: the backend part runs from the
         detector's call to its detections; read/decode was measured where it ran. A backend
         that is not timed (``recorded``) gets its recorded output's times from the recording
@@ -192,7 +271,9 @@ class Recorder:
         self.processed[counted] = n_done + 1
         # later passes of --repeat detect the same frames again: outputs and scores come from
         # the first pass only
-        task_columns = self.task_outputs(done, entry, result) if done.repeat == 0 else {}
+        task_columns = (
+            self.task_outputs(done, entry, result, recording) if done.repeat == 0 else _NO_COLUMNS
+        )
         t0 = done.t0
         timed = done.measures_latency
         stages = result.stages if timed else _NOT_TIMED
@@ -240,18 +321,23 @@ class Recorder:
             )
         )
 
-    def task_outputs(self, done: Pass, entry: LogEntry, result: BackendResult) -> dict[str, Any]:
-        """What a processed frame's result leads to besides its record: the task-type seam.
+    def task_outputs(
+        self,
+        done: Pass,
+        entry: LogEntry,
+        result: BackendResult,
+        recording: TaskRecording | None = None,
+    ) -> Mapping[str, Any]:
+        """What a processed frame's result leads to besides its record.
 
-        Detections: their message in outputs.mcap (the sink), the detections kept for the
-        agreement between backends and, where the frame has ground truth, for scoring (the
-        metrics, ``replaybench.replay.record.summaries``), and the sample's boxes.
-        A label mask (a segmentation backend): written, scored against its ground-truth mask
-        and kept for the agreement (``replaybench.replay.segmentation``), its detections not
-        scored. Tags (a ``TagResult``): their messages in outputs.mcap and their score
-        against the frame's tag ground truth (``TagScores``). Returns the task's own
-        ``FrameRecord`` fields: the frame's mIoU and pixel accuracy, and the tag columns (none
-        for a backend that finds no tags).
+        Its boxes (every task's): their message in outputs.mcap (the sink), the detections kept
+        for the agreement between backends and, where the frame has ground truth and the task
+        scores boxes, for scoring (the metrics, ``replaybench.replay.record.summaries``), and
+        the sample's boxes. The rest is the task's ``recording`` (None: boxes only): a label
+        mask written, scored against its ground-truth mask and kept for the agreement
+        (``replaybench.replay.segmentation``), its boxes not scored; tags written and scored
+        against the frame's tag ground truth (``replaybench.replay.tags``). Returns the task's
+        own ``FrameRecord`` fields (the frame's mIoU and pixel accuracy, its tag columns).
         """
         topic, seq, log_time_ns, stamp_ns, frame_id = entry.key
         assert stamp_ns is not None  # a processed frame decoded
@@ -259,23 +345,14 @@ class Recorder:
         number = inp.number
         label_key = (done.label, topic)
         detections = result.detections
-        mask = result.mask
-        score = (
-            NO_MASK
-            if mask is None
-            else self.segmentation.add(
-                self.detections_out,
-                done.label,
-                number,
-                inp.source,
-                (topic, seq, log_time_ns, stamp_ns, frame_id),
-                mask,
-            )
-        )
+        key = (topic, seq, log_time_ns, stamp_ns, frame_id)
+        columns = _NO_COLUMNS
+        if recording is not None and recording.writes_first:
+            columns = recording.frame(self.detections_out, done.label, inp, key, result)
         self.detections.setdefault(label_key, {})[(number, seq)] = detections
         self.detections_out.add(done.label, topic, log_time_ns, stamp_ns, frame_id, detections)
-        if mask is not None or not boxes_scored(inp.recorded_reader, done.measures_latency):
-            pass  # a segmentation backend (or recorded masks): scored against masks above
+        if recording is not None and not recording.scores_boxes:
+            pass  # a mask's task: scored against masks
         elif inp.external is not None:
             truth = inp.external.lookup(topic, seq, stamp_ns)
             if truth is not None:
@@ -284,18 +361,10 @@ class Recorder:
                 self.scored.setdefault(label_key, {})[frame_key] = detections
         elif (frame_id, stamp_ns) in inp.ground_truth:
             self.scored.setdefault(label_key, {})[(number, frame_id, stamp_ns)] = detections
-        tag_columns = self.tags.frame(
-            done.label,
-            topic,
-            log_time_ns,
-            stamp_ns,
-            frame_id,
-            result,
-            inp.tag_truth.get((frame_id, stamp_ns)),
-            self.detections_out,
-        )
-        self._sample(done, topic, seq, log_time_ns, detections, mask)
-        return {'miou': score.miou, 'pixel_accuracy': score.pixel_accuracy, **tag_columns}
+        if recording is not None and not recording.writes_first:
+            columns = recording.frame(self.detections_out, done.label, inp, key, result)
+        self._sample(done, topic, seq, log_time_ns, result, recording)
+        return columns
 
     def _sample(
         self,
@@ -303,11 +372,11 @@ class Recorder:
         topic: str,
         seq: int,
         log_time_ns: int,
-        detections: tuple[Detection, ...],
-        mask: LabelMask | None = None,
+        result: BackendResult,
+        recording: TaskRecording | None,
     ) -> None:
         """Choose the sample frame of this topic (the first backend does) and keep its boxes
-        (and its mask, from a segmentation backend)."""
+        (and what the task draws beside them: a segmentation backend's mask)."""
         inp = done.inp
         key = (inp.number, topic)
         counter = (done.label, inp.number, topic)
@@ -317,9 +386,10 @@ class Recorder:
         if sample is None and taken == inp.sample_index.get(topic):
             sample = self.samples[key] = Sample(seq, log_time_ns, f'{topic} #{seq}')
         if sample is not None and sample.seq == seq:
-            sample.detections[done.label] = detections
-            if mask is not None:
-                sample.masks[done.label] = mask.labels
+            sample.detections[done.label] = result.detections
+            drawn = None if recording is None else recording.sample(result)
+            if drawn is not None:
+                sample.masks[done.label] = drawn
 
     def ground_truth_frames(self, number: int) -> int:
         """Frames of input ``number`` matched to a ground-truth file."""

@@ -1,8 +1,9 @@
 """What the engine does with label masks: write them, score them, compare backends.
 
-A backend that returns ``BackendResult.mask`` is a segmentation backend. When the engine
-records one of its frames (after the timed pass, ``Recorder.task_outputs`` in
-``replaybench.replay.recording``), ``Segmentation.add``
+A backend that declares the segmentation task (``Backend.task``) returns
+``BackendResult.mask``. ``Segmentation`` is the task's ``TaskRecording`` (``recording``, named by
+``replaybench.tasks.segmentation.task``): when the engine records one of its frames (after the
+timed pass, ``Recorder.task_outputs`` in ``replaybench.replay.recording``), ``Segmentation.add``
 
 * stages the mask in outputs.mcap (``replaybench.sinks.masks``);
 * scores it against the frame's ground-truth mask, when there is one: the input's mask topic
@@ -13,13 +14,16 @@ records one of its frames (after the timed pass, ``Recorder.task_outputs`` in
 * keeps the mask, PNG-compressed, when the run has several segmentation backends, for their
   agreement (the mIoU of each later backend against the earlier one, frame by frame).
 
+A frame without a mask (a recorded mask topic without the frame's message) is not scored; the
+boxes of the task's frames are never scored against box ground truth.
+
 Masks are held in the pass's log until the pass ends (one ``H x W`` byte array per frame).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, cast
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, cast
 
 import numpy as np
 
@@ -32,20 +36,23 @@ from replaybench.results.segmentation import (
 )
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
 
     import numpy.typing as npt
 
+    from replaybench.sinks.writer import OutputWriter
     from replaybench.sources import Source
-    from replaybench.types import LabelMask
+    from replaybench.types import BackendResult, LabelMask
 
 __all__ = [
     'NO_MASK',
     'FrameScore',
     'MaskFolder',
     'MaskTopic',
+    'MaskedInput',
     'Segmentation',
     'mask_truth_topic',
+    'recording',
     'replayable',
 ]
 
@@ -136,6 +143,7 @@ class FrameScore(NamedTuple):
 _NO_SCORE = FrameScore()
 #: The score of a frame without a mask (a detector's).
 NO_MASK = _NO_SCORE
+_NO_COLUMNS: Mapping[str, Any] = {}
 
 
 def replayable(topics: Sequence[Any], truth: str | None, path: Path | None = None) -> list[Any]:
@@ -149,8 +157,24 @@ def replayable(topics: Sequence[Any], truth: str | None, path: Path | None = Non
     return [t for t in topics if t.name != skip]
 
 
+class MaskedInput(Protocol):
+    """What the masks' recording reads of an input (``replaybench.replay.inputs.OpenedInput``,
+    a later stage): its number and its source (for the ground-truth mask topic)."""
+
+    @property
+    def number(self) -> int: ...
+
+    @property
+    def source(self) -> Source: ...
+
+
 class Segmentation:
     """The run's masks: truth per input, confusion sums, class names, kept masks."""
+
+    #: the task's frames are scored against masks, not their boxes against box ground truth
+    scores_boxes = False
+    #: a mask's messages go before the frame's detections message in outputs.mcap
+    writes_first = True
 
     def __init__(self, truth: str | None, backends: int) -> None:
         self.topic = mask_truth_topic(truth)
@@ -174,9 +198,31 @@ class Segmentation:
                 self.truths[number] = None
         return self.truths[number]
 
+    def frame(
+        self,
+        writer: OutputWriter,
+        label: str,
+        inp: MaskedInput,
+        key: tuple[str, int, int, int, str],
+        result: BackendResult,
+    ) -> Mapping[str, Any]:
+        """One processed frame of a segmentation backend (``TaskRecording.frame``): its mask
+        written, scored and kept (``add``); its frames.csv mIoU and pixel accuracy (none for
+        a frame without a mask)."""
+        mask = result.mask
+        if mask is None:
+            return _NO_COLUMNS
+        score = self.add(writer, label, inp.number, inp.source, key, mask)
+        return {'miou': score.miou, 'pixel_accuracy': score.pixel_accuracy}
+
+    def sample(self, result: BackendResult) -> npt.NDArray[np.uint8] | None:
+        """The frame's class ids, drawn on the sample picture (None without a mask)."""
+        mask = result.mask
+        return None if mask is None else mask.labels
+
     def add(
         self,
-        writer: Any,
+        writer: OutputWriter,
         backend: str,
         number: int,
         source: Source,
@@ -187,7 +233,7 @@ class Segmentation:
         topic, seq, log_time_ns, stamp_ns, frame_id = key
         labels = mask.labels
         self.class_names.setdefault(backend, tuple(mask.class_names))
-        if hasattr(writer, 'add_message'):
+        if writer.keeps:
             from replaybench.sinks.masks import add_mask
 
             add_mask(writer, backend, topic, log_time_ns, stamp_ns, frame_id, labels)
@@ -271,9 +317,21 @@ class Segmentation:
                 )
         return rows
 
-    def write_names(self, writer: Any) -> None:
-        """The class names of every segmentation backend into the MCAP metadata."""
-        if hasattr(writer, 'add_metadata'):
+    def write_names(self, writer: OutputWriter) -> None:
+        """The class names of every segmentation backend into the MCAP metadata (none made
+        for a writer that keeps nothing)."""
+        if writer.keeps:
             from replaybench.sinks.masks import write_class_names
 
             write_class_names(writer, self.class_names)
+
+
+class _Recorder(Protocol):
+    @property
+    def segmentation(self) -> Segmentation: ...
+
+
+def recording(recorder: _Recorder) -> Segmentation:
+    """The segmentation task's ``TaskRecording``: the ``Segmentation`` of the recorder
+    (``replaybench.replay.recording.Recorder``)."""
+    return recorder.segmentation

@@ -1,8 +1,10 @@
 """The backends of a run: made, opened before anything is measured, driven over every input
 while their resource use is sampled, and closed once.
 
-``make_backends`` makes every backend (checking its declared traits), ``open_backends`` opens
-them (models loaded, recorded detections handed over) and ``run_backend`` runs one over every
+``make_backends`` makes every backend (checking its declared traits); ``open_backends`` opens
+them (models loaded, recorded detections handed over) and reads the task each declares for
+each input once it has opened (``backend_task``: a task that is not registered stops the run
+in one line); ``run_backend`` runs one over every
 input, then closes it and says what it reported and cost (a ``BackendRun``); ``run_repeated``
 does the same for ``--repeat N``, the backends' passes interleaved.
 
@@ -16,7 +18,12 @@ import contextlib
 from typing import TYPE_CHECKING, Any
 
 from replaybench.backends import get_backend
-from replaybench.backends.base import RecordedDetections, backend_traits
+from replaybench.backends.base import (
+    DEFAULT_TASK,
+    RecordedDetections,
+    backend_task,
+    backend_traits,
+)
 from replaybench.errors import BackendError, ReplaybenchError, one_line
 from replaybench.replay.config import backend_label
 from replaybench.replay.passes import DetectFailed, Pass
@@ -46,12 +53,18 @@ SLOW_OPEN_S = 2.0
 
 
 class OpenBackend:
-    """A backend made and opened before the replay; closed once, after its pass."""
+    """A backend made and opened before the replay; closed once, after its pass. ``tasks``:
+    the task of its results by input number, as it declared it once opened."""
 
-    def __init__(self, name: str, backend: Backend) -> None:
+    def __init__(self, name: str, backend: Backend, tasks: Mapping[int, str] | None = None) -> None:
         self.name = name
         self.backend = backend
+        self.tasks: Mapping[int, str] = tasks if tasks is not None else {}
         self.closed = False
+
+    def task(self, input_number: int) -> str:
+        """The task of its results on input ``input_number`` (boxes where none was read)."""
+        return self.tasks.get(input_number, DEFAULT_TASK)
 
     def close(self) -> str | None:
         """Close it (the first call only); what ``close()`` raised, as one line, or None."""
@@ -121,14 +134,32 @@ def _recorded_detections(inputs: Sequence[OpenedInput]) -> RecordedDetections:
     )
 
 
+def declared_tasks(name: str, backend: Backend, inputs: Sequence[OpenedInput]) -> dict[int, str]:
+    """The task an opened backend declares for each input (``backend_task``), each checked
+    against the task registry (a built-in task is not imported, and the registry not at all
+    for the default task, boxes: nothing of it before the first frame); ``BackendError`` in one
+    line naming the backend and the known tasks for one that is not registered."""
+    tasks = {inp.number: backend_task(backend, inp.number) for inp in inputs}
+    for task in sorted(set(tasks.values()) - {DEFAULT_TASK}):
+        from replaybench.tasks import require_task
+
+        try:
+            require_task(task)
+        except ReplaybenchError as err:
+            msg = f'backend {name!r} declares task {task!r}: {err}'
+            raise BackendError(msg) from err
+    return tasks
+
+
 def open_backends(
     made: list[tuple[str, Backend]],
     inputs: Sequence[OpenedInput],
     notice: Callable[[str], None] | None = None,
 ) -> list[OpenBackend]:
-    """Every backend prepared and opened (models loaded) before anything is measured; one
-    still opening after ``SLOW_OPEN_S`` (a model conversion, an engine build) is announced
-    through ``notice``. On failure those already opened are closed again."""
+    """Every backend prepared and opened (models loaded) before anything is measured, and the
+    task it declares for each input read (``declared_tasks``); one still opening after
+    ``SLOW_OPEN_S`` (a model conversion, an engine build) is announced through ``notice``. On
+    failure those already opened are closed again."""
     opened: list[OpenBackend] = []
     try:
         for name, backend in made:
@@ -149,7 +180,15 @@ def open_backends(
                 raise
             except Exception as err:  # a plugin's own error: one line
                 raise _could_not_open(name, err) from err
-            opened.append(OpenBackend(name, backend))
+            entry = OpenBackend(name, backend)
+            opened.append(entry)  # closed again if its task is refused
+            try:
+                entry.tasks = declared_tasks(name, backend, inputs)
+            except ReplaybenchError:
+                raise
+            except Exception as err:  # a plugin's own task_of() error: one line
+                msg = f'backend {name!r}: its task could not be read: {one_line(err)}'
+                raise BackendError(msg) from err
     except BaseException:
         for entry in opened:
             entry.close()
@@ -176,7 +215,7 @@ def run_backend(
     done = _BackendPasses()
     with ResourceSampler(gpu_index=gpu_index) as sampler:
         try:
-            done.run(replay, recorder, entry.backend, label, inputs, repeat=0)
+            done.run(replay, recorder, entry, label, inputs, repeat=0)
         finally:
             # after the passes: what the backend actually used and counted
             sampler.stop()
@@ -212,7 +251,7 @@ def run_repeated(
                 label = backend_label(entry.name)
                 with ResourceSampler(gpu_index=gpu_index(entry.backend)) as sampler:
                     try:
-                        mine.run(replay, recorder, entry.backend, label, inputs, repeat=repeat)
+                        mine.run(replay, recorder, entry, label, inputs, repeat=repeat)
                     finally:
                         sampler.stop()
                         if mine.resources is None:
@@ -238,17 +277,18 @@ class _BackendPasses:
         self,
         replay: Replay,
         recorder: Recorder,
-        backend: Backend,
+        entry: OpenBackend,
         label: str,
         inputs: Sequence[OpenedInput],
         *,
         repeat: int,
     ) -> None:
-        """One pass of ``backend`` over every input; each pass's log is recorded after it. A
-        ``detect`` that raises is kept as ``error`` and ends the passes."""
+        """One pass of the opened backend over every input, of the task it declared for the
+        input; each pass's log is recorded after it. A ``detect`` that raises is kept as
+        ``error`` and ends the passes."""
         try:
             for inp in inputs:
-                p = Pass(replay, label, backend, inp, repeat)
+                p = Pass(replay, label, entry.backend, inp, repeat, entry.task(inp.number))
                 self.passes.append(p)
                 try:
                     p.run()

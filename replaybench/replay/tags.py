@@ -2,29 +2,40 @@
 written into outputs.mcap and scored per frame.
 
 ``read_tag_truth`` runs when an input opens (``replaybench.replay.inputs.open_input``);
-``TagScores`` is kept by the ``Recorder`` (``Recorder.task_outputs`` calls ``frame`` after the
-pass, outside any timed region) and gives each (backend, topic) its ``TagAccuracy``
-(``replaybench.replay.record.summaries``). Backends that return no ``TagResult`` pass through
-untouched (their tag columns stay empty): the scorer and the sink are imported at the first
-tag result, so that a run without tags does not load them.
+``TagScores`` is kept by the ``Recorder`` and is the tags task's ``TaskRecording``
+(``recording``, named by ``replaybench.tasks.tags.task``): ``Recorder.task_outputs`` calls
+``frame`` for each processed frame of a backend that declares the task (``Backend.task``),
+after the pass, outside any timed region. It gives each (backend, topic) its ``TagAccuracy``
+(``replaybench.replay.record.summaries``). The backends of other tasks never reach it (their
+tag columns stay empty): the scorer and the sink are imported at the first tag result, so that
+a run without tags does not load them.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
-from replaybench.errors import DecodeError
+from replaybench.errors import BackendError, DecodeError
 from replaybench.fiducials.msgs import APRILTAG_DETECTION_ARRAY, decode_tag_array
-from replaybench.fiducials.types import TagResult
 
 if TYPE_CHECKING:
-    from replaybench.fiducials.types import TagDetection
+    from collections.abc import Mapping
+
+    from replaybench.fiducials.types import TagDetection, TagResult
     from replaybench.results.model import TagAccuracy
     from replaybench.results.tags import FrameTagScore
+    from replaybench.sinks.writer import OutputWriter
     from replaybench.sources import Source
     from replaybench.types import BackendResult
 
-__all__ = ['TAG_GROUND_TRUTH_TOPIC', 'TagScores', 'TagTable', 'read_tag_truth']
+__all__ = [
+    'TAG_GROUND_TRUTH_TOPIC',
+    'TagScores',
+    'TagTable',
+    'TaggedInput',
+    'read_tag_truth',
+    'recording',
+]
 
 #: Where tag ground truth is read from (AprilTagDetectionArray, keyed by frame_id and stamp).
 TAG_GROUND_TRUTH_TOPIC = '/ground_truth/tags'
@@ -58,8 +69,21 @@ def read_tag_truth(source: Source, notes: list[str]) -> TagTable:
     return truth
 
 
+class TaggedInput(Protocol):
+    """What the tags' recording reads of an input (``replaybench.replay.inputs.OpenedInput``,
+    a later stage): its tag ground truth."""
+
+    @property
+    def tag_truth(self) -> TagTable: ...
+
+
 class TagScores:
     """The tag task's state over one run: each (backend label, topic)'s frame scores."""
+
+    #: a tag backend's boxes (the tags' bounding boxes) are scored against box ground truth
+    scores_boxes = True
+    #: its messages follow the frame's detections message in outputs.mcap
+    writes_first = False
 
     def __init__(self) -> None:
         # (backend label, topic) -> scores of its frames with truth, in replay order
@@ -68,30 +92,39 @@ class TagScores:
 
     def frame(
         self,
+        writer: OutputWriter,
         label: str,
-        topic: str,
-        log_time_ns: int,
-        stamp_ns: int,
-        frame_id: str,
+        inp: TaggedInput,
+        key: tuple[str, int, int, int, str],
         result: BackendResult,
-        truth: tuple[TagDetection, ...] | None,
-        writer: object,
-    ) -> dict[str, Any]:
-        """One processed frame: its tags written and, against ``truth`` (None: the frame has
-        none), scored; its frames.csv tag columns (none for a backend that finds no tags)."""
-        if not isinstance(result, TagResult):
-            return {}
+    ) -> Mapping[str, Any]:
+        """One processed frame of a tag backend: its tags written and, against the frame's
+        tag ground truth (where it has some), scored; its frames.csv tag columns.
+        ``BackendError`` for a result that is no ``TagResult`` (a backend that declares the
+        task and returns no tags)."""
         from replaybench.results.tags import score_frame
         from replaybench.sinks.tags import write_tags
 
-        if result.note and (label, topic) not in self.notes:
-            self.notes[(label, topic)] = f'{label}: {result.note}'
-        write_tags(writer, label, topic, log_time_ns, stamp_ns, frame_id, result)
+        topic, _, log_time_ns, stamp_ns, frame_id = key
+        tagged = cast('TagResult', result)
+        try:
+            tags, note = tagged.tags, tagged.note
+        except AttributeError:
+            msg = f'backend {label!r} declares task tags but returned no tags (a TagResult)'
+            raise BackendError(msg) from None
+        if note and (label, topic) not in self.notes:
+            self.notes[(label, topic)] = f'{label}: {note}'
+        write_tags(writer, label, topic, log_time_ns, stamp_ns, frame_id, tagged)
+        truth = inp.tag_truth.get((frame_id, stamp_ns))
         if truth is None:
-            return {'tags': len(result.tags)}
-        score = score_frame(result.tags, truth)
+            return {'tags': len(tags)}
+        score = score_frame(tags, truth)
         self.scores.setdefault((label, topic), []).append(score)
         return score.columns()
+
+    def sample(self, result: BackendResult) -> None:
+        """Nothing beside the boxes: the sample picture draws the tags' boxes."""
+        del result
 
     def accuracy(self, backend: str, topic: str) -> TagAccuracy | None:
         """The tag accuracy of a (backend label, topic), None where no frame was scored."""
@@ -103,3 +136,14 @@ class TagScores:
     def warnings(self) -> list[str]:
         """One line per (backend label, topic) whose tags got no pose."""
         return list(self.notes.values())
+
+
+class _Recorder(Protocol):
+    @property
+    def tags(self) -> TagScores: ...
+
+
+def recording(recorder: _Recorder) -> TagScores:
+    """The tags task's ``TaskRecording``: the ``TagScores`` of the recorder
+    (``replaybench.replay.recording.Recorder``)."""
+    return recorder.tags

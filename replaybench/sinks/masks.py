@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
 
-    from replaybench.sinks.mcap_writer import DetectionsWriter
+    from replaybench.sinks.writer import OutputWriter
 
 __all__ = [
     'METADATA_NAME',
@@ -60,7 +60,7 @@ def labels_colour_channel(backend: str, image_topic: str) -> str:
 
 
 def add_mask(
-    writer: DetectionsWriter,
+    writer: OutputWriter,
     backend: str,
     image_topic: str,
     log_time_ns: int,
@@ -68,7 +68,10 @@ def add_mask(
     frame_id: str,
     labels: npt.NDArray[np.uint8],
 ) -> None:
-    """Stage one frame's mask (and its rgb8 picture when the writer writes annotations)."""
+    """Stage one frame's mask (and its rgb8 picture when the writer writes annotations);
+    none made for a writer that keeps nothing."""
+    if not writer.keeps:
+        return
     data = serialize_image(stamp_ns, frame_id, labels, 'mono8')
     writer.add_message(labels_channel(backend, image_topic), IMAGE, log_time_ns, data)
     if writer.annotations:
@@ -84,7 +87,7 @@ def add_mask(
         )
 
 
-def write_class_names(writer: DetectionsWriter, names: Mapping[str, Sequence[str]]) -> None:
+def write_class_names(writer: OutputWriter, names: Mapping[str, Sequence[str]]) -> None:
     """The ``replaybench.segmentation`` metadata record: backend -> JSON list of class names."""
     if names:
         record = {backend: json.dumps(list(n)) for backend, n in sorted(names.items())}

@@ -208,8 +208,12 @@ class DetectionsWriter:
     ``annotations_channel(backend, image_topic)``, in the backend's colour: the ``backends``
     labels get the report's palette colours in order, other labels the next colours in order
     of first use. Nothing reaches the MCAP before ``finish``, which writes every message in
-    log time order (see the module's description).
+    log time order (see the module's description). It is an ``OutputWriter``
+    (``replaybench.sinks.writer``): the tasks' sinks write their messages through it.
     """
+
+    #: It keeps what it is given (``OutputWriter.keeps``).
+    keeps: bool = True
 
     def __init__(
         self, path: Path, *, annotations: bool = False, backends: Sequence[str] = ()
@@ -243,6 +247,10 @@ class DetectionsWriter:
         self._info_channels: set[int] = set()
         self._finished = False
         self._stage: BinaryIO = self.stage_path.open('w+b')
+
+    def colour(self, backend: str) -> str:
+        """The backend's colour in annotations (``OutputWriter.colour``)."""
+        return self._colour(backend)
 
     def _colour(self, backend: str) -> str:
         label = backend.replace('-', '_')

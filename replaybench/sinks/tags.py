@@ -25,12 +25,12 @@ from replaybench.fiducials.msgs import (
 )
 from replaybench.msgs import IMAGE_ANNOTATIONS, typestore
 from replaybench.sinks.annotations import FONT_SIZE, LINE_LOOP, THICKNESS, rgba
-from replaybench.sinks.mcap_writer import DetectionsWriter
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
     from replaybench.fiducials.types import TagDetection, TagResult
+    from replaybench.sinks.writer import OutputWriter
 
 __all__ = [
     'serialize_tag_annotations',
@@ -39,9 +39,6 @@ __all__ = [
     'tf_channel',
     'write_tags',
 ]
-
-# ranks in outputs.mcap's tie order (replaybench.sinks.mcap_writer): detections, annotations
-_DETECTIONS, _ANNOTATIONS = 1, 2
 
 
 def _base(backend: str, image_topic: str) -> str:
@@ -118,7 +115,7 @@ def serialize_tag_annotations(stamp_ns: int, tags: Sequence[TagDetection], colou
 
 
 def write_tags(
-    writer: object,
+    writer: OutputWriter,
     backend: str,
     image_topic: str,
     log_time_ns: int,
@@ -126,31 +123,28 @@ def write_tags(
     frame_id: str,
     result: TagResult,
 ) -> None:
-    """One frame's tag outputs into ``writer`` (a DetectionsWriter; anything else: nothing)."""
-    if not isinstance(writer, DetectionsWriter):
+    """One frame's tag outputs into ``writer`` (none made for a writer that keeps nothing)."""
+    if not writer.keeps:
         return
     camera_frame = result.camera_frame or frame_id
-    # the writer's own staging (the same package): ordered and written with the rest at finish
-    writer._write(
+    writer.add_message(
         tags_channel(backend, image_topic),
         APRILTAG_DETECTION_ARRAY,
         log_time_ns,
         serialize_tag_array(stamp_ns, frame_id, result.tags, camera_frame),
-        rank=_DETECTIONS,
     )
     if any(tag.pose is not None for tag in result.tags):
-        writer._write(
+        writer.add_message(
             tf_channel(backend),
             TF_MESSAGE,
             log_time_ns,
             serialize_tf(stamp_ns, camera_frame, result.tags),
-            rank=_DETECTIONS,
         )
     if writer.annotations:
-        writer._write(
+        writer.add_message(
             tag_annotations_channel(backend, image_topic),
             IMAGE_ANNOTATIONS,
             log_time_ns,
-            serialize_tag_annotations(stamp_ns, result.tags, writer._colour(backend)),
-            rank=_ANNOTATIONS,
+            serialize_tag_annotations(stamp_ns, result.tags, writer.colour(backend)),
+            annotation=True,
         )

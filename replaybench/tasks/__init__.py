@@ -9,7 +9,10 @@ A task's views (``TaskViews``: its report panels, its columns and lines on the t
 ``'module:attr'`` strings too, imported by ``load_view`` when the report or the terminal shows
 them.
 Each task also declares the recorded outputs the ``recorded`` backend reads of it
-(``Task.recorded_readers``; ``replaybench.replay.recorded.RECORDED_READERS`` gathers them).
+(``Task.recorded_readers``; ``replaybench.replay.recorded.RECORDED_READERS`` gathers them),
+and may name its part of recording a processed frame (``task_recording``), which the engine
+loads once per run for the backends that declare the task (``Backend.task``;
+``require_task`` checks a declared name without importing a built-in task).
 """
 
 from __future__ import annotations
@@ -37,7 +40,9 @@ __all__ = [
     'all_metrics',
     'get_task',
     'load_view',
+    'require_task',
     'task_names',
+    'task_recording',
     'task_views',
 ]
 
@@ -133,6 +138,14 @@ def get_task(name: str) -> Task:
     raise UsageError(msg)
 
 
+def require_task(name: str) -> None:
+    """Nothing when ``name`` is a registered task (a built-in one is not imported); the
+    errors of ``get_task`` otherwise: ``UsageError`` naming the known tasks for an unknown
+    name, ``TaskUnavailableError`` for a third-party task that cannot be loaded."""
+    if name not in TASKS:
+        get_task(name)
+
+
 def all_metrics() -> tuple[MetricSpec, ...]:
     """``COMMON_METRICS``, then each task's metrics in ``task_names`` order.
 
@@ -173,8 +186,23 @@ def task_views(task: Task) -> TaskViews:
     return views
 
 
-def load_view(task: Task, target: str) -> Any:
-    """The object a view's ``'module:attr'`` string names, imported now.
+def task_recording(task: Task) -> str | None:
+    """The ``'module:attr'`` of ``task``'s part of recording a processed frame (a callable
+    ``(recorder) -> TaskRecording``, ``replaybench.replay.recording``); None for a task
+    without a ``recording`` attribute, whose frames are recorded as boxes only.
+
+    ``TaskUnavailableError`` when ``recording`` is there but no ``'module:attr'`` string.
+    """
+    target = getattr(task, 'recording', None)
+    if target is not None and (not isinstance(target, str) or ':' not in target):
+        msg = f"task {task.name!r}: recording must be a 'module:attr' string, not {target!r}"
+        raise TaskUnavailableError(msg)
+    return target
+
+
+def load_view(task: Task, target: str, what: str = 'view') -> Any:
+    """The object a view's (or the task's ``what``'s) ``'module:attr'`` string names,
+    imported now.
 
     ``TaskUnavailableError`` naming the task and the target when it cannot be imported.
     """
@@ -182,5 +210,5 @@ def load_view(task: Task, target: str) -> Any:
     try:
         return getattr(importlib.import_module(module_name), attr)
     except Exception as exc:  # any import failure makes the view unavailable
-        msg = f'task {task.name!r}: cannot import view {target}: {type(exc).__name__}: {exc}'
+        msg = f'task {task.name!r}: cannot import {what} {target}: {type(exc).__name__}: {exc}'
         raise TaskUnavailableError(msg) from exc

@@ -359,8 +359,9 @@ def test_frames_and_summary_csv_written_before_the_recorded_columns_still_read(t
 
 
 def test_one_reader_entry_is_all_another_recorded_output_type_needs(tmp_path, monkeypatch):
-    """A task type's recorded output is one ``RECORDED_READERS`` entry: here CameraInfo read as
-    an "output" (one box the size of the image), matched, scored and timed like detections."""
+    """Another message type of a task's recorded output is one ``RECORDED_READERS`` entry:
+    here CameraInfo read as an "output" of the detections task (one box the size of the image),
+    matched, scored and timed like detections."""
     from replaybench.decode import decode_camera_info
     from replaybench.decode import recorded as recorded_outputs
     from replaybench.fixtures.writer import camera_info
@@ -373,7 +374,7 @@ def test_one_reader_entry_is_all_another_recorded_output_type_needs(tmp_path, mo
         box = Detection(0, 'frame', 1.0, 0.0, 0.0, float(info.width), float(info.height))
         return recorded_outputs.RecordedMessage(info.frame_id, info.stamp_ns, BackendResult((box,)))
 
-    entry = recorded_outputs.OutputReader('frames', read_camera_info, candidate=False)
+    entry = recorded_outputs.OutputReader('detections', read_camera_info, candidate=False)
     monkeypatch.setitem(recorded_table.RECORDED_READERS, CAMERA_INFO, entry)
     messages = [m for m in _messages() if m[0] == IMAGE_TOPIC]
     for _, _, image_log, _ in list(messages):

@@ -20,6 +20,7 @@ from replaybench.fixtures.masks import MASK_CLASS_NAMES, MASK_TOPIC, semantic_la
 from replaybench.fixtures.scene import Scene
 from replaybench.fixtures.writer import stamp_ns, write_mcap, write_rosbag2
 from replaybench.msgs import typestore
+from replaybench.replay.output import Discard
 from replaybench.replay.runner import RunConfig, run_benchmark
 from replaybench.replay.segmentation import Segmentation
 from replaybench.results.segmentation import confusion, scores
@@ -193,8 +194,8 @@ def test_two_segmentation_backends_are_compared_with_each_other(bag: Path) -> No
     other = np.array([[0, 1], [0, 1]], dtype=np.uint8)
     with open_source(bag) as source:
         key = ('/cam', 0, 0, 1, 'f')
-        state.add(None, 'a', 0, source, key, LabelMask(labels, ('bg', 'x')))
-        state.add(None, 'b', 0, source, key, LabelMask(other, ('bg', 'x')))
+        state.add(Discard(), 'a', 0, source, key, LabelMask(labels, ('bg', 'x')))
+        state.add(Discard(), 'b', 0, source, key, LabelMask(other, ('bg', 'x')))
     (row,) = state.agreements()
     # b against a: class 0 hits 1, union 2 -> 0.5; class 1 hits 2, union 3 -> 2/3
     assert row['frames'] == 1

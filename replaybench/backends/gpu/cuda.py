@@ -148,6 +148,9 @@ class CudaBackend:
     )
     #: Runs on the GPU ``options.device`` (``Backend.device``).
     device: ClassVar[str] = 'cuda'
+    #: Boxes until ``open()`` has read the model: a segmentation model makes it ``segmentation``
+    #: (``Backend.task``).
+    task: str = 'detections'
     #: Engines this backend may use, in ``auto`` order.
     engines: ClassVar[tuple[str, ...]] = ('ort', 'torch')
     #: The onnxruntime provider the ``ort`` engine must run every node on.
@@ -450,6 +453,7 @@ class CudaBackend:
                 facts['cuda_graph'] = self._engine.graph_note
                 facts['syncs_per_forward'] = self._engine.syncs
         self._pipeline, self.spec = pipeline, spec
+        self.task = 'segmentation' if isinstance(spec, SegModelSpec) else 'detections'
         if device.type == 'cuda':
             self._events = torch_events(torch, self._stream)
         self.engine_name = engine

@@ -35,6 +35,10 @@ class TagsTask:
         terminal_lines='replaybench.results.tags:tag_lines',
     )
 
+    #: a processed frame's tags written and scored (``replaybench.replay.tags.TagScores``),
+    #: loaded when the frames of a backend of the task are first recorded
+    recording: ClassVar[str] = 'replaybench.replay.tags:recording'
+
     #: ``replaybench.tasks.tags.recorded``, imported when the ``recorded`` backend reads it
     recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(
         'replaybench.tasks.tags.recorded:READERS'

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from backends.gpu.gpufakes import GPU_A, fake_gpu_build, torch_on_the_cpu
 
-from replaybench.backends.base import BackendOptions
+from replaybench.backends.base import BackendOptions, backend_task
 from replaybench.backends.gpu.cuda import CudaBackend
 from replaybench.backends.onnx_seg import OnnxSegBackend
 from replaybench.errors import BackendError
@@ -163,6 +163,21 @@ def test_the_ort_engine_binds_the_segmentation_output_and_gives_onnx_segs_masks(
     assert info['engine'] == 'ort'
     assert info['providers'][0] == 'CUDAExecutionProvider'
     assert (info['layout'], info['layout_source']) == ('logits-nchw', 'metadata')
+
+
+def test_cuda_declares_the_task_of_the_model_it_opened(monkeypatch, driver):
+    torch = pytest.importorskip('torch')
+    driver([GPU_A])
+    fake_gpu_build(monkeypatch, ['CUDAExecutionProvider', 'CPUExecutionProvider'])
+    torch_on_the_cpu(monkeypatch, torch)
+
+    backend = CudaBackend(BackendOptions(engine='ort', model=DEFAULT_SEG_MODEL))
+    assert backend_task(backend, 0) == 'detections'  # nothing read of the model yet
+    backend.open()
+    try:
+        assert backend_task(backend, 0) == 'segmentation'
+    finally:
+        backend.close()
 
 
 def test_model_family_picks_the_segmentation_layout_as_onnx_seg_does(

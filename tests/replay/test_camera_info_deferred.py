@@ -7,12 +7,13 @@ from __future__ import annotations
 import json
 import threading
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from mcap.reader import make_reader
 
 from replaybench.backends.null import NullBackend
 from replaybench.decode import camera_info as camera_info_module
+from replaybench.replay import output as output_module
 from replaybench.replay import runner as runner_module
 from replaybench.replay.runner import RunConfig, run_benchmark
 
@@ -86,7 +87,7 @@ def test_a_backend_that_reads_camera_infos_gets_them_and_the_outputs_are_the_sam
 
 def _interrupted_copy(
     out: Path, monkeypatch: pytest.MonkeyPatch, interrupt: Callable[[], None]
-) -> tuple[dict[str, object], list[object]]:
+) -> tuple[dict[str, Any], list[Any]]:
     """A run whose camera infos are read after the passes, ``interrupt`` called at the third
     one read: run.json and detections.mcap's messages."""
     real = camera_info_module.decode_camera_info
@@ -137,7 +138,7 @@ def test_a_stop_set_while_the_camera_infos_are_copied_ends_the_run_as_interrupte
     tmp_path, monkeypatch
 ):
     stops: list[threading.Event] = []
-    real_run = runner_module.copy_camera_infos
+    real_run = output_module.copy_camera_infos
 
     def copy(inputs: object, writer: object, stop: threading.Event | None = None) -> bool:
         assert stop is not None

@@ -326,6 +326,11 @@ def _strided_uint(
     return rows.copy().view(kind)[:, 0]
 
 
+def _ascending(values: npt.NDArray[Any]) -> bool:
+    """Whether ``values`` never decrease."""
+    return bool(np.all(values[1:] >= values[:-1]))
+
+
 def _sorted_unique(values: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
     """The distinct values of a sorted array."""
     if not len(values):
@@ -446,14 +451,14 @@ def _lazy_index(buf: memoryview, summary: _Summary) -> _Lazy | None:
     when a reader reaches them (``McapSource._lazy_rows``)."""
     if not summary.chunk_records or len(summary.chunk_records) != len(summary.chunk_ends):
         return None
-    bodies = np.array(summary.chunk_records, np.int64)
-    lengths = np.array(summary.chunk_ends, np.int64) - bodies
-    if np.any(lengths < 64):
-        return None
     data = np.frombuffer(buf, np.uint8)
     try:
         if len(summary.chunk_runs) <= _RUNS_AT_MOST:
             return _lazy_runs(data, summary.start, summary.chunk_runs)
+        bodies = np.array(summary.chunk_records, np.int64)
+        lengths = np.array(summary.chunk_ends, np.int64) - bodies
+        if np.any(lengths < 64):
+            return None
         return _lazy_read(data, summary.start, bodies, lengths)
     finally:
         del data
@@ -659,8 +664,10 @@ def _lazy_records(
     if np.any(offsets_u > limit):
         return None
     offsets = offsets_u.astype(np.int64)
-    by_rec = np.lexsort((offsets, chunk))
-    chunk, cids, offsets = chunk[by_rec], cids[by_rec], offsets[by_rec]
+    step = np.diff(chunk)
+    if not np.all((step > 0) | ((step == 0) & (np.diff(offsets) > 0))):  # as writers write them
+        by_rec = np.lexsort((offsets, chunk))
+        chunk, cids, offsets = chunk[by_rec], cids[by_rec], offsets[by_rec]
     per_chunk = np.bincount(chunk, minlength=len(pos))
     first = np.concatenate(([0], np.cumsum(per_chunk)))
     following = np.empty_like(offsets)
@@ -682,7 +689,7 @@ def _lazy_records(
         csize,
         usize,
         compression,
-        np.lexsort((pos, start)).astype(np.int64),
+        np.arange(len(pos)) if _ascending(start) else np.lexsort((pos, start)).astype(np.int64),
         chunk,
         cids,
         offsets,
@@ -756,6 +763,8 @@ class _LazyTable(NamedTuple):
     rank: npt.NDArray[np.int64]
     chmap: dict[int, int]
     topics: int
+    start_ascending: bool  # the chunks' first log times, in position order, never decrease
+    end_ascending: bool  # nor their last ones
 
 
 def _collect(rows: list[tuple[int, int, int, int]]) -> Callable[[int, int, int, int], None]:
@@ -1073,7 +1082,16 @@ class McapSource(TableSource):
         # per channel its topic's rank; one more entry (-1) for the records of no channel
         rank = np.array([index[ch.topic] for ch in self._channels] + [-1], np.int64)
         channel = np.where(g >= 0, g, len(self._channels))
-        table = _LazyTable(lazy, g, channel, rank, chmap, len(names))
+        table = _LazyTable(
+            lazy,
+            g,
+            channel,
+            rank,
+            chmap,
+            len(names),
+            _ascending(lazy.start),
+            _ascending(lazy.end),
+        )
         self._lz = table
         try:
             first, last = self._lazy_bounds(table)
@@ -1104,7 +1122,8 @@ class McapSource(TableSource):
             if not len(ks):
                 continue
             best: int | None = None
-            for k in ks[np.argsort(lz.start[ks], kind='stable')].tolist():
+            by_start = ks if table.start_ascending else ks[np.argsort(lz.start[ks], kind='stable')]
+            for k in by_start.tolist():
                 if best is not None and int(lz.start[k]) >= best:
                     break
                 times = self._lazy_rows(table, np.array([k]), wanted, strict=True)[0]
@@ -1113,7 +1132,8 @@ class McapSource(TableSource):
                     best = low if best is None else min(best, low)
             first[r] = best or 0
             best = None
-            for k in ks[np.argsort(lz.end[ks], kind='stable')[::-1]].tolist():
+            by_end = ks if table.end_ascending else ks[np.argsort(lz.end[ks], kind='stable')]
+            for k in by_end[::-1].tolist():
                 if best is not None and int(lz.end[k]) <= best:
                     break
                 times = self._lazy_rows(table, np.array([k]), wanted, strict=True)[0]

@@ -1,6 +1,8 @@
 """MCAP files: ros2 (cdr), ros1 and protobuf channels.
 
-Indexed files are read from their summary and MessageIndex records only; a message's ``data``
+Indexed files are read from their summary and MessageIndex records only: a single file with a
+regular summary lazily (``_lazy_index``: at open its summary alone, each chunk's MessageIndex
+records when a reader reaches the chunk), any other at open; a message's ``data``
 is a zero-copy view of the memory-mapped file for uncompressed chunks, or of its chunk
 decompressed once (a small cache keeps the chunks in use) for zstd / lz4 chunks.
 
@@ -777,7 +779,7 @@ def _collect(rows: list[tuple[int, int, int, int]]) -> Callable[[int, int, int, 
 
 
 #: chunks read at most at once by a lazily indexed source's reader (it starts with one)
-_LAZY_BATCH = 1024
+_LAZY_BATCH = 128
 
 
 class McapSource(TableSource):

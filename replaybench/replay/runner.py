@@ -327,7 +327,11 @@ def _execute(
                 copy_problems = copy_images(inputs, detections_out)
         except (KeyboardInterrupt, Stopped):
             status = 'interrupted'
-        copy_camera_infos(inputs, detections_out)
+        # read here unless a backend read them: an interrupt now (a KeyboardInterrupt, or the
+        # token set after passes that ended) ends the run as one in the passes does
+        after = calls.stop if status != 'interrupted' else None
+        if not copy_camera_infos(inputs, detections_out, after):
+            status = 'interrupted'
     write_detections_metadata(output)
     from replaybench.replay.record import input_info, run_result, summaries
     from replaybench.results.agreement import AGREEMENT_IOU, agreement_table

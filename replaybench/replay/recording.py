@@ -17,7 +17,7 @@ the agreement and the sample describe the frames it wrote).
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 from replaybench.replay.recorded import (
     NOT_RECORDED,
@@ -35,6 +35,10 @@ if TYPE_CHECKING:
 
     from replaybench.replay.inputs import OpenedInput
     from replaybench.replay.passes import LogEntry, Pass, Warmups
+    from replaybench.replay.segmentation import MaskTruth
+    from replaybench.results.groundtruth import ExternalGroundTruth
+    from replaybench.tasks.detections.truth import BoxTruth, DetectionTable
+    from replaybench.tasks.tags.truth import TagTable
     from replaybench.types import CameraInfo, Detection, LabelMask, RawMessage
 
 __all__ = ['DetectionsSink', 'FrameSink', 'Recorder', 'Sample']
@@ -45,6 +49,13 @@ FrameDetections = dict[tuple[int, int], tuple['Detection', ...]]
 TruthKey = tuple[int, str, int]
 
 _NOT_TIMED = StageTimes()
+
+
+def _boxes(inp: OpenedInput) -> tuple[DetectionTable, ExternalGroundTruth | None]:
+    """The input's box truth (``replaybench.tasks.detections.truth.BoxTruth``): its topic's
+    boxes by (frame_id, stamp), and the run's ground-truth file; empty where it has none."""
+    found = cast('BoxTruth | None', inp.truth.get('detections'))
+    return ({}, None) if found is None else (found.frames, found.external)
 
 
 class FrameSink(Protocol):
@@ -117,7 +128,7 @@ class Recorder:
         self.ground_truth: dict[TruthKey, tuple[Detection, ...]] = {
             (inp.number, frame_id, stamp): dets
             for inp in inputs
-            for (frame_id, stamp), dets in inp.ground_truth.items()
+            for (frame_id, stamp), dets in _boxes(inp)[0].items()
         }
         #: per (backend label, topic): the detections of each frame that has ground truth
         self.scored: dict[tuple[str, str], dict[TruthKey, tuple[Detection, ...]]] = {}
@@ -125,7 +136,7 @@ class Recorder:
         self.detections: dict[tuple[str, str], FrameDetections] = {}
         self.samples: dict[tuple[int, str], Sample] = {}
         #: segmentation backends' masks: written, scored against ground-truth masks, compared
-        self.segmentation = segmentation if segmentation is not None else Segmentation(None, 1)
+        self.segmentation = segmentation if segmentation is not None else Segmentation(1)
         #: the tag backends' tags scored against tag ground truth (replaybench.replay.tags)
         self.tags = TagScores()
         self._taken: dict[tuple[str, int, str], int] = {}
@@ -267,23 +278,25 @@ class Recorder:
                 self.detections_out,
                 done.label,
                 number,
-                inp.source,
+                cast('MaskTruth | None', inp.truth.get('segmentation')),
                 (topic, seq, log_time_ns, stamp_ns, frame_id),
                 mask,
             )
         )
         self.detections.setdefault(label_key, {})[(number, seq)] = detections
         self.detections_out.add(done.label, topic, log_time_ns, stamp_ns, frame_id, detections)
+        box_frames, external = _boxes(inp)
         if mask is not None or not boxes_scored(inp.recorded_reader, done.measures_latency):
             pass  # a segmentation backend (or recorded masks): scored against masks above
-        elif inp.external is not None:
-            truth = inp.external.lookup(topic, seq, stamp_ns)
+        elif external is not None:
+            truth = external.lookup(topic, seq, stamp_ns)
             if truth is not None:
                 frame_key = (number, topic, seq)
                 self.ground_truth[frame_key] = truth
                 self.scored.setdefault(label_key, {})[frame_key] = detections
-        elif (frame_id, stamp_ns) in inp.ground_truth:
+        elif (frame_id, stamp_ns) in box_frames:
             self.scored.setdefault(label_key, {})[(number, frame_id, stamp_ns)] = detections
+        tags = cast('TagTable | None', inp.truth.get('tags'))
         tag_columns = self.tags.frame(
             done.label,
             topic,
@@ -291,7 +304,7 @@ class Recorder:
             stamp_ns,
             frame_id,
             result,
-            inp.tag_truth.get((frame_id, stamp_ns)),
+            None if tags is None else tags.get((frame_id, stamp_ns)),
             self.detections_out,
         )
         self._sample(done, topic, seq, log_time_ns, detections, mask)

@@ -1,7 +1,6 @@
-"""The tag task in the engine: tag ground truth read from an input, and each tag backend's tags
-written into outputs.mcap and scored per frame.
+"""The tag task in the engine: each tag backend's tags written into outputs.mcap and scored per
+frame against the input's tag ground truth (read when it opens, ``replaybench.tasks.tags.truth``).
 
-``read_tag_truth`` runs when an input opens (``replaybench.replay.inputs.open_input``);
 ``TagScores`` is kept by the ``Recorder`` (``Recorder.task_outputs`` calls ``frame`` after the
 pass, outside any timed region) and gives each (backend, topic) its ``TagAccuracy``
 (``replaybench.replay.record.summaries``). Backends that return no ``TagResult`` pass through
@@ -13,49 +12,15 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from replaybench.errors import DecodeError
-from replaybench.fiducials.msgs import APRILTAG_DETECTION_ARRAY, decode_tag_array
 from replaybench.fiducials.types import TagResult
 
 if TYPE_CHECKING:
     from replaybench.fiducials.types import TagDetection
     from replaybench.results.model import TagAccuracy
     from replaybench.results.tags import FrameTagScore
-    from replaybench.sources import Source
     from replaybench.types import BackendResult
 
-__all__ = ['TAG_GROUND_TRUTH_TOPIC', 'TagScores', 'TagTable', 'read_tag_truth']
-
-#: Where tag ground truth is read from (AprilTagDetectionArray, keyed by frame_id and stamp).
-TAG_GROUND_TRUTH_TOPIC = '/ground_truth/tags'
-
-#: Truth tags by (frame_id, stamp_ns), as the ground-truth topic holds them
-TagTable = dict[tuple[str, int], tuple['TagDetection', ...]]
-
-
-def read_tag_truth(source: Source, notes: list[str]) -> TagTable:
-    """The input's tag ground truth (empty without the topic); ``notes`` gets one line when
-    some of its messages are not a readable AprilTagDetectionArray (they are left out)."""
-    topic = TAG_GROUND_TRUTH_TOPIC
-    if not any(t.name == topic for t in source.topics()):
-        return {}
-    truth: TagTable = {}
-    bad = 0
-    for raw in source.messages(topics=[topic]):
-        if raw.msgtype != APRILTAG_DETECTION_ARRAY:
-            bad += 1
-            continue
-        try:
-            found = decode_tag_array(raw)
-        except DecodeError:
-            bad += 1
-            continue
-        truth[(found.frame_id, found.stamp_ns)] = found.tags
-    if bad:
-        notes.append(
-            f'{topic}: {bad} message(s) are not a readable AprilTagDetectionArray; left out'
-        )
-    return truth
+__all__ = ['TagScores']
 
 
 class TagScores:

@@ -5,8 +5,9 @@
 
 Targets: a first frame in at most 0.40 s (``TARGET_S``), and each larger bag within 10 %
 (``RATIO_MAX``) of the first (200 MB) one: nothing the run does before its first frame may
-grow with the bag. The reader opens an MCAP by its summary, whose chunk indexes are read with
-array operations; the bag's CameraInfo messages are read only by a backend that reads a
+grow with the bag. The reader opens an MCAP by its summary alone, whose chunk indexes are read
+with array operations, and reads a chunk's MessageIndex records when it reaches the chunk; the
+bag's CameraInfo messages are read only by a backend that reads a
 frame's camera info (the null backend does not), else after the passes; every input's sha256
 is taken after the passes.
 

@@ -19,9 +19,11 @@ gathers them from the registered tasks. This module holds what every reader shar
 * ``missing``: what a frame without a recorded output gets (no detections, an empty
   ``TagResult`` so the frame counts against tag recall; no mask, so the frame is not scored);
 * ``unusable``: what the values ``read`` leaves out are, in the input's notes;
-* ``producer``: who made the outputs on the robot (the ``latency`` line of the backend's info);
-* ``scores_boxes``: whether a frame's boxes are scored against box ground truth (not those of
-  recorded masks: a frame without its mask has no boxes either).
+* ``producer``: who made the outputs on the robot (the ``latency`` line of the backend's info).
+
+Whether a frame's boxes are scored against box ground truth is the task's to say (its
+``TaskRecording.scores_boxes``, ``replaybench.replay.recording``), for recorded outputs as for
+a replayed backend's.
 
 ``read_recorded_outputs`` reads a topic through its reader into a table keyed by (frame_id,
 stamp_ns), keeping each output's log time: the time the recorder logged it, from which
@@ -82,8 +84,6 @@ class OutputReader:
     unusable: str = 'unusable value(s)'
     #: who made the outputs on the robot, in the ``latency`` line of the backend's info
     producer: str = 'the node'
-    #: whether a frame's boxes are scored against box ground truth
-    scores_boxes: bool = True
 
     @property
     def noun(self) -> str:

@@ -1,54 +1,54 @@
-"""The inputs of a run, opened: their topics, time window, camera infos, ground truth (boxes and
-tags), the
-recorded outputs a backend replays, the sample frame of each topic and their sha256.
+"""The inputs of a run, opened: their topics, time window, camera infos, each task's ground
+truth, the recorded outputs a backend replays, the sample frame of each topic and their sha256.
 
 ``open_input`` opens and probes one BAG argument into an ``OpenedInput``; ``replayed`` is the
 stream of image messages each pass reads from it; ``decoder`` turns one into the ``Frame`` a
 backend gets. The sha256 is taken while nothing is timed: a small input's when it opens, a
 larger one's after the passes (``deferred_hash``), settled with a check that the input did not
 change meanwhile (``settle_hash``).
+
+Ground truth belongs to the tasks (``replaybench.tasks.TaskTruth``): ``load_truths`` asks every
+registered task for what the run reads once, and ``open_input`` keeps each task's truth topics
+out of the cameras and the recorded topic and holds what each task's ``open_truth`` read of the
+input, by task name (``OpenedInput.truth``). No task is named here.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple, cast
+from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench.decode import decode_detections, decode_image, message_kind
+from replaybench.decode import decode_image, message_kind
 from replaybench.decode.camera_info import CameraInfoIndex
 from replaybench.decode.probe import CameraTopic, probe_topics, unreadable_image_topics
-from replaybench.errors import DecodeError, SourceError, UsageError
+from replaybench.errors import SourceError, UsageError
 from replaybench.replay.hashing import ANNOUNCE_MIN_BYTES, InputHash, describe_size
 from replaybench.replay.recorded import read_recorded, without_recorded
-from replaybench.replay.segmentation import replayable
-from replaybench.replay.tags import TAG_GROUND_TRUTH_TOPIC, TagTable, read_tag_truth
 from replaybench.sources import Source, open_source
+from replaybench.tasks import TruthInput
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterator, Sequence
+    from collections.abc import Callable, Iterator, Mapping, Sequence
     from pathlib import Path
 
     from replaybench.decode.recorded import OutputReader, RecordedOutput
     from replaybench.replay.config import InputOptions, RunConfig
-    from replaybench.results.groundtruth import ExternalGroundTruth, MatchMode
-    from replaybench.types import Detection, Frame, RawMessage, SkippedTopic
+    from replaybench.tasks import TaskTruth
+    from replaybench.types import Frame, RawMessage, SkippedTopic
 
 __all__ = [
-    'DetectionTable',
     'HashOutcome',
     'OpenedInput',
+    'RunTruth',
     'decoder',
     'deferred_hash',
     'expected_frames',
-    'load_external',
+    'load_truths',
     'open_input',
     'replayed',
     'settle_hash',
 ]
 
 _NS = 1_000_000_000
-
-#: Detections by (frame_id, stamp_ns), as a Detection2DArray topic holds them
-DetectionTable = dict[tuple[str, int], tuple['Detection', ...]]
 
 
 class OpenedInput(NamedTuple):
@@ -59,14 +59,14 @@ class OpenedInput(NamedTuple):
     source: Source
     topics: list[CameraTopic]
     camera_infos: CameraInfoIndex
-    ground_truth: DetectionTable
     start_ns: int | None
     end_ns: int | None
     sample_index: dict[str, int]  # per topic: index among the replayed frames of the sample frame
     recorded: dict[tuple[str, int], RecordedOutput]  # for the `recorded` backend
     recorded_topic: str | None
-    tag_truth: TagTable  # tag ground truth (replaybench.replay.tags), by (frame_id, stamp)
-    external: ExternalGroundTruth | None = None  # --ground-truth-file; replaces ground_truth
+    #: each task's ground truth of the input by task name (``TaskTruth.open_truth``); a task
+    #: without truth here is absent
+    truth: Mapping[str, object]
     notes: tuple[str, ...] = ()  # warnings found while opening (detections left out)
     sha256: InputHash | None = None  # made when the input opened (``deferred_hash``)
     max_frames: int | None = None  # at most this many frames of each topic are replayed
@@ -75,23 +75,24 @@ class OpenedInput(NamedTuple):
     recorded_reader: OutputReader | None = None  # how the recorded topic's type is read
 
 
-def load_external(config: RunConfig) -> ExternalGroundTruth | None:
-    """The --ground-truth-file, read and checked against the other options."""
-    if config.ground_truth_file is None:
-        return None
-    from replaybench.results.groundtruth import load_ground_truth_file
+class RunTruth(NamedTuple):
+    """The registered tasks that read ground truth, each with what the run read of its truth
+    once (``TaskTruth.load_truth``), in the registry's order."""
 
-    if config.ground_truth_explicit:
-        msg = 'give --ground-truth (a topic) or --ground-truth-file, not both'
-        raise UsageError(msg)
-    if config.ground_truth_match == 'seq' and len(config.inputs) > 1:
-        msg = '--ground-truth-match seq needs a single BAG: seq numbers restart in every bag'
-        raise UsageError(msg)
-    return load_ground_truth_file(
-        config.ground_truth_file,
-        match=cast('MatchMode', config.ground_truth_match),
-        topic=config.ground_truth_image_topic,
-        seq_offset=config.ground_truth_seq_offset,
+    readers: tuple[tuple[str, TaskTruth, object | None], ...] = ()
+
+    def topics(self, options: InputOptions) -> frozenset[str]:
+        """Every task's truth topics: no camera, never the recorded topic."""
+        return frozenset(t for _, reader, _ in self.readers for t in reader.truth_topics(options))
+
+
+def load_truths(config: RunConfig) -> RunTruth:
+    """Every task's ground-truth reader, and what each reads once for the run (the
+    --ground-truth-file, a folder of masks), read and checked against the other options."""
+    from replaybench.tasks import truth_readers
+
+    return RunTruth(
+        tuple((name, reader, reader.load_truth(config)) for name, reader in truth_readers())
     )
 
 
@@ -135,13 +136,14 @@ def open_input(
     index: int,
     path: Path,
     options: InputOptions,
-    external: ExternalGroundTruth | None = None,
+    truths: RunTruth,
     *,
     recorded_detections: bool = False,
 ) -> OpenedInput:
-    """Open and probe one input; ``recorded_detections``: a backend replays a recorded output
-    topic (``Backend.uses_recorded_detections``), which is read here by its message type
-    (``replaybench.replay.recorded.read_recorded``)."""
+    """Open and probe one input; ``truths``: the tasks' ground-truth readers (``load_truths``),
+    each of which opens its truth of the input; ``recorded_detections``: a backend replays a
+    recorded output topic (``Backend.uses_recorded_detections``), which is read here by its
+    message type (``replaybench.replay.recorded.read_recorded``)."""
     source = open_source(path)
     try:
         skipped = source.skipped_topics()
@@ -149,10 +151,19 @@ def open_input(
             damaged = ' before the damage' if source.truncated else ' in this file'
             msg = f'{path}: no messages{damaged}'
             raise SourceError(msg)
-        found = replayable(probe_topics(source), options.ground_truth_masks, path)
+        images = probe_topics(source)
+        truth_topics = truths.topics(options)
+        found = [t for t in images if t.name not in truth_topics]  # the truth is no camera
         topics = _select_topics(path, found, options.topics, unreadable_image_topics(source))
-        if external is not None:
-            _check_external_topics(path, external, [t.name for t in topics])
+        notes: list[str] = []
+        truth = _open_truths(
+            truths,
+            options,
+            notes,
+            TruthInput(
+                index, path, source, tuple(t.name for t in images), tuple(t.name for t in topics)
+            ),
+        )
         all_topics = source.topics()
         first = min((t.first_ns for t in all_topics), default=0)
         start_ns = first + round(options.start_s * _NS) if options.start_s else None
@@ -163,25 +174,14 @@ def open_input(
         # read when first used: by the first pass of a backend that reads camera infos, or
         # after the passes for outputs.mcap (``decoder``, ``output.copy_camera_infos``)
         camera_infos = CameraInfoIndex.deferred(source, info_topics)
-        notes: list[str] = []
-        ground_truth: DetectionTable = {}
-        gt_topic = options.ground_truth_topic
-        gt_present = any(t.name == gt_topic for t in all_topics)
-        if gt_topic and not gt_present and options.ground_truth_explicit:
-            msg = f'{path}: ground-truth topic {gt_topic} is not in this file'
-            raise UsageError(msg)
-        if gt_topic and gt_present and external is None:
-            ground_truth = _read_detections(source, gt_topic, notes)
         recorded: dict[tuple[str, int], RecordedOutput] = {}
         recorded_topic = recorded_reader = None
         if recorded_detections:
-            # the ground truth of boxes and of tags is never the recorded output
-            truths = (options.ground_truth_topic, TAG_GROUND_TRUTH_TOPIC)
+            # no task's ground truth is the recorded output
             recorded_topic, recorded_reader, recorded = read_recorded(
-                path, source, all_topics, options.recorded_topic, truths, notes
+                path, source, all_topics, options.recorded_topic, truth_topics, notes
             )
             topics = without_recorded(path, topics, recorded_topic)
-        tag_truth = read_tag_truth(source, notes)
         # the frame drawn in samples/: the middle one of the replayed frames (the first one when
         # --start/--duration cut a window whose size is unknown before reading)
         sample_index = {
@@ -194,17 +194,15 @@ def open_input(
             source=source,
             topics=topics,
             camera_infos=camera_infos,
-            ground_truth=ground_truth,
             start_ns=start_ns,
             end_ns=end_ns,
             sample_index=sample_index,
             recorded=recorded,
             recorded_topic=recorded_topic,
-            external=external,
+            truth=truth,
             notes=tuple(notes),
             max_frames=options.max_frames,
             size_bytes=sum(f.stat().st_size for f in source.files),
-            tag_truth=tag_truth,
             recorded_reader=recorded_reader,
         )
     except BaseException:
@@ -212,47 +210,16 @@ def open_input(
         raise
 
 
-def _check_external_topics(
-    path: Path, external: ExternalGroundTruth, replayed: Sequence[str]
-) -> None:
-    """Refuse a ground-truth file that cannot tell which replayed topic it annotates."""
-    if external.topic is not None and external.topic not in replayed:
-        msg = (
-            f'{path}: --ground-truth-image-topic {external.topic} is not replayed; '
-            f'replayed image topics: {", ".join(replayed)}'
-        )
-        raise UsageError(msg)
-    if external.topic is None and not external.topics and len(replayed) > 1:
-        msg = (
-            f'{external.path} does not say which image topic it annotates and {path} replays '
-            f'{len(replayed)}: add --ground-truth-image-topic (one of {", ".join(replayed)})'
-        )
-        raise UsageError(msg)
-
-
-def _read_detections(source: Source, topic: str, notes: list[str] | None = None) -> DetectionTable:
-    """Detection2DArray messages of a topic keyed by (frame_id, stamp); bad messages skipped.
-
-    Detections with a NaN or infinite box or score are left out; ``notes`` gets a line
-    saying how many.
-    """
-    table: DetectionTable = {}
-    nonfinite = messages = 0
-    for raw in source.messages(topics=[topic]):
-        try:
-            found = decode_detections(raw)
-        except DecodeError:
-            continue
-        table[(found.frame_id, found.stamp_ns)] = found.detections
-        if found.nonfinite:
-            nonfinite += found.nonfinite
-            messages += 1
-    if nonfinite and notes is not None:
-        notes.append(
-            f'{topic}: left out {nonfinite} detection(s) with a NaN or infinite box or score '
-            f'in {messages} message(s)'
-        )
-    return table
+def _open_truths(
+    truths: RunTruth, options: InputOptions, notes: list[str], inp: TruthInput
+) -> dict[str, object]:
+    """What each task's ``open_truth`` read of the input, by task name (none: left out)."""
+    opened: dict[str, object] = {}
+    for name, reader, loaded in truths.readers:
+        found = reader.open_truth(inp, options, loaded, notes)
+        if found is not None:
+            opened[name] = found
+    return opened
 
 
 def expected_frames(topic: CameraTopic, max_frames: int | None) -> int:

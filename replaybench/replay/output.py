@@ -15,6 +15,7 @@ from replaybench.results.records import FramesCsvWriter
 from replaybench.results.runfolder import OUTPUTS_MCAP, with_filename
 
 if TYPE_CHECKING:
+    import threading
     from collections.abc import Iterable, Iterator, Mapping, Sequence
     from pathlib import Path
 
@@ -145,16 +146,29 @@ def camera_info_channels(inputs: Sequence[OpenedInput], writer: DetectionsSink) 
             writer.add_camera_info_channel(topic)
 
 
-def copy_camera_infos(inputs: Sequence[OpenedInput], writer: DetectionsSink) -> None:
-    """Every input's camera infos into outputs.mcap, once each (by topic and log time)."""
+def copy_camera_infos(
+    inputs: Sequence[OpenedInput], writer: DetectionsSink, stop: threading.Event | None = None
+) -> bool:
+    """Every input's camera infos into outputs.mcap, once each (by topic and log time);
+    False when ``stop`` was set (looked at before each input and each message written), or a
+    ``KeyboardInterrupt`` came, before all were copied: those copied stay, and the file is
+    finished as after an interrupt in the passes."""
     seen: set[tuple[str, int]] = set()
-    for inp in inputs:
-        for info in inp.camera_infos.all():
-            key = (info.topic, info.log_time_ns)
-            if key in seen:
-                continue
-            seen.add(key)
-            writer.add_camera_info(info.topic, info.log_time_ns, info)
+    try:
+        for inp in inputs:
+            if stop is not None and stop.is_set():
+                return False
+            for info in inp.camera_infos.all():
+                key = (info.topic, info.log_time_ns)
+                if key in seen:
+                    continue
+                if stop is not None and stop.is_set():
+                    return False
+                seen.add(key)
+                writer.add_camera_info(info.topic, info.log_time_ns, info)
+    except KeyboardInterrupt:
+        return False
+    return True
 
 
 def copy_images(inputs: Sequence[OpenedInput], writer: DetectionsSink) -> dict[int, str]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import time
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from replaybench._version import __version__
 from replaybench.results.agreement import AGREEMENT_IOU
@@ -46,6 +46,7 @@ if TYPE_CHECKING:
     from replaybench.replay.recording import Recorder, TruthKey
     from replaybench.results.agreement import Agreement
     from replaybench.results.model import BackendRun, Environment
+    from replaybench.tasks.detections.truth import BoxTruth
     from replaybench.types import Detection
 
 __all__ = ['accuracy', 'input_info', 'run_result', 'segmentation', 'summaries']
@@ -182,14 +183,16 @@ def input_info(
     warnings = [*inp.source.warnings, *inp.notes, *hashed.warnings]
     if copy_problem is not None:
         warnings.append(copy_problem)
-    ground_truth_frames = len(inp.ground_truth)
-    if inp.external is not None:
+    boxes = cast('BoxTruth | None', inp.truth.get('detections'))
+    ground_truth_frames = 0 if boxes is None else len(boxes.frames)
+    external = None if boxes is None else boxes.external
+    if external is not None:
         ground_truth_frames = matched_frames
-        warnings += list(inp.external.warnings)
+        warnings += list(external.warnings)
         if not matched_frames and replayed_any:
             warnings.append(
-                f'{inp.external.path} annotates none of the replayed frames '
-                f'(matched by {inp.external.match}); see docs/ground-truth.md'
+                f'{external.path} annotates none of the replayed frames '
+                f'(matched by {external.match}); see docs/ground-truth.md'
             )
     return InputInfo(
         index=inp.number,

@@ -35,7 +35,6 @@ __all__ = [
     'NOT_RECORDED',
     'RECORDED_READERS',
     'RecordedTopic',
-    'boxes_scored',
     'frame_recorded_times',
     'output_reader',
     'read_recorded',
@@ -204,14 +203,6 @@ def without_recorded(path: Path, topics: list[_T], recorded_topic: str) -> list[
         )
         raise UsageError(msg)
     return kept
-
-
-def boxes_scored(reader: OutputReader | None, timed: bool) -> bool:
-    """Whether a frame's boxes are scored against box ground truth: not for a backend replaying
-    recorded outputs whose reader says they are not (``OutputReader.scores_boxes``: masks; a
-    frame without its mask has no boxes either: it is left unscored, as a segmentation
-    backend's frames are)."""
-    return timed or reader is None or reader.scores_boxes
 
 
 def frame_recorded_times(

@@ -18,7 +18,7 @@ the agreement and the sample describe the frames it wrote).
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 from replaybench.replay.recorded import NOT_RECORDED, frame_recorded_times, recorded_note
 from replaybench.replay.segmentation import Segmentation
@@ -31,6 +31,8 @@ if TYPE_CHECKING:
 
     from replaybench.replay.inputs import OpenedInput
     from replaybench.replay.passes import LogEntry, Pass, Warmups
+    from replaybench.results.groundtruth import ExternalGroundTruth
+    from replaybench.tasks.detections.truth import BoxTruth, DetectionTable
     from replaybench.types import CameraInfo, Detection, RawMessage
 
 __all__ = ['DetectionsSink', 'FrameSink', 'Recorder', 'Sample', 'TaskRecording']
@@ -44,6 +46,13 @@ FrameKey = tuple[str, int, int, int, str]
 
 _NOT_TIMED = StageTimes()
 _NO_COLUMNS: Mapping[str, Any] = {}
+
+
+def _boxes(inp: OpenedInput) -> tuple[DetectionTable, ExternalGroundTruth | None]:
+    """The input's box truth (``replaybench.tasks.detections.truth.BoxTruth``): its topic's
+    boxes by (frame_id, stamp), and the run's ground-truth file; empty where it has none."""
+    found = cast('BoxTruth | None', inp.truth.get('detections'))
+    return ({}, None) if found is None else (found.frames, found.external)
 
 
 class FrameSink(Protocol):
@@ -172,7 +181,7 @@ class Recorder:
         self.ground_truth: dict[TruthKey, tuple[Detection, ...]] = {
             (inp.number, frame_id, stamp): dets
             for inp in inputs
-            for (frame_id, stamp), dets in inp.ground_truth.items()
+            for (frame_id, stamp), dets in _boxes(inp)[0].items()
         }
         #: per (backend label, topic): the detections of each frame that has ground truth
         self.scored: dict[tuple[str, str], dict[TruthKey, tuple[Detection, ...]]] = {}
@@ -180,7 +189,7 @@ class Recorder:
         self.detections: dict[tuple[str, str], FrameDetections] = {}
         self.samples: dict[tuple[int, str], Sample] = {}
         #: segmentation backends' masks: written, scored against ground-truth masks, compared
-        self.segmentation = segmentation if segmentation is not None else Segmentation(None, 1)
+        self.segmentation = segmentation if segmentation is not None else Segmentation(1)
         #: the tag backends' tags scored against tag ground truth (replaybench.replay.tags)
         self.tags = TagScores()
         self._taken: dict[tuple[str, int, str], int] = {}
@@ -351,15 +360,16 @@ class Recorder:
             columns = recording.frame(self.detections_out, done.label, inp, key, result)
         self.detections.setdefault(label_key, {})[(number, seq)] = detections
         self.detections_out.add(done.label, topic, log_time_ns, stamp_ns, frame_id, detections)
+        box_frames, external = _boxes(inp)
         if recording is not None and not recording.scores_boxes:
             pass  # a mask's task: scored against masks
-        elif inp.external is not None:
-            truth = inp.external.lookup(topic, seq, stamp_ns)
+        elif external is not None:
+            truth = external.lookup(topic, seq, stamp_ns)
             if truth is not None:
                 frame_key = (number, topic, seq)
                 self.ground_truth[frame_key] = truth
                 self.scored.setdefault(label_key, {})[frame_key] = detections
-        elif (frame_id, stamp_ns) in inp.ground_truth:
+        elif (frame_id, stamp_ns) in box_frames:
             self.scored.setdefault(label_key, {})[(number, frame_id, stamp_ns)] = detections
         if recording is not None and not recording.writes_first:
             columns = recording.frame(self.detections_out, done.label, inp, key, result)

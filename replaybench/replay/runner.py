@@ -50,7 +50,7 @@ from replaybench.replay.config import (
 from replaybench.replay.inputs import (
     deferred_hash,
     expected_frames,
-    load_external,
+    load_truths,
     open_input,
     settle_hash,
 )
@@ -165,7 +165,7 @@ def run_benchmark(
     """
     _check_config(config, check_available=backend_factory is None)
     factory = backend_factory or make_backend
-    external = load_external(config)
+    truths = load_truths(config)
     started = dt.datetime.now(dt.UTC)
     t_start = time.perf_counter()
     calls = _Calls(clock or MonotonicClock(), progress, stop, render, notice)
@@ -182,7 +182,7 @@ def run_benchmark(
             recorded = any(backend_traits(b).uses_recorded_detections for _, b in made)
             for index, path in enumerate(config.inputs):
                 inp = open_input(
-                    index, Path(path), input_options, external, recorded_detections=recorded
+                    index, Path(path), input_options, truths, recorded_detections=recorded
                 )
                 # small inputs hashed now, larger ones after the passes (deferred_hash)
                 inputs.append(deferred_hash(inp, input_options, hasher))
@@ -294,7 +294,7 @@ def _execute(
     copy_problems: dict[int, str] = {}
     status = 'complete'
     with writers(output) as (frames_csv, detections_out):
-        segmentation = Segmentation(config.ground_truth_masks, len(config.backends))
+        segmentation = Segmentation(len(config.backends))
         recorder = Recorder(inputs, warmups, frames_csv, detections_out, segmentation)
         # their messages are read after the passes, unless a backend reads them (``decoder``)
         camera_info_channels(inputs, detections_out)
@@ -327,7 +327,11 @@ def _execute(
                 copy_problems = copy_images(inputs, detections_out)
         except (KeyboardInterrupt, Stopped):
             status = 'interrupted'
-        copy_camera_infos(inputs, detections_out)
+        # read here unless a backend read them: an interrupt now (a KeyboardInterrupt, or the
+        # token set after passes that ended) ends the run as one in the passes does
+        after = calls.stop if status != 'interrupted' else None
+        if not copy_camera_infos(inputs, detections_out, after):
+            status = 'interrupted'
     write_detections_metadata(output)
     from replaybench.replay.record import input_info, run_result, summaries
     from replaybench.results.agreement import AGREEMENT_IOU, agreement_table

@@ -6,9 +6,10 @@ A backend that declares the segmentation task (``Backend.task``) returns
 timed pass, ``Recorder.task_outputs`` in ``replaybench.replay.recording``), ``Segmentation.add``
 
 * stages the mask in outputs.mcap (``replaybench.sinks.masks``);
-* scores it against the frame's ground-truth mask, when there is one: the input's mask topic
-  (``/ground_truth/labels`` by default, matched by frame_id and header stamp) or a folder of
-  PNG masks named ``<stamp_ns>.png`` (``MaskFolder``); the frame's own mIoU and pixel accuracy
+* scores it against the frame's ground-truth mask, when there is one: the input's truth of the
+  segmentation task (``replaybench.tasks.segmentation.truth``: its mask topic, matched by
+  frame_id and header stamp, or a folder of PNG masks named ``<stamp_ns>.png``), which the
+  ``Segmentation.frame`` reads from ``OpenedInput.truth``; the frame's own mIoU and pixel accuracy
   go into its frames.csv row, its confusion matrix into the (backend, topic) sum that gives
   the summary (``replaybench.results.segmentation``);
 * keeps the mask, PNG-compressed, when the run has several segmentation backends, for their
@@ -22,108 +23,28 @@ Masks are held in the pass's log until the pass ends (one ``H x W`` byte array p
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, cast
 
 import numpy as np
 
-from replaybench.errors import DecodeError, UsageError
-from replaybench.results.segmentation import (
-    GROUND_TRUTH_MASK_TOPIC,
-    class_name,
-    confusion,
-    scores,
-)
+from replaybench.errors import UsageError
+from replaybench.results.segmentation import class_name, confusion, scores
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Mapping
 
     import numpy.typing as npt
 
     from replaybench.sinks.writer import OutputWriter
-    from replaybench.sources import Source
     from replaybench.types import BackendResult, LabelMask
 
-__all__ = [
-    'NO_MASK',
-    'FrameScore',
-    'MaskFolder',
-    'MaskTopic',
-    'MaskedInput',
-    'Segmentation',
-    'mask_truth_topic',
-    'recording',
-    'replayable',
-]
+__all__ = ['NO_MASK', 'FrameScore', 'MaskTruth', 'MaskedInput', 'Segmentation', 'recording']
 
 
-def mask_truth_topic(spec: str | None) -> str | None:
-    """The ground-truth mask topic asked for: ``spec`` when it names a topic, the default when
-    ``spec`` is None, None when ``spec`` is a folder of PNG masks."""
-    if spec is None:
-        return GROUND_TRUTH_MASK_TOPIC
-    return None if Path(spec).is_dir() else spec
+class MaskTruth(Protocol):
+    """An input's ground-truth masks (``replaybench.tasks.segmentation.truth``)."""
 
-
-class MaskTopic:
-    """The ground-truth masks of one input's topic, indexed by (frame_id, stamp); each mask
-    is read again from the input when asked for."""
-
-    def __init__(self, source: Source, topic: str) -> None:
-        from replaybench.decode import decode_image
-
-        self.source = source
-        self.topic = topic
-        self.index: dict[tuple[str, int], tuple[int, int]] = {}
-        self.class_names: tuple[str, ...] = ()
-        for raw in source.messages(topics=[topic]):
-            try:
-                frame = decode_image(raw)
-            except DecodeError:
-                continue
-            if frame.encoding == 'mono8':
-                self.index[(frame.frame_id, frame.stamp_ns)] = (raw.log_time_ns, raw.seq)
-
-    def lookup(self, frame_id: str, stamp_ns: int) -> npt.NDArray[np.uint8] | None:
-        from replaybench.decode import decode_image
-
-        found = self.index.get((frame_id, stamp_ns))
-        if found is None:
-            return None
-        log_time, seq = found
-        for raw in self.source.messages(
-            topics=[self.topic], start_ns=log_time, end_ns=log_time + 1
-        ):
-            if raw.seq == seq:
-                image = decode_image(raw).image
-                return np.ascontiguousarray(image.reshape(image.shape[0], image.shape[1]))
-        return None
-
-
-class MaskFolder:
-    """Ground-truth masks as single-channel 8-bit PNG files named ``<stamp_ns>.png`` (the
-    image's header stamp in nanoseconds); ``UsageError`` for a folder without any."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.files = {int(p.stem): p for p in path.glob('*.png') if p.stem.isdigit()}
-        if not self.files:
-            msg = f'{path}: no ground-truth masks (<stamp_ns>.png) in this folder'
-            raise UsageError(msg)
-        self.class_names: tuple[str, ...] = ()
-
-    def lookup(self, frame_id: str, stamp_ns: int) -> npt.NDArray[np.uint8] | None:
-        import cv2
-
-        del frame_id  # one folder serves every replayed topic
-        path = self.files.get(stamp_ns)
-        if path is None:
-            return None
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None or image.dtype != np.uint8 or image.ndim != 2:
-            msg = f'{path}: not a single-channel 8-bit PNG mask'
-            raise UsageError(msg)
-        return cast('npt.NDArray[np.uint8]', image)
+    def lookup(self, frame_id: str, stamp_ns: int) -> npt.NDArray[np.uint8] | None: ...
 
 
 def _unpng(data: bytes) -> npt.NDArray[np.uint8]:
@@ -146,57 +67,33 @@ NO_MASK = _NO_SCORE
 _NO_COLUMNS: Mapping[str, Any] = {}
 
 
-def replayable(topics: Sequence[Any], truth: str | None, path: Path | None = None) -> list[Any]:
-    """The probed image topics without the ground-truth mask topic (it is not a camera);
-    ``UsageError`` when ``truth`` names a topic that is not among them."""
-    skip = mask_truth_topic(truth)
-    if truth is not None and skip is not None and not any(t.name == skip for t in topics):
-        where = f'{path}: ' if path is not None else ''
-        msg = f'{where}ground-truth mask topic {skip} is not an image topic of this file'
-        raise UsageError(msg)
-    return [t for t in topics if t.name != skip]
-
-
 class MaskedInput(Protocol):
     """What the masks' recording reads of an input (``replaybench.replay.inputs.OpenedInput``,
-    a later stage): its number and its source (for the ground-truth mask topic)."""
+    a later stage): its number and each task's ground truth by task name, the segmentation
+    task's a ``MaskTruth`` (``replaybench.tasks.segmentation.truth``)."""
 
     @property
     def number(self) -> int: ...
 
     @property
-    def source(self) -> Source: ...
+    def truth(self) -> Mapping[str, object]: ...
 
 
 class Segmentation:
-    """The run's masks: truth per input, confusion sums, class names, kept masks."""
+    """The run's masks: confusion sums, class names, kept masks."""
 
     #: the task's frames are scored against masks, not their boxes against box ground truth
     scores_boxes = False
     #: a mask's messages go before the frame's detections message in outputs.mcap
     writes_first = True
 
-    def __init__(self, truth: str | None, backends: int) -> None:
-        self.topic = mask_truth_topic(truth)
-        self.folder = MaskFolder(Path(truth)) if truth is not None and self.topic is None else None
-        self.explicit = truth is not None
+    def __init__(self, backends: int) -> None:
         self.keep = backends > 1
-        self.truths: dict[int, MaskTopic | MaskFolder | None] = {}
         self.matrices: dict[tuple[str, str], npt.NDArray[np.int64]] = {}
         self.frames: dict[tuple[str, str], int] = {}
         self.class_names: dict[str, tuple[str, ...]] = {}
         self.kept: dict[tuple[str, str], dict[tuple[int, int], bytes]] = {}
         self.shapes: dict[tuple[str, str], dict[tuple[int, int], tuple[int, int]]] = {}
-
-    def _truth(self, number: int, source: Source) -> MaskTopic | MaskFolder | None:
-        if number not in self.truths:
-            if self.folder is not None:
-                self.truths[number] = self.folder
-            elif self.topic is not None and any(t.name == self.topic for t in source.topics()):
-                self.truths[number] = MaskTopic(source, self.topic)
-            else:
-                self.truths[number] = None
-        return self.truths[number]
 
     def frame(
         self,
@@ -207,12 +104,13 @@ class Segmentation:
         result: BackendResult,
     ) -> Mapping[str, Any]:
         """One processed frame of a segmentation backend (``TaskRecording.frame``): its mask
-        written, scored and kept (``add``); its frames.csv mIoU and pixel accuracy (none for
-        a frame without a mask)."""
+        written, scored against the input's ground-truth masks and kept (``add``); its
+        frames.csv mIoU and pixel accuracy (none for a frame without a mask)."""
         mask = result.mask
         if mask is None:
             return _NO_COLUMNS
-        score = self.add(writer, label, inp.number, inp.source, key, mask)
+        truth = cast('MaskTruth | None', inp.truth.get('segmentation'))
+        score = self.add(writer, label, inp.number, truth, key, mask)
         return {'miou': score.miou, 'pixel_accuracy': score.pixel_accuracy}
 
     def sample(self, result: BackendResult) -> npt.NDArray[np.uint8] | None:
@@ -225,11 +123,12 @@ class Segmentation:
         writer: OutputWriter,
         backend: str,
         number: int,
-        source: Source,
+        truth: MaskTruth | None,
         key: tuple[str, int, int, int, str],
         mask: LabelMask,
     ) -> FrameScore:
-        """Write, score and keep one frame's mask; its ``FrameScore``."""
+        """Write, score against ``truth`` (the input's masks; None: none) and keep one frame's
+        mask; its ``FrameScore``."""
         topic, seq, log_time_ns, stamp_ns, frame_id = key
         labels = mask.labels
         self.class_names.setdefault(backend, tuple(mask.class_names))
@@ -244,7 +143,6 @@ class Segmentation:
             ok, png = cv2.imencode('.png', labels, [cv2.IMWRITE_PNG_COMPRESSION, 1])
             if ok:
                 self.kept.setdefault(group, {})[(number, seq)] = png.tobytes()
-        truth = self._truth(number, source)
         if truth is None:
             return _NO_SCORE
         expected = truth.lookup(frame_id, stamp_ns)

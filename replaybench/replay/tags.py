@@ -1,11 +1,11 @@
-"""The tag task in the engine: tag ground truth read from an input, and each tag backend's tags
-written into outputs.mcap and scored per frame.
+"""The tag task in the engine: each tag backend's tags written into outputs.mcap and scored per
+frame against the input's tag ground truth (read when it opens, ``replaybench.tasks.tags.truth``).
 
-``read_tag_truth`` runs when an input opens (``replaybench.replay.inputs.open_input``);
 ``TagScores`` is kept by the ``Recorder`` and is the tags task's ``TaskRecording``
 (``recording``, named by ``replaybench.tasks.tags.task``): ``Recorder.task_outputs`` calls
 ``frame`` for each processed frame of a backend that declares the task (``Backend.task``),
-after the pass, outside any timed region. It gives each (backend, topic) its ``TagAccuracy``
+after the pass, outside any timed region, and it reads the frame's truth from the input's truth
+of the task (``OpenedInput.truth``). It gives each (backend, topic) its ``TagAccuracy``
 (``replaybench.replay.record.summaries``). The backends of other tasks never reach it (their
 tag columns stay empty): the scorer and the sink are imported at the first tag result, so that
 a run without tags does not load them.
@@ -15,66 +15,28 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Protocol, cast
 
-from replaybench.errors import BackendError, DecodeError
-from replaybench.fiducials.msgs import APRILTAG_DETECTION_ARRAY, decode_tag_array
+from replaybench.errors import BackendError
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
-    from replaybench.fiducials.types import TagDetection, TagResult
+    from replaybench.fiducials.types import TagResult
     from replaybench.results.model import TagAccuracy
     from replaybench.results.tags import FrameTagScore
     from replaybench.sinks.writer import OutputWriter
-    from replaybench.sources import Source
+    from replaybench.tasks.tags.truth import TagTable
     from replaybench.types import BackendResult
 
-__all__ = [
-    'TAG_GROUND_TRUTH_TOPIC',
-    'TagScores',
-    'TagTable',
-    'TaggedInput',
-    'read_tag_truth',
-    'recording',
-]
-
-#: Where tag ground truth is read from (AprilTagDetectionArray, keyed by frame_id and stamp).
-TAG_GROUND_TRUTH_TOPIC = '/ground_truth/tags'
-
-#: Truth tags by (frame_id, stamp_ns), as the ground-truth topic holds them
-TagTable = dict[tuple[str, int], tuple['TagDetection', ...]]
-
-
-def read_tag_truth(source: Source, notes: list[str]) -> TagTable:
-    """The input's tag ground truth (empty without the topic); ``notes`` gets one line when
-    some of its messages are not a readable AprilTagDetectionArray (they are left out)."""
-    topic = TAG_GROUND_TRUTH_TOPIC
-    if not any(t.name == topic for t in source.topics()):
-        return {}
-    truth: TagTable = {}
-    bad = 0
-    for raw in source.messages(topics=[topic]):
-        if raw.msgtype != APRILTAG_DETECTION_ARRAY:
-            bad += 1
-            continue
-        try:
-            found = decode_tag_array(raw)
-        except DecodeError:
-            bad += 1
-            continue
-        truth[(found.frame_id, found.stamp_ns)] = found.tags
-    if bad:
-        notes.append(
-            f'{topic}: {bad} message(s) are not a readable AprilTagDetectionArray; left out'
-        )
-    return truth
+__all__ = ['TagScores', 'TaggedInput', 'recording']
 
 
 class TaggedInput(Protocol):
     """What the tags' recording reads of an input (``replaybench.replay.inputs.OpenedInput``,
-    a later stage): its tag ground truth."""
+    a later stage): each task's ground truth by task name, the tags' a ``TagTable``
+    (``replaybench.tasks.tags.truth``)."""
 
     @property
-    def tag_truth(self) -> TagTable: ...
+    def truth(self) -> Mapping[str, object]: ...
 
 
 class TagScores:
@@ -115,7 +77,8 @@ class TagScores:
         if note and (label, topic) not in self.notes:
             self.notes[(label, topic)] = f'{label}: {note}'
         write_tags(writer, label, topic, log_time_ns, stamp_ns, frame_id, tagged)
-        truth = inp.tag_truth.get((frame_id, stamp_ns))
+        table = cast('TagTable | None', inp.truth.get('tags'))
+        truth = None if table is None else table.get((frame_id, stamp_ns))
         if truth is None:
             return {'tags': len(tags)}
         score = score_frame(tags, truth)

@@ -1,7 +1,7 @@
 """Mask thumbnails: a segmentation backend's label mask of the sample frame, colour-mapped.
 
 Written beside the frame's sample as ``samples/input<i>_<topic>.mask_<backend>.png`` (the
-palette of ``replaybench.segmentation.palette``, as in detections.mcap's ``labels_rgb``);
+palette of ``replaybench.segmentation.palette``, as in outputs.mcap's ``labels_rgb``);
 report.html shows each under its frame.
 """
 

@@ -33,18 +33,19 @@ if TYPE_CHECKING:
 
     PayloadReader = Callable[[memoryview, int], memoryview | None]
 
-__all__ = ['CACHE_BYTES', 'Channel', 'Chunk', 'TableSource']
+__all__ = ['CACHE_BYTES', 'U64_MAX', 'Channel', 'Chunk', 'TableSource', 'clamp_time']
 
 #: Decompressed chunks kept at most (bytes); at least two chunks are kept whatever their size.
 CACHE_BYTES = 256 << 20
 _BATCH = 1024
 
 
-_U64_MAX = 2**64 - 1
+U64_MAX = 2**64 - 1
 
 
-def _clamp(time_ns: int) -> int:
-    return min(max(time_ns, 0), _U64_MAX)
+def clamp_time(time_ns: int) -> int:
+    """``time_ns`` within the range of a log time (uint64)."""
+    return min(max(time_ns, 0), U64_MAX)
 
 
 def _column(n: int, value: int | npt.NDArray[np.int32]) -> npt.NDArray[np.int32]:
@@ -222,6 +223,12 @@ class TableSource:
             first[present] = time[first_idx].astype(np.int64)
             present_rev, last_idx_rev = np.unique(topic[::-1], return_index=True)
             last[present_rev] = time[n - 1 - last_idx_rev].astype(np.int64)
+        self._topics = self._topic_infos(names, counts.tolist(), first.tolist(), last.tolist())
+
+    def _topic_infos(
+        self, names: list[str], counts: list[int], first: list[int], last: list[int]
+    ) -> list[TopicInfo]:
+        """The topics ``names`` (sorted) with their counts and first / last log times."""
         infos: list[TopicInfo] = []
         for i, name in enumerate(names):
             kinds = {(ch.msgtype, ch.serialization) for ch in self._channels if ch.topic == name}
@@ -233,7 +240,7 @@ class TableSource:
                     name, ch.msgtype, ch.serialization, int(counts[i]), int(first[i]), int(last[i])
                 )
             )
-        self._topics = infos
+        return infos
 
     # -- Source API -----------------------------------------------------------------------
 
@@ -269,9 +276,11 @@ class TableSource:
         n = len(table.time)
         # np.uint64 keys: a Python int against uint64 times is compared as float64, which
         # cannot tell nanoseconds apart at today's epoch times
-        lo = 0 if start_ns is None else int(table.time.searchsorted(np.uint64(_clamp(start_ns))))
-        hi = n if end_ns is None else int(table.time.searchsorted(np.uint64(_clamp(end_ns))))
-        if end_ns is not None and end_ns > _U64_MAX:
+        lo = (
+            0 if start_ns is None else int(table.time.searchsorted(np.uint64(clamp_time(start_ns))))
+        )
+        hi = n if end_ns is None else int(table.time.searchsorted(np.uint64(clamp_time(end_ns))))
+        if end_ns is not None and end_ns > U64_MAX:
             hi = n
         if hi <= lo:
             return iter(())
@@ -381,10 +390,14 @@ class TableSource:
             self._chunk_regions = (regions, any(region is None for region in regions))
         return self._chunk_regions
 
+    def _chunk_at(self, k: int) -> Chunk:
+        """Chunk ``k``."""
+        return self._chunks[k]
+
     def _skipped(self, k: int, topic: str) -> None:
         if k in self._bad_chunks:
             return
-        ck = self._chunks[k]
+        ck = self._chunk_at(k)
         where = f'chunk at byte {ck.pos}' if ck.pos >= 0 else 'data section'
         name = self._file_name(ck)
         self._warn(f'{name}: unreadable message record(s) on {topic} in {where}; skipped')
@@ -394,7 +407,7 @@ class TableSource:
 
     def _chunk_bytes(self, k: int) -> bytes | None:
         """Compressed chunk ``k`` decompressed; None (warned once) when it cannot be."""
-        ck = self._chunks[k]
+        ck = self._chunk_at(k)
         try:
             return decompress_chunk(
                 self._maps[ck.file_no].view,

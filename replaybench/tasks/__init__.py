@@ -9,10 +9,12 @@ A task's views (``TaskViews``: its report panels, its columns and lines on the t
 ``'module:attr'`` strings too, imported by ``load_view`` when the report or the terminal shows
 them.
 Each task also declares the recorded outputs the ``recorded`` backend reads of it
-(``Task.recorded_readers``; ``replaybench.replay.recorded.RECORDED_READERS`` gathers them),
-and may name its part of recording a processed frame (``task_recording``), which the engine
-loads once per run for the backends that declare the task (``Backend.task``;
-``require_task`` checks a declared name without importing a built-in task).
+(``Task.recorded_readers``; ``replaybench.replay.recorded.RECORDED_READERS`` gathers them), and
+a task scored against ground truth how its truth is found and read (``TaskTruth``;
+``truth_readers`` gives them to the engine, ``replaybench.replay.inputs``). A task may name its
+part of recording a processed frame (``task_recording``), which the engine loads once per run
+for the backends that declare the task (``Backend.task``; ``require_task`` checks a declared
+name without importing a built-in task).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from replaybench.errors import TaskUnavailableError, UsageError
-from replaybench.tasks.base import LazyMapping, MetricSpec, Task, TaskViews
+from replaybench.tasks.base import LazyMapping, MetricSpec, Task, TaskTruth, TaskViews, TruthInput
 from replaybench.tasks.common import COMMON_METRICS
 
 if TYPE_CHECKING:
@@ -36,14 +38,18 @@ __all__ = [
     'LazyMapping',
     'MetricSpec',
     'Task',
+    'TaskTruth',
     'TaskViews',
+    'TruthInput',
     'all_metrics',
     'get_task',
     'load_view',
     'require_task',
     'task_names',
     'task_recording',
+    'task_truth',
     'task_views',
+    'truth_readers',
 ]
 
 ENTRY_POINT_GROUP = 'replaybench.tasks'
@@ -58,8 +64,55 @@ TASKS: dict[str, str] = {
 _NAME_RE = re.compile(r'[A-Za-z0-9][A-Za-z0-9_-]*\Z')
 
 
+#: the import system's own finders: they find distributions only as ``_declares`` looks for them
+_PLAIN_FINDERS = frozenset({'BuiltinImporter', 'FrozenImporter', 'PathFinder'})
+
+
+def _declares(group: str) -> bool:
+    """Whether an installed distribution may declare entry points of ``group``: a look at the
+    ``entry_points.txt`` files of the distributions on ``sys.path``, so that
+    ``importlib.metadata`` (with the email and zip modules it imports, some 20 ms) is loaded
+    before a run's first frame only where one does. True wherever the look cannot be sure (a
+    zip or other file on ``sys.path``, a finder of distributions besides the import system's);
+    false only where ``importlib.metadata`` would find no entry point of ``group`` either."""
+    import sys
+    from pathlib import Path
+
+    for finder in sys.meta_path:
+        name = getattr(finder, '__name__', type(finder).__name__)
+        if callable(getattr(finder, 'find_distributions', None)) and name not in _PLAIN_FINDERS:
+            return True
+    heading = f'[{group}]'
+    for entry in sys.path:
+        root = Path(entry or '.')
+        try:
+            children = [child.name for child in root.iterdir()]
+        except NotADirectoryError:
+            return True  # a zip file: importlib.metadata reads it
+        except OSError:
+            continue  # not there: nothing found in it
+        folders = [root / 'EGG-INFO'] if root.name.lower().endswith('.egg') else []
+        for child in children:
+            low = child.lower()
+            if low.endswith(('.dist-info', '.egg-info')):
+                folders.append(root / child)
+            elif low.endswith('.egg'):
+                folders.append(root / child / 'EGG-INFO')
+        for folder in folders:
+            try:
+                if heading in (folder / 'entry_points.txt').read_text(encoding='utf-8'):
+                    return True
+            except (FileNotFoundError, NotADirectoryError):
+                continue
+            except (OSError, UnicodeError):
+                return True  # unreadable here: let importlib.metadata say
+    return False
+
+
 def _entry_points() -> list[EntryPoint]:
     """Entry points of the task group, in a stable order (name, then target)."""
+    if not _declares(ENTRY_POINT_GROUP):
+        return []
     import importlib.metadata  # only third-party tasks need it
 
     eps = importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
@@ -212,3 +265,32 @@ def load_view(task: Task, target: str, what: str = 'view') -> Any:
     except Exception as exc:  # any import failure makes the view unavailable
         msg = f'task {task.name!r}: cannot import {what} {target}: {type(exc).__name__}: {exc}'
         raise TaskUnavailableError(msg) from exc
+
+
+_TRUTH_METHODS = ('truth_topics', 'load_truth', 'open_truth')
+
+
+def task_truth(task: Task) -> TaskTruth | None:
+    """``task``'s ground-truth reader (the task itself), None for a task without truth (none of
+    ``truth_topics``, ``load_truth``, ``open_truth``).
+
+    ``TaskUnavailableError`` naming what is missing for a task that has some of them only.
+    """
+    has = [name for name in _TRUTH_METHODS if callable(getattr(task, name, None))]
+    if not has:
+        return None
+    if not isinstance(task, TaskTruth):
+        missing = ', '.join(name for name in _TRUTH_METHODS if name not in has)
+        msg = f'task {task.name!r}: it reads ground truth ({", ".join(has)}) but has no {missing}'
+        raise TaskUnavailableError(msg)
+    return task
+
+
+def truth_readers() -> list[tuple[str, TaskTruth]]:
+    """Every registered task that reads ground truth, by name, in ``task_names`` order."""
+    found: list[tuple[str, TaskTruth]] = []
+    for name in task_names():
+        reader = task_truth(get_task(name))
+        if reader is not None:
+            found.append((name, reader))
+    return found

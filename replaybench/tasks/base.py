@@ -1,5 +1,6 @@
-"""What a task type is to the rest of replaybench: its name, the metrics it is judged on and
-the recorded outputs of it that the ``recorded`` backend reads.
+"""What a task type is to the rest of replaybench: its name, the metrics it is judged on, the
+recorded outputs of it that the ``recorded`` backend reads and, for a task scored against ground
+truth, how its truth is found and read (``TaskTruth``).
 
 A metric's name, labels, unit, number format, better direction and the tables that show it
 live in one ``MetricSpec``; compare, its gate, comparison.html/.csv/.json, the sweep and the
@@ -12,10 +13,13 @@ from __future__ import annotations
 import importlib
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal, Protocol, TypeVar, runtime_checkable
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple, Protocol, TypeVar, runtime_checkable
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from replaybench.decode.recorded import OutputReader
+    from replaybench.sources import Source
 
 __all__ = [
     'Better',
@@ -23,8 +27,10 @@ __all__ = [
     'MetricKind',
     'MetricSpec',
     'Task',
+    'TaskTruth',
     'TaskViews',
     'TerminalColumns',
+    'TruthInput',
 ]
 
 _V = TypeVar('_V')
@@ -164,4 +170,49 @@ class Task(Protocol):
     def recorded_readers(self) -> Mapping[str, OutputReader]:
         """What the ``recorded`` backend reads of this task: a message type (ROS 2 spelling)
         -> its reader (``replaybench.decode.recorded.OutputReader``); empty for none."""
+        ...
+
+
+class TruthInput(NamedTuple):
+    """One input as a task's ``open_truth`` sees it: opened, its camera topics chosen."""
+
+    #: its index among the run's inputs
+    number: int
+    path: Path
+    source: Source
+    #: every readable image topic the input holds, truth topics among them
+    images: tuple[str, ...]
+    #: the image topics the run replays of it
+    replayed: tuple[str, ...]
+
+
+@runtime_checkable
+class TaskTruth(Protocol):
+    """How a task finds and reads its ground truth (a task without truth has none of these).
+
+    The engine calls them for every registered task, in the registry's order, and never names
+    one: ``load_truth`` once per run before any input opens, ``truth_topics`` and then
+    ``open_truth`` as each input opens (before the first frame: a reader reads there only what
+    must be read before it; what it can read later it reads on first use). ``options`` is the
+    run's ``replaybench.replay.config.InputOptions`` and ``config`` its ``RunConfig`` (typed
+    loosely: tasks/ sits below replay/). A bad truth (a topic asked for that is not there, a file
+    that does not parse) is a ``UsageError`` or ``SourceError`` with one line; a truth message
+    that cannot be read is left out with a line in ``notes``, which become the input's warnings.
+    """
+
+    def truth_topics(self, options: Any) -> frozenset[str]:
+        """The topics holding the task's truth: never replayed as a camera, never picked as
+        the recorded topic."""
+        ...
+
+    def load_truth(self, config: Any) -> object | None:
+        """What the run reads of the task's truth once, for every input (a ground-truth file,
+        a folder of masks); None for nothing. Given back to ``open_truth`` as ``loaded``."""
+        ...
+
+    def open_truth(
+        self, inp: TruthInput, options: Any, loaded: object | None, notes: list[str]
+    ) -> object | None:
+        """The input's truth of the task, as the task's scoring reads it; None where the input
+        has none."""
         ...

@@ -4,14 +4,22 @@ whose backend reads them before its first frame."""
 
 from __future__ import annotations
 
+import json
+import threading
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from mcap.reader import make_reader
 
 from replaybench.backends.null import NullBackend
 from replaybench.decode import camera_info as camera_info_module
+from replaybench.replay import output as output_module
+from replaybench.replay import runner as runner_module
 from replaybench.replay.runner import RunConfig, run_benchmark
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     import pytest
 
     from replaybench.types import BackendResult, Frame
@@ -75,3 +83,70 @@ def test_a_backend_that_reads_camera_infos_gets_them_and_the_outputs_are_the_sam
     detections = (silent / 'outputs.mcap').read_bytes()
     assert detections == (tmp_path / 'reading' / 'outputs.mcap').read_bytes()
     assert b'/camera/camera_info' in detections
+
+
+def _interrupted_copy(
+    out: Path, monkeypatch: pytest.MonkeyPatch, interrupt: Callable[[], None]
+) -> tuple[dict[str, Any], list[Any]]:
+    """A run whose camera infos are read after the passes, ``interrupt`` called at the third
+    one read: run.json and outputs.mcap's messages."""
+    real = camera_info_module.decode_camera_info
+    reads: list[int] = []
+
+    def decode(raw: object) -> object:
+        reads.append(1)
+        if len(reads) == 3:
+            interrupt()
+        return real(raw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(camera_info_module, 'decode_camera_info', decode)
+    _Silent.events, _Silent.infos = [], []
+    stop = threading.Event()
+    outcome = run_benchmark(
+        RunConfig(inputs=[RAW], backends=['null'], out_dir=out, report=False, warmup=0),
+        backend_factory=lambda name, options: _Silent(options),
+        stop=stop,
+    )
+    assert outcome.status == 'interrupted'
+    assert outcome.run_dir is not None
+    assert len(_Silent.events) > 2  # every frame was replayed before
+    with (outcome.run_dir / 'outputs.mcap').open('rb') as f:
+        reader = make_reader(f)
+        messages = list(reader.iter_messages())
+        summary = reader.get_summary()
+    assert not list(outcome.run_dir.glob('*.part'))
+    assert summary is not None  # a finished MCAP, its camera info channel made before the passes
+    assert '/camera/camera_info' in {c.topic for c in summary.channels.values()}
+    return json.loads((outcome.run_dir / 'run.json').read_text()), messages
+
+
+def test_a_ctrl_c_while_the_camera_infos_are_copied_ends_the_run_as_interrupted(
+    tmp_path, monkeypatch
+):
+    def ctrl_c() -> None:
+        raise KeyboardInterrupt
+
+    run, messages = _interrupted_copy(tmp_path / 'run', monkeypatch, ctrl_c)
+    assert run['status'] == 'interrupted'
+    frames = [m for m in messages if m[1].topic.startswith('/replaybench/')]
+    assert len(frames) == len(_Silent.events)
+    # they are all read before the first is written: none was copied
+    assert not [m for m in messages if m[1].topic == '/camera/camera_info']
+
+
+def test_a_stop_set_while_the_camera_infos_are_copied_ends_the_run_as_interrupted(
+    tmp_path, monkeypatch
+):
+    stops: list[threading.Event] = []
+    real_run = output_module.copy_camera_infos
+
+    def copy(inputs: object, writer: object, stop: threading.Event | None = None) -> bool:
+        assert stop is not None
+        stops.append(stop)
+        return real_run(inputs, writer, stop)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(runner_module, 'copy_camera_infos', copy)
+    run, messages = _interrupted_copy(tmp_path / 'run', monkeypatch, lambda: stops[0].set())
+    assert run['status'] == 'interrupted'
+    assert len(stops) == 1
+    assert not [m for m in messages if m[1].topic == '/camera/camera_info']

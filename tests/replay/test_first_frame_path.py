@@ -42,7 +42,7 @@ main()
 
 #: modules that the run record or the machine's description need, not the first frame; and the
 #: ROS 2 type store, which reading CameraInfo and ground truth does not need
-_LATER = (
+_LATER: tuple[str, ...] = (
     'cv2',
     'pydantic',  # typer's coercion: plain option values are read without it
     'replaybench.replay.record',
@@ -53,15 +53,21 @@ _LATER = (
     'replaybench.backends.gpu._engines',
     'replaybench.backends.gpu._dnn',
     'rosbags.typesys.stores.ros2_humble',
-    # the tasks' metric specs: the summary and compare read them, after the passes
-    'replaybench.tasks.detections.task',
-    'replaybench.tasks.tags.task',
-    'replaybench.tasks.segmentation.task',
+    # the tasks are loaded as the inputs open (each names its truth topics), but the third-party
+    # tasks are looked for without importlib.metadata where no distribution declares one
+    'importlib.metadata',
+    # the truth readers of tasks whose truth the input does not hold
+    'replaybench.tasks.tags.truth',
+    'replaybench.tasks.segmentation.truth',
     # the tasks' recorded readers: only the recorded backend reads them, before its passes
     'replaybench.tasks.detections.recorded',
     'replaybench.tasks.tags.recorded',
     'replaybench.tasks.segmentation.recorded',
 )
+
+#: what a bag with box truth imports before its first frame besides: the reader of that truth
+_WITH_TRUTH = ('replaybench.tasks.detections.truth',)
+_LATER = (*_LATER, *_WITH_TRUTH)
 
 
 def _camera_bag(path: Path) -> Path:
@@ -125,7 +131,8 @@ def test_a_fresh_run_reaches_its_first_frame_before_importing_what_only_the_reco
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     (line,) = [x for x in done.stderr.splitlines() if x.startswith('FIRST ')]
-    assert json.loads(line.removeprefix('FIRST ')) == []
+    # the bag with truth reads it (only it) before the first frame; the other reads none
+    assert json.loads(line.removeprefix('FIRST ')) == (list(_WITH_TRUTH) if bag == RAW else [])
     run = json.loads((tmp_path / 'r' / 'run.json').read_text(encoding='utf-8'))
     assert run['environment']['packages']['opencv']['version']  # described, after the passes
     assert run['inputs'][0]['topics'][0]['camera_info_topic'] == info_topic

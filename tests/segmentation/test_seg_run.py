@@ -25,7 +25,6 @@ from replaybench.replay.runner import RunConfig, run_benchmark
 from replaybench.replay.segmentation import Segmentation
 from replaybench.results.segmentation import confusion, scores
 from replaybench.segmentation.palette import palette
-from replaybench.sources import open_source
 from replaybench.types import Frame, LabelMask
 
 if TYPE_CHECKING:
@@ -188,14 +187,13 @@ def test_a_missing_mask_topic_or_an_empty_folder_is_one_clear_error(
         run_benchmark(_config(bag, None, ground_truth_masks=str(tmp_path / 'empty')))
 
 
-def test_two_segmentation_backends_are_compared_with_each_other(bag: Path) -> None:
-    state = Segmentation(None, 2)
+def test_two_segmentation_backends_are_compared_with_each_other() -> None:
+    state = Segmentation(2)
     labels = np.array([[0, 1], [1, 1]], dtype=np.uint8)
     other = np.array([[0, 1], [0, 1]], dtype=np.uint8)
-    with open_source(bag) as source:
-        key = ('/cam', 0, 0, 1, 'f')
-        state.add(Discard(), 'a', 0, source, key, LabelMask(labels, ('bg', 'x')))
-        state.add(Discard(), 'b', 0, source, key, LabelMask(other, ('bg', 'x')))
+    key = ('/cam', 0, 0, 1, 'f')
+    state.add(Discard(), 'a', 0, None, key, LabelMask(labels, ('bg', 'x')))
+    state.add(Discard(), 'b', 0, None, key, LabelMask(other, ('bg', 'x')))
     (row,) = state.agreements()
     # b against a: class 0 hits 1, union 2 -> 0.5; class 1 hits 2, union 3 -> 2/3
     assert row['frames'] == 1

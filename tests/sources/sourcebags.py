@@ -19,6 +19,8 @@ from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 from ruamel.yaml import YAML
 
+from replaybench.sources.mcap import McapSource
+
 TS2 = get_typestore(Stores.ROS2_HUMBLE)
 TS1 = get_typestore(Stores.ROS1_NOETIC)
 STRING = 'std_msgs/msg/String'
@@ -218,3 +220,45 @@ def write_split_rosbag2(path: Path, plans: list[Plan], storage: str = 'sqlite3')
     with (path / 'metadata.yaml').open('w') as f:
         YAML(typ='safe').dump({'rosbag2_bagfile_information': info}, f)
     return path
+
+
+def write_mixed_mcap(path: Path, compression: CompressionType) -> Path:
+    """An MCAP of chunks holding one, two or three channels, some with 64 or more messages of
+    a channel (read in place) and most with a few (gathered), log times out of file order
+    across chunks, and one channel in an encoding that cannot be read."""
+    with path.open('wb') as f:
+        writer = Writer(f, chunk_size=2048, compression=compression)
+        writer.start(profile='', library='tests')
+        schema = writer.register_schema(name='std_msgs/String', encoding='ros2msg', data=b'')
+        channels = [
+            writer.register_channel(topic=f'/t{i}', message_encoding='cdr', schema_id=schema)
+            for i in range(3)
+        ]
+        odd = writer.register_channel(topic='/odd', message_encoding='json', schema_id=0)
+        t = 1_000_000_000
+        for block in range(60):
+            burst = 80 if block % 17 == 0 else 1 + block % 4
+            for i in range(burst):
+                channel = channels[(block + i) % (1 + block % 3)]
+                stamp = t + (block * 7919 + i * 104729) % 5_000_000
+                writer.add_message(channel, stamp, bytes([block, i % 256]) * 8, stamp)
+            if block % 5 == 0:
+                writer.add_message(odd, t, b'{}', t)
+        writer.finish()
+    return path
+
+
+def read_source(path: Path) -> tuple[object, ...]:
+    """Everything an MCAP source says: its messages, a window of one topic, its topics,
+    skipped topics, warnings and whether it is cut."""
+    with McapSource(path) as source:
+        messages = [(m.topic, m.log_time_ns, m.seq, bytes(m.data)) for m in source.messages()]
+        windowed = [(m.topic, m.seq) for m in source.messages(['/t1'], 1_001_000_000)]
+        return (
+            messages,
+            windowed,
+            source.topics(),
+            source.skipped_topics(),
+            source.warnings,
+            source.truncated,
+        )

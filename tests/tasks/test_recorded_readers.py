@@ -59,10 +59,6 @@ def test_what_a_reader_declares_replaces_the_checks_of_a_task_name():
     masks = readers['sensor_msgs/msg/Image']
     boxes = readers['vision_msgs/msg/Detection2DArray']
     tags = readers['isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray']
-    assert not recorded.boxes_scored(masks, timed=False)
-    assert recorded.boxes_scored(masks, timed=True)
-    assert recorded.boxes_scored(boxes, timed=False)
-    assert recorded.boxes_scored(tags, timed=False)
     assert boxes.unusable == 'detection(s) with a NaN or infinite box or score'
     assert tags.unusable == 'tag(s) with a NaN or infinite corner'
     assert [r.producer for r in (boxes, tags, masks)] == [

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, cast
 
 from replaybench.tasks.base import LazyMapping, MetricSpec, TaskViews
 
@@ -10,6 +10,8 @@ if TYPE_CHECKING:
     from collections.abc import Mapping
 
     from replaybench.decode.recorded import OutputReader
+    from replaybench.results.groundtruth import ExternalGroundTruth
+    from replaybench.tasks.base import TruthInput
 
 __all__ = ['TASK', 'DetectionsTask']
 
@@ -62,6 +64,33 @@ class DetectionsTask:
     recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(
         'replaybench.tasks.detections.recorded:READERS'
     )
+
+    # the ground truth (``replaybench.tasks.detections.truth``, imported where there is some)
+
+    def truth_topics(self, options: Any) -> frozenset[str]:
+        """The Detection2DArray topic of box truth (``--ground-truth``), present or not."""
+        topic: str | None = options.ground_truth_topic
+        return frozenset((topic,)) if topic else frozenset()
+
+    def load_truth(self, config: Any) -> object | None:
+        """The ``--ground-truth-file`` (an ``ExternalGroundTruth``), read once; None without."""
+        if config.ground_truth_file is None:
+            return None
+        from replaybench.tasks.detections.truth import load_file
+
+        return load_file(config)
+
+    def open_truth(
+        self, inp: TruthInput, options: Any, loaded: object | None, notes: list[str]
+    ) -> object | None:
+        """The input's ``BoxTruth``: the file's, else its topic's read whole; None without."""
+        topic = options.ground_truth_topic
+        present = bool(topic) and any(t.name == topic for t in inp.source.topics())
+        if loaded is None and not present and not options.ground_truth_explicit:
+            return None  # nothing to read: the truth module is not imported
+        from replaybench.tasks.detections.truth import open_box_truth
+
+        return open_box_truth(inp, options, cast('ExternalGroundTruth | None', loaded), notes)
 
 
 TASK = DetectionsTask()

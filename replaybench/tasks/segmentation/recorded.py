@@ -48,7 +48,8 @@ def read_label_mask(raw: RawMessage) -> RecordedMessage:
 
 
 #: message type (ROS 2 spelling) -> its reader. Camera topics are Images too: a mask topic is
-#: never picked alone (``--recorded-topic`` names it), and its boxes (none) are not scored.
+#: never picked alone (``--recorded-topic`` names it); its boxes (none) are not scored, as no
+#: segmentation frame's are (``replaybench.replay.segmentation.Segmentation.scores_boxes``).
 READERS: Mapping[str, OutputReader] = {
     'sensor_msgs/msg/Image': OutputReader(
         'segmentation',
@@ -56,6 +57,5 @@ READERS: Mapping[str, OutputReader] = {
         candidate=False,
         outputs='masks',
         producer='the segmentation node',
-        scores_boxes=False,
     ),
 }

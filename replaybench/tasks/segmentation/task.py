@@ -2,16 +2,29 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
 
+from replaybench.errors import UsageError
 from replaybench.tasks.base import LazyMapping, MetricSpec, TaskViews
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
     from replaybench.decode.recorded import OutputReader
+    from replaybench.tasks.base import TruthInput
 
-__all__ = ['TASK', 'SegmentationTask']
+__all__ = ['TASK', 'SegmentationTask', 'mask_truth_topic']
+
+
+def mask_truth_topic(spec: str | None) -> str | None:
+    """The ground-truth mask topic asked for: ``spec`` when it names a topic, the default when
+    ``spec`` is None, None when ``spec`` is a folder of PNG masks."""
+    if spec is None:
+        from replaybench.results.segmentation import GROUND_TRUTH_MASK_TOPIC
+
+        return GROUND_TRUTH_MASK_TOPIC
+    return None if Path(spec).is_dir() else spec
 
 
 class SegmentationTask:
@@ -42,6 +55,48 @@ class SegmentationTask:
     recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(
         'replaybench.tasks.segmentation.recorded:READERS'
     )
+
+    # the ground truth (``replaybench.tasks.segmentation.truth``; masks are read when scored)
+
+    def truth_topics(self, options: Any) -> frozenset[str]:
+        """The mask topic (``--ground-truth-masks``, default ``/ground_truth/labels``): an
+        Image topic that is no camera; none for a folder of masks."""
+        topic = mask_truth_topic(options.ground_truth_masks)
+        return frozenset((topic,)) if topic is not None else frozenset()
+
+    def load_truth(self, config: Any) -> object | None:
+        """The folder of PNG masks (a ``MaskFolder``), listed once; None for a topic."""
+        spec: str | None = config.ground_truth_masks
+        if spec is None or mask_truth_topic(spec) is not None:
+            return None
+        from replaybench.tasks.segmentation.truth import MaskFolder
+
+        return MaskFolder(Path(spec))
+
+    def open_truth(
+        self, inp: TruthInput, options: Any, loaded: object | None, notes: list[str]
+    ) -> object | None:
+        """The input's masks: the run's folder, or its mask topic (a ``MaskTopic``, indexed
+        when its first mask is scored); None without either. ``UsageError`` for a
+        ``--ground-truth-masks`` topic that is not an image topic of the input."""
+        del notes
+        if loaded is not None:
+            return loaded
+        spec: str | None = options.ground_truth_masks
+        topic = mask_truth_topic(spec)
+        if topic is None:
+            return None
+        if topic not in inp.images:
+            if spec is not None:
+                msg = (
+                    f'{inp.path}: ground-truth mask topic {topic} is not an image topic of '
+                    'this file'
+                )
+                raise UsageError(msg)
+            return None
+        from replaybench.tasks.segmentation.truth import MaskTopic
+
+        return MaskTopic(inp.source, topic)
 
 
 TASK = SegmentationTask()

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from replaybench.tasks.base import LazyMapping, MetricSpec, TaskViews
+from replaybench.tasks.tags import TAG_GROUND_TRUTH_TOPIC
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
     from replaybench.decode.recorded import OutputReader
+    from replaybench.tasks.base import TruthInput
 
 __all__ = ['TASK', 'TagsTask']
 
@@ -43,6 +45,30 @@ class TagsTask:
     recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(
         'replaybench.tasks.tags.recorded:READERS'
     )
+
+    # the ground truth (``replaybench.tasks.tags.truth``, imported for an input that has some)
+
+    def truth_topics(self, options: Any) -> frozenset[str]:
+        """``/ground_truth/tags``."""
+        del options  # one topic, whatever the options
+        return frozenset((TAG_GROUND_TRUTH_TOPIC,))
+
+    def load_truth(self, config: Any) -> object | None:
+        """Nothing: tag truth is read from each input."""
+        del config
+        return None
+
+    def open_truth(
+        self, inp: TruthInput, options: Any, loaded: object | None, notes: list[str]
+    ) -> object | None:
+        """The input's tags by (frame_id, stamp) (a ``TagTable``), read whole; None without
+        the topic."""
+        del options, loaded
+        if not any(t.name == TAG_GROUND_TRUTH_TOPIC for t in inp.source.topics()):
+            return None
+        from replaybench.tasks.tags.truth import read_tag_truth
+
+        return read_tag_truth(inp.source, notes)
 
 
 TASK = TagsTask()

@@ -87,7 +87,7 @@ class RunConfig:
     #: --repeat N: every backend replays the inputs N times, interleaved across backends
     repeat: int = 1
     #: ground-truth label masks of segmentation backends: a topic, or a folder of
-    #: <stamp_ns>.png files; None: /ground_truth/labels when present (replay/segmentation.py)
+    #: <stamp_ns>.png files; None: /ground_truth/labels when present (tasks/segmentation/)
     ground_truth_masks: str | None = None
 
     def input_options(self) -> InputOptions:

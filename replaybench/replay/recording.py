@@ -21,8 +21,6 @@ import time
 from typing import TYPE_CHECKING, Any, Protocol, cast
 
 from replaybench.replay.recorded import NOT_RECORDED, frame_recorded_times, recorded_note
-from replaybench.replay.segmentation import Segmentation
-from replaybench.replay.tags import TagScores
 from replaybench.results.records import FrameRecord
 from replaybench.types import BackendResult, StageTimes
 
@@ -33,6 +31,8 @@ if TYPE_CHECKING:
     from replaybench.replay.passes import LogEntry, Pass, Warmups
     from replaybench.results.groundtruth import ExternalGroundTruth
     from replaybench.tasks.detections.truth import BoxTruth, DetectionTable
+    from replaybench.tasks.segmentation.recording import Segmentation
+    from replaybench.tasks.tags.recording import TagScores
     from replaybench.types import CameraInfo, Detection, RawMessage
 
 __all__ = ['DetectionsSink', 'FrameSink', 'Recorder', 'Sample', 'TaskRecording']
@@ -168,8 +168,10 @@ class Recorder:
         warmups: Warmups,
         frames_csv: FrameSink,
         detections_out: DetectionsSink,
-        segmentation: Segmentation | None = None,
+        backends: int = 1,
     ) -> None:
+        #: backends in the run (a task's recording may keep outputs to compare them)
+        self.backends = backends
         self.warmups = warmups
         self.frames_csv = frames_csv
         self.detections_out = detections_out
@@ -188,10 +190,6 @@ class Recorder:
         #: every backend's detections per frame, for the agreement between backends
         self.detections: dict[tuple[str, str], FrameDetections] = {}
         self.samples: dict[tuple[int, str], Sample] = {}
-        #: segmentation backends' masks: written, scored against ground-truth masks, compared
-        self.segmentation = segmentation if segmentation is not None else Segmentation(1)
-        #: the tag backends' tags scored against tag ground truth (replaybench.replay.tags)
-        self.tags = TagScores()
         self._taken: dict[tuple[str, int, str], int] = {}
         #: each declared task's part of recording a frame (None: boxes only), by task name
         self._recordings: dict[str, TaskRecording | None] = {}
@@ -210,6 +208,20 @@ class Recorder:
             made = load_view(found, target, 'recording')(self)
         self._recordings[name] = made
         return made
+
+    @property
+    def segmentation(self) -> Segmentation:
+        """The segmentation task's recording (``replaybench.tasks.segmentation.recording``):
+        its backends' masks written, scored against ground-truth masks, compared; made here
+        (empty) when no backend of the task made it."""
+        return cast('Segmentation', self.task_recording('segmentation'))
+
+    @property
+    def tags(self) -> TagScores:
+        """The tags task's recording (``replaybench.tasks.tags.recording``): its backends'
+        tags scored against tag ground truth; made here (empty) when no backend of the task
+        made it."""
+        return cast('TagScores', self.task_recording('tags'))
 
     def take(self, done: Pass) -> float:
         """Turn the pass's log into records and frames.csv rows, detections messages, scores
@@ -344,8 +356,9 @@ class Recorder:
         scores boxes, for scoring (the metrics, ``replaybench.replay.record.summaries``), and
         the sample's boxes. The rest is the task's ``recording`` (None: boxes only): a label
         mask written, scored against its ground-truth mask and kept for the agreement
-        (``replaybench.replay.segmentation``), its boxes not scored; tags written and scored
-        against the frame's tag ground truth (``replaybench.replay.tags``). Returns the task's
+        (``replaybench.tasks.segmentation.recording``), its boxes not scored; tags written and
+        scored against the frame's tag ground truth (``replaybench.tasks.tags.recording``).
+        Returns the task's
         own ``FrameRecord`` fields (the frame's mIoU and pixel accuracy, its tag columns).
         """
         topic, seq, log_time_ns, stamp_ns, frame_id = entry.key

@@ -69,7 +69,6 @@ from replaybench.replay.output import (
 )
 from replaybench.replay.passes import Replay, Stopped, Warmups
 from replaybench.replay.recording import Recorder
-from replaybench.replay.segmentation import Segmentation
 from replaybench.replay.sessions import (
     make_backend,
     make_backends,
@@ -294,8 +293,7 @@ def _execute(
     copy_problems: dict[int, str] = {}
     status = 'complete'
     with writers(output) as (frames_csv, detections_out):
-        segmentation = Segmentation(len(config.backends))
-        recorder = Recorder(inputs, warmups, frames_csv, detections_out, segmentation)
+        recorder = Recorder(inputs, warmups, frames_csv, detections_out, len(config.backends))
         # their messages are read after the passes, unless a backend reads them (``decoder``)
         camera_info_channels(inputs, detections_out)
         passes_began = time.perf_counter()
@@ -322,7 +320,7 @@ def _execute(
                         warnings=warnings,
                         runs=backend_runs,
                     )
-            segmentation.write_names(detections_out)
+            recorder.segmentation.write_names(detections_out)
             if config.copy_images:
                 copy_problems = copy_images(inputs, detections_out)
         except (KeyboardInterrupt, Stopped):

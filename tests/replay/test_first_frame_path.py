@@ -63,6 +63,9 @@ _LATER: tuple[str, ...] = (
     'replaybench.tasks.detections.recorded',
     'replaybench.tasks.tags.recorded',
     'replaybench.tasks.segmentation.recorded',
+    # the tasks' recordings (their scorers and sinks): made when a pass's frames are recorded
+    'replaybench.tasks.tags.recording',
+    'replaybench.tasks.segmentation.recording',
 )
 
 #: what a bag with box truth imports before its first frame besides: the reader of that truth

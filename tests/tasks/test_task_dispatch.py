@@ -35,8 +35,8 @@ ATTRIBUTES = {'add_message', 'add_metadata', 'mask', 'tags', 'task'}
 def test_each_built_in_task_names_its_part_of_recording_a_frame():
     assert {name: task_recording(get_task(name)) for name in task_names()} == {
         'detections': None,  # boxes only: the part every task has
-        'tags': 'replaybench.replay.tags:recording',
-        'segmentation': 'replaybench.replay.segmentation:recording',
+        'tags': 'replaybench.tasks.tags.recording:recording',
+        'segmentation': 'replaybench.tasks.segmentation.recording:recording',
     }
 
 
@@ -137,15 +137,24 @@ def test_the_check_for_a_task_dispatch_finds_one(tmp_path):
     ]
 
 
-def test_the_built_in_recordings_are_task_recordings_of_the_recorder():
-    from replaybench.replay import segmentation, tags
+def test_the_built_in_recordings_are_made_once_per_run_by_the_recorder_from_the_task_folders():
     from replaybench.replay.passes import Warmups
     from replaybench.replay.recording import Recorder, TaskRecording
+    from replaybench.tasks.segmentation.recording import Segmentation
+    from replaybench.tasks.tags.recording import TagScores
 
-    recorder = Recorder([], Warmups(0, {}), Discard(), Discard())
-    made: list[TaskRecording] = [tags.recording(recorder), segmentation.recording(recorder)]
-    assert made == [recorder.tags, recorder.segmentation]
-    assert [(r.scores_boxes, r.writes_first) for r in made] == [(True, False), (False, True)]
-    assert recorder.task_recording('tags') is recorder.tags
-    assert recorder.task_recording('segmentation') is recorder.segmentation
+    recorder = Recorder([], Warmups(0, {}), Discard(), Discard(), backends=2)
+    made: list[TaskRecording | None] = [
+        recorder.task_recording('tags'),
+        recorder.task_recording('segmentation'),
+    ]
+    assert [type(r) for r in made] == [TagScores, Segmentation]
+    assert made[0] is recorder.tags  # the same objects, made once
+    assert made[1] is recorder.segmentation
+    assert [(r.scores_boxes, r.writes_first) for r in made if r is not None] == [
+        (True, False),
+        (False, True),
+    ]
+    assert recorder.segmentation.keep  # two backends: masks kept for their agreement
+    assert not Recorder([], Warmups(0, {}), Discard(), Discard()).segmentation.keep
     assert recorder.task_recording('detections') is None

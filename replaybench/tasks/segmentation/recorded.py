@@ -49,7 +49,7 @@ def read_label_mask(raw: RawMessage) -> RecordedMessage:
 
 #: message type (ROS 2 spelling) -> its reader. Camera topics are Images too: a mask topic is
 #: never picked alone (``--recorded-topic`` names it); its boxes (none) are not scored, as no
-#: segmentation frame's are (``replaybench.replay.segmentation.Segmentation.scores_boxes``).
+#: segmentation frame's are (``replaybench.tasks.segmentation.recording``).
 READERS: Mapping[str, OutputReader] = {
     'sensor_msgs/msg/Image': OutputReader(
         'segmentation',

@@ -47,9 +47,9 @@ class SegmentationTask:
     views: ClassVar[TaskViews] = TaskViews(summary_field='segmentation', terminal_metrics=('miou',))
 
     #: a processed frame's mask written and scored, its boxes not scored
-    #: (``replaybench.replay.segmentation.Segmentation``), loaded when a backend of the task's
-    #: frames are first recorded
-    recording: ClassVar[str] = 'replaybench.replay.segmentation:recording'
+    #: (``replaybench.tasks.segmentation.recording``, ``Segmentation``), loaded when the frames
+    #: of a backend of the task are first recorded
+    recording: ClassVar[str] = 'replaybench.tasks.segmentation.recording:recording'
 
     #: ``replaybench.tasks.segmentation.recorded``, imported when the ``recorded`` backend reads it
     recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(

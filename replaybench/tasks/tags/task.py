@@ -37,9 +37,9 @@ class TagsTask:
         terminal_lines='replaybench.results.tags:tag_lines',
     )
 
-    #: a processed frame's tags written and scored (``replaybench.replay.tags.TagScores``),
-    #: loaded when the frames of a backend of the task are first recorded
-    recording: ClassVar[str] = 'replaybench.replay.tags:recording'
+    #: a processed frame's tags written and scored (``replaybench.tasks.tags.recording``,
+    #: ``TagScores``), loaded when the frames of a backend of the task are first recorded
+    recording: ClassVar[str] = 'replaybench.tasks.tags.recording:recording'
 
     #: ``replaybench.tasks.tags.recorded``, imported when the ``recorded`` backend reads it
     recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(

@@ -1,9 +1,12 @@
-"""What the engine does with label masks: write them, score them, compare backends.
+"""The segmentation task's part of recording a run: its label masks written, scored and
+compared between backends.
 
 A backend that declares the segmentation task (``Backend.task``) returns
 ``BackendResult.mask``. ``Segmentation`` is the task's ``TaskRecording`` (``recording``, named by
-``replaybench.tasks.segmentation.task``): when the engine records one of its frames (after the
-timed pass, ``Recorder.task_outputs`` in ``replaybench.replay.recording``), ``Segmentation.add``
+``replaybench.tasks.segmentation.task``), made by the ``Recorder``
+(``replaybench.replay.recording``) when the frames of such a backend are first recorded, after
+the first frame. When the engine records one of its frames (after the timed pass,
+``Recorder.task_outputs``), ``Segmentation.add``
 
 * stages the mask in outputs.mcap (``replaybench.sinks.masks``);
 * scores it against the frame's ground-truth mask, when there is one: the input's truth of the
@@ -12,8 +15,9 @@ timed pass, ``Recorder.task_outputs`` in ``replaybench.replay.recording``), ``Se
   ``Segmentation.frame`` reads from ``OpenedInput.truth``; the frame's own mIoU and pixel accuracy
   go into its frames.csv row, its confusion matrix into the (backend, topic) sum that gives
   the summary (``replaybench.results.segmentation``);
-* keeps the mask, PNG-compressed, when the run has several segmentation backends, for their
-  agreement (the mIoU of each later backend against the earlier one, frame by frame).
+* keeps the mask, PNG-compressed, when the run has several backends, for the agreement of its
+  segmentation backends (the mIoU of each later backend against the earlier one, frame by
+  frame).
 
 A frame without a mask (a recorded mask topic without the frame's message) is not scored; the
 boxes of the task's frames are never scored against box ground truth.
@@ -68,9 +72,9 @@ _NO_COLUMNS: Mapping[str, Any] = {}
 
 
 class MaskedInput(Protocol):
-    """What the masks' recording reads of an input (``replaybench.replay.inputs.OpenedInput``,
-    a later stage): its number and each task's ground truth by task name, the segmentation
-    task's a ``MaskTruth`` (``replaybench.tasks.segmentation.truth``)."""
+    """What the masks' recording reads of an input (``replaybench.replay.inputs.OpenedInput``):
+    its number and each task's ground truth by task name, the segmentation task's a
+    ``MaskTruth`` (``replaybench.tasks.segmentation.truth``)."""
 
     @property
     def number(self) -> int: ...
@@ -226,10 +230,11 @@ class Segmentation:
 
 class _Recorder(Protocol):
     @property
-    def segmentation(self) -> Segmentation: ...
+    def backends(self) -> int: ...
 
 
 def recording(recorder: _Recorder) -> Segmentation:
-    """The segmentation task's ``TaskRecording``: the ``Segmentation`` of the recorder
-    (``replaybench.replay.recording.Recorder``)."""
-    return recorder.segmentation
+    """The segmentation task's ``TaskRecording`` for the run of ``recorder``
+    (``replaybench.replay.recording.Recorder``): a new ``Segmentation``, which keeps masks for
+    the agreement when the run has several backends."""
+    return Segmentation(recorder.backends)

@@ -1,14 +1,15 @@
-"""The tag task in the engine: each tag backend's tags written into outputs.mcap and scored per
-frame against the input's tag ground truth (read when it opens, ``replaybench.tasks.tags.truth``).
+"""The tags task's part of recording a run: each tag backend's tags written into outputs.mcap
+(``replaybench.sinks.tags``) and scored per frame against the input's tag ground truth (read
+when it opens, ``replaybench.tasks.tags.truth``; scored by ``replaybench.results.tags``).
 
-``TagScores`` is kept by the ``Recorder`` and is the tags task's ``TaskRecording``
-(``recording``, named by ``replaybench.tasks.tags.task``): ``Recorder.task_outputs`` calls
-``frame`` for each processed frame of a backend that declares the task (``Backend.task``),
-after the pass, outside any timed region, and it reads the frame's truth from the input's truth
-of the task (``OpenedInput.truth``). It gives each (backend, topic) its ``TagAccuracy``
+``TagScores`` is the tags task's ``TaskRecording`` (``recording``, named by
+``replaybench.tasks.tags.task``), made by the ``Recorder`` (``replaybench.replay.recording``)
+when the frames of a backend that declares the task (``Backend.task``) are first recorded, after
+the first frame: ``Recorder.task_outputs`` calls ``frame`` for each processed frame, after the
+pass, outside any timed region, and it reads the frame's truth from the input's truth of the
+task (``OpenedInput.truth``). It gives each (backend, topic) its ``TagAccuracy``
 (``replaybench.replay.record.summaries``). The backends of other tasks never reach it (their
-tag columns stay empty): the scorer and the sink are imported at the first tag result, so that
-a run without tags does not load them.
+tag columns stay empty); the scorer and the sink are imported at the first tag result.
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ __all__ = ['TagScores', 'TaggedInput', 'recording']
 
 
 class TaggedInput(Protocol):
-    """What the tags' recording reads of an input (``replaybench.replay.inputs.OpenedInput``,
-    a later stage): each task's ground truth by task name, the tags' a ``TagTable``
+    """What the tags' recording reads of an input (``replaybench.replay.inputs.OpenedInput``):
+    each task's ground truth by task name, the tags' a ``TagTable``
     (``replaybench.tasks.tags.truth``)."""
 
     @property
@@ -101,12 +102,8 @@ class TagScores:
         return list(self.notes.values())
 
 
-class _Recorder(Protocol):
-    @property
-    def tags(self) -> TagScores: ...
-
-
-def recording(recorder: _Recorder) -> TagScores:
-    """The tags task's ``TaskRecording``: the ``TagScores`` of the recorder
-    (``replaybench.replay.recording.Recorder``)."""
-    return recorder.tags
+def recording(recorder: object) -> TagScores:
+    """The tags task's ``TaskRecording`` for the run of ``recorder``
+    (``replaybench.replay.recording.Recorder``): a new ``TagScores``."""
+    del recorder  # the tags' scores need nothing of the run
+    return TagScores()

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
     import pandas as pd
 
-    from replaybench.results.model import RunResult, SummaryRow
+    from replaybench.results.model import RunResult
     from replaybench.results.records import FrameRecord
     from replaybench.results.sweepfile import CellConditions, CellMetrics, SweepCell, SweepRecord
     from replaybench.tasks import MetricSpec
@@ -57,10 +57,11 @@ def sweep_metrics() -> tuple[MetricSpec, ...]:
     return tuple(m for m in shown if m.sweep and m.accuracy)
 
 
-def metric_value(row: SummaryRow, spec: MetricSpec) -> float | None:
-    """``row``'s value of the metric ``spec``: the row's field of that name, else its entry in
-    a mapping of the row's task metrics (``task_metrics`` or ``metrics``); None where the row has
-    none (a row of another task's backend)."""
+def metric_value(row: object, spec: MetricSpec) -> float | None:
+    """``row``'s (a ``SummaryRow``'s) value of the metric ``spec``: the row's field of that
+    name, else its entry in a mapping of the row's task metrics (``task_metrics`` or
+    ``metrics``); None where the row has none (a row of another task's backend). The one place
+    that knows where a summary row keeps a task's metric."""
     if hasattr(row, spec.name):
         found = getattr(row, spec.name)
     else:

@@ -1,8 +1,10 @@
 """sweep.html: one self-contained page (inline CSS, no scripts) for a sweep.json record.
 
 The matrix has a row per input and a column per backend and parameter combination; each cell
-shows FPS, p50 and p99 latency with their 95 % intervals, mAP@0.5 and where it ran, links to
-the cell's report.html, and marks the best FPS (and the best mAP) of its row.
+shows FPS, p50 and p99 latency with their 95 % intervals, the tasks' main figures the sweep
+keeps (``MetricSpec.main`` and ``sweep``: the boxes' mAP@0.5 in every cell, another task's
+where the cell has it) and where it ran, links to the cell's report.html, and marks the best FPS
+(and the best of each main figure) of its row.
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ from replaybench.report.markup import escaped, number_text
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
+
+    from replaybench.tasks import MetricSpec
 
 __all__ = ['render_sweep_html']
 
@@ -67,9 +71,9 @@ def _column(entry: Mapping[str, Any]) -> str:
 _RECORDINGS = frozenset({'recorded'})
 
 
-def _best(entries: Sequence[Mapping[str, Any]], metric: str) -> set[int]:
-    """Indices of the cells with the highest ``metric`` (of at least two with a value); FPS
-    among the replayed backends only."""
+def _best(entries: Sequence[Mapping[str, Any]], metric: str, lower: bool = False) -> set[int]:
+    """Indices of the cells with the best ``metric`` (the highest; the lowest with ``lower``)
+    of at least two with a value; FPS among the replayed backends only."""
     scored = [
         (e['metrics'][metric], e['index'])
         for e in entries
@@ -80,11 +84,41 @@ def _best(entries: Sequence[Mapping[str, Any]], metric: str) -> set[int]:
     ]
     if len(scored) < 2:
         return set()
-    top = max(value for value, _ in scored)
+    top = (min if lower else max)(value for value, _ in scored)
     return {index for value, index in scored if value == top}
 
 
-def _cell_html(entry: Mapping[str, Any], best_fps: bool, best_map: bool) -> str:
+class _Figure:
+    """A main figure a cell shows: its spec, whether every cell shows it (one that every
+    backend has: a value or '-') or only those with a value, and its "best" badge."""
+
+    __slots__ = ('always', 'badge', 'spec')
+
+    def __init__(self, spec: MetricSpec, always: bool) -> None:
+        self.spec, self.always = spec, always
+        # the label without its threshold: "best mAP" for mAP@0.5
+        self.badge = f'best {spec.label.partition("@")[0]}'
+
+
+def _figures() -> list[_Figure]:
+    """The registered tasks' metrics a sweep shows that are their task's main figure, in
+    sweep.csv's order; those of a task shown on every row (``TaskViews.terminal='always'``,
+    the boxes) in every cell."""
+    from replaybench.tasks import all_metrics, get_task, task_names, task_views
+
+    every_row = {
+        m.name
+        for name in task_names()
+        if task_views(task := get_task(name)).terminal == 'always'
+        for m in task.metrics
+    }
+    shown = sorted(all_metrics(), key=lambda m: m.appended)
+    return [_Figure(m, m.name in every_row) for m in shown if m.sweep and m.accuracy and m.main]
+
+
+def _cell_html(
+    entry: Mapping[str, Any], best_fps: bool, figures: Sequence[_Figure], best: set[str]
+) -> str:
     status = entry['status']
     classes = ['cell']
     if status == 'failed':
@@ -96,18 +130,22 @@ def _cell_html(entry: Mapping[str, Any], best_fps: bool, best_map: bool) -> str:
     parts = [f'<span class="badge {escaped(status)}">{escaped(status)}</span>']
     if best_fps:
         parts.append(' <span class="badge best">best FPS</span>')
-    if best_map:
-        parts.append(' <span class="badge best">best mAP</span>')
+    parts += [
+        f' <span class="badge best">{escaped(f.badge)}</span>'
+        for f in figures
+        if f.spec.name in best
+    ]
     m = entry.get('metrics')
     if m:
-        fps, p50, p99, map50 = (
+        fps, p50, p99 = (
             number_text(m.get(key), spec, '-')
-            for key, spec in (
-                ('fps', '.1f'),
-                ('p50_ms', '.2f'),
-                ('p99_ms', '.2f'),
-                ('map50', '.3f'),
-            )
+            for key, spec in (('fps', '.1f'), ('p50_ms', '.2f'), ('p99_ms', '.2f'))
+        )
+        accuracy = ''.join(
+            f'{escaped(f.spec.label)} '
+            f'{number_text(m.get(f.spec.name), f".{f.spec.terminal_digits}f", "-")} · '
+            for f in figures
+            if f.always or m.get(f.spec.name) is not None
         )
         fps = (
             '<div class="where">recorded outputs: no replay speed</div>'
@@ -117,7 +155,7 @@ def _cell_html(entry: Mapping[str, Any], best_fps: bool, best_map: bool) -> str:
         parts.append(
             fps + f'<div class="n">p50 {p50} ms{_ci(m.get("p50_ci"))}</div>'
             f'<div class="n">p99 {p99} ms{_ci(m.get("p99_ci"))}</div>'
-            f'<div class="n">mAP@0.5 {map50} · {m.get("frames")} frames</div>'
+            f'<div class="n">{accuracy}{m.get("frames")} frames</div>'
         )
     if entry.get('hostname') or entry.get('node_id'):
         node = entry.get('hostname') or str(entry.get('node_id'))[:12]
@@ -142,10 +180,12 @@ def _matrix(record: Mapping[str, Any]) -> str:
     columns = list(dict.fromkeys(_column(e) for e in entries))
     inputs = {e['input_index']: e['input'] for e in entries}
     head = ''.join(f'<th>{escaped(c)}</th>' for c in columns)
+    figures = _figures()
     rows = []
     for number in sorted(inputs):
         mine = [e for e in entries if e['input_index'] == number]
-        fps, maps = _best(mine, 'fps'), _best(mine, 'map50')
+        fps = _best(mine, 'fps')
+        bests = {f.spec.name: _best(mine, f.spec.name, f.spec.better == 'lower') for f in figures}
         by_column = {_column(e): e for e in mine}
         cells = []
         for column in columns:
@@ -154,7 +194,8 @@ def _matrix(record: Mapping[str, Any]) -> str:
                 cells.append('<td></td>')
                 continue
             shown = {**entry, 'has_report': report}
-            cells.append(_cell_html(shown, entry['index'] in fps, entry['index'] in maps))
+            best = {name for name, found in bests.items() if entry['index'] in found}
+            cells.append(_cell_html(shown, entry['index'] in fps, figures, best))
         rows.append(f'<tr><th>{escaped(inputs[number])}</th>{"".join(cells)}</tr>')
     return (
         '<h2>Matrix</h2><div class="table-wrap"><table>'

@@ -139,7 +139,16 @@ class CellConcurrency:
 
 @dataclass(frozen=True, slots=True)
 class CellMetrics:
-    """A complete cell's figures over all its measured frames, with 95 % intervals."""
+    """A complete cell's figures over all its measured frames, with 95 % intervals, and the
+    tasks' metrics the sweep shows (``values``).
+
+    ``values`` maps each metric with ``MetricSpec.sweep`` (``replaybench.tasks``) to the mean
+    over the cell's topics that have it, None where none has (a backend of another task), in
+    sweep.csv's order. In sweep.json they are keys of the cell's ``metrics`` object beside the
+    common ones (``_TOPICS_AT``). ``metrics.map50`` and the like still read a value the cell
+    holds by name (a cell recorded by this version holds every sweep metric, None or not);
+    ``value(name)`` is None for one it does not hold (a sweep.json of an earlier version).
+    """
 
     frames: int = 0
     fps: float | None = None
@@ -148,13 +157,30 @@ class CellMetrics:
     p50_ci: tuple[float, float] | None = None
     p99_ms: float | None = None
     p99_ci: tuple[float, float] | None = None
-    map50: float | None = None
     topics: int = 0
-    #: segmentation backends: mean mIoU over the cell's topics; tag backends: mean tag recall
-    #: and rotation error (deg); None for other backends
-    miou: float | None = None
-    tag_recall: float | None = None
-    tag_rot_err_deg: float | None = None
+    values: Mapping[str, float | None] = field(default_factory=dict)
+
+    def value(self, name: str) -> float | None:
+        """The value of the sweep metric ``name``; None where the cell has none."""
+        return self.values.get(name)
+
+    def __getattr__(self, name: str) -> float | None:
+        # ``metrics.map50``: a value by name, as when each metric was a field of its own
+        if name.startswith('_') or name == 'values':
+            raise AttributeError(name)
+        values = self.values
+        if name in values:
+            return values[name]
+        held = ', '.join(values) or 'none'
+        msg = f'CellMetrics has no attribute or sweep metric {name!r} (metrics held: {held})'
+        raise AttributeError(msg)
+
+
+#: The common keys of a cell's ``metrics`` in sweep.json; the sweep metrics' values are the
+#: others, and ``topics`` is written as the ``_TOPICS_AT``-th key: after the first sweep metric,
+#: where the first sweep.json files had it (the later metrics were added after it).
+_COMMON_METRIC_KEYS = tuple(f.name for f in fields(CellMetrics) if f.name != 'values')
+_TOPICS_AT = 8
 
 
 @dataclass(frozen=True, slots=True)
@@ -233,7 +259,29 @@ def sweep_document(record: SweepRecord) -> dict[str, Any]:
     settings = document['settings']
     options = settings.pop('options')
     document['settings'] = {**options, **settings}
+    for cell in document['cells']:
+        if cell['metrics'] is not None:
+            cell['metrics'] = _flat_metrics(cell['metrics'])
     return document
+
+
+def _flat_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
+    """A cell's ``metrics`` as sweep.json holds them: the common keys and the sweep metrics'
+    values side by side, ``topics`` at ``_TOPICS_AT``."""
+    values = metrics.pop('values')
+    topics = metrics.pop('topics')
+    items = [*metrics.items(), *values.items()]
+    items.insert(min(_TOPICS_AT, len(items)), ('topics', topics))
+    return dict(items)
+
+
+def _nested_metrics(metrics: Any) -> Any:
+    """A cell's ``metrics`` of sweep.json as ``CellMetrics`` reads them: the keys that are no
+    common key are the sweep metrics' values (a file of any version: each holds what it had)."""
+    if not isinstance(metrics, dict):
+        return metrics  # null, or something from_json names as wrong
+    common = {k: v for k, v in metrics.items() if k in _COMMON_METRIC_KEYS}
+    return {**common, 'values': {k: v for k, v in metrics.items() if k not in common}}
 
 
 def _record(document: Any, where: str) -> SweepRecord:
@@ -247,6 +295,15 @@ def _record(document: Any, where: str) -> SweepRecord:
         mine = {k: v for k, v in settings.items() if k in _SETTINGS_KEYS}
         options = {k: v for k, v in settings.items() if k not in _SETTINGS_KEYS}
         document = {**document, 'settings': {**mine, 'options': options}}
+    cells = document.get('cells')
+    if isinstance(cells, list):
+        cells = [
+            {**c, 'metrics': _nested_metrics(c['metrics'])}
+            if isinstance(c, dict) and 'metrics' in c
+            else c
+            for c in cells
+        ]
+        document = {**document, 'cells': cells}
     return from_json(SweepRecord, document, where=where)
 
 

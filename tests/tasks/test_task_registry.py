@@ -213,7 +213,12 @@ def test_the_sweep_shows_the_metrics_whose_spec_says_so() -> None:
     assert SWEEP_METRICS == ('map50', 'miou', 'tag_recall', 'tag_rot_err_deg')
     start = SWEEP_CSV_COLUMNS.index('p99_high') + 1
     assert SWEEP_CSV_COLUMNS[start : start + len(SWEEP_METRICS)] == SWEEP_METRICS
-    assert shown <= {f.name for f in dataclasses.fields(CellMetrics)}
+    # a cell holds them by name; ``metrics.map50`` still reads one, None where it has none
+    held = CellMetrics(values=dict.fromkeys(SWEEP_METRICS, 0.5))
+    assert all(getattr(held, name) == 0.5 for name in shown)
+    assert all(CellMetrics().value(name) is None for name in shown)
+    with pytest.raises(AttributeError, match='no_such_metric'):
+        _ = held.no_such_metric
 
 
 def test_a_spec_writes_values_as_the_gate_does() -> None:

@@ -28,6 +28,8 @@ run again. Outputs: ``sweep.json`` (``replaybench.results.sweepfile.SweepRecord`
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from replaybench.app.options import RunOptions
 from replaybench.app.sweep.cell import cell_run_config, execute_cell
 from replaybench.app.sweep.config import (
@@ -48,14 +50,26 @@ from replaybench.app.sweep.plan import (
     plan_cells,
 )
 from replaybench.app.sweep.record import (
-    CSV_COLUMNS,
     SweepProgress,
     SweepResult,
     cell_metrics,
+    csv_columns,
     csv_rows,
 )
 from replaybench.app.sweep.terminal import ProgressBar, progress_bar, result_lines
 from replaybench.results.sweepfile import SWEEP_SCHEMA_VERSION
+
+if TYPE_CHECKING:
+    #: sweep.csv's columns (``csv_columns()``), read from the registered tasks when asked for
+    CSV_COLUMNS: tuple[str, ...]
+else:
+
+    def __getattr__(name: str) -> tuple[str, ...]:
+        if name == 'CSV_COLUMNS':
+            return csv_columns()
+        msg = f'module {__name__!r} has no attribute {name!r}'
+        raise AttributeError(msg)
+
 
 __all__ = [
     'CSV_COLUMNS',
@@ -74,6 +88,7 @@ __all__ = [
     'cell_metrics',
     'cell_options',
     'cell_run_config',
+    'csv_columns',
     'csv_rows',
     'execute_cell',
     'input_identity',

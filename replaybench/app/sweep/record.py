@@ -12,13 +12,14 @@ import bisect
 import csv
 import io
 from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from replaybench.tasks import all_metrics
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable, Mapping, Sequence
+    from collections.abc import Iterable, Sequence
     from pathlib import Path
 
     import pandas as pd
@@ -26,6 +27,7 @@ if TYPE_CHECKING:
     from replaybench.results.model import RunResult
     from replaybench.results.records import FrameRecord
     from replaybench.results.sweepfile import CellConditions, CellMetrics, SweepCell, SweepRecord
+    from replaybench.tasks import MetricSpec
 
 __all__ = [
     'CSV_COLUMNS',
@@ -36,20 +38,41 @@ __all__ = [
     'SweepResult',
     'cell_metrics',
     'conditions',
+    'csv_columns',
     'csv_row',
     'csv_rows',
     'csv_text',
     'flagged',
+    'metric_value',
+    'sweep_metrics',
 ]
 
-#: The tasks' metrics a sweep shows (``MetricSpec.sweep``): the mean over a cell's topics, a
-#: ``CellMetrics`` field and a column of sweep.csv each; the ones not ``appended`` first.
-SWEEP_METRICS: tuple[str, ...] = tuple(
-    m.name for m in sorted(all_metrics(), key=lambda m: m.appended) if m.sweep and m.accuracy
-)
 
-#: sweep.csv columns, in order; ``SweepResult.cells`` has the same columns.
-CSV_COLUMNS: tuple[str, ...] = (
+def sweep_metrics() -> tuple[MetricSpec, ...]:
+    """The registered tasks' metrics a sweep shows (``MetricSpec.sweep``), the ones not
+    ``appended`` first: the mean over a cell's topics, a value of ``CellMetrics.values`` and a
+    column of sweep.csv each. Read from the registry each time, so that a task from an entry
+    point counts (``TaskUnavailableError`` for one that cannot be loaded)."""
+    shown = sorted(all_metrics(), key=lambda m: m.appended)
+    return tuple(m for m in shown if m.sweep and m.accuracy)
+
+
+def metric_value(row: object, spec: MetricSpec) -> float | None:
+    """``row``'s (a ``SummaryRow``'s) value of the metric ``spec``: the row's field of that
+    name, else its entry in a mapping of the row's task metrics (``task_metrics`` or
+    ``metrics``); None where the row has none (a row of another task's backend). The one place
+    that knows where a summary row keeps a task's metric."""
+    if hasattr(row, spec.name):
+        found = getattr(row, spec.name)
+    else:
+        table = getattr(row, 'task_metrics', None)
+        if table is None:
+            table = getattr(row, 'metrics', None)
+        found = table.get(spec.name) if isinstance(table, Mapping) else None
+    return None if found is None else float(found)
+
+
+_BEFORE_METRICS: tuple[str, ...] = (
     'cell',
     'input',
     'backend',
@@ -65,7 +88,8 @@ CSV_COLUMNS: tuple[str, ...] = (
     'p99_ms',
     'p99_low',
     'p99_high',
-    *SWEEP_METRICS,
+)
+_AFTER_METRICS: tuple[str, ...] = (
     'node',
     'gpu',
     'concurrency',
@@ -74,6 +98,27 @@ CSV_COLUMNS: tuple[str, ...] = (
     'run_dir',
     'key',
 )
+
+
+def csv_columns() -> tuple[str, ...]:
+    """sweep.csv's columns, in order: the cell, its timings, each of ``sweep_metrics`` by name,
+    where it ran; ``SweepResult.cells`` has the same columns."""
+    return (*_BEFORE_METRICS, *(m.name for m in sweep_metrics()), *_AFTER_METRICS)
+
+
+if TYPE_CHECKING:
+    #: ``csv_columns()`` and the names of ``sweep_metrics()``, read when asked for
+    CSV_COLUMNS: tuple[str, ...]
+    SWEEP_METRICS: tuple[str, ...]
+else:
+
+    def __getattr__(name: str) -> tuple[str, ...]:
+        if name == 'CSV_COLUMNS':
+            return csv_columns()
+        if name == 'SWEEP_METRICS':
+            return tuple(m.name for m in sweep_metrics())
+        msg = f'module {__name__!r} has no attribute {name!r}'
+        raise AttributeError(msg)
 
 
 class SweepProgress(NamedTuple):
@@ -95,7 +140,7 @@ class SweepResult:
     sweep: SweepRecord = field(repr=False)
     #: sweep.json as written (a JSON object)
     record: dict[str, Any] = field(repr=False)
-    #: sweep.csv's rows, one mapping per cell keyed by ``CSV_COLUMNS``
+    #: sweep.csv's rows, one mapping per cell keyed by ``csv_columns()``
     cell_rows: tuple[Mapping[str, Any], ...] = field(repr=False)
 
     @property
@@ -103,7 +148,7 @@ class SweepResult:
         """sweep.csv as a pandas DataFrame (``pip install 'replaybench[pandas]'``)."""
         from replaybench.results.tables import records_table
 
-        return records_table(self.cell_rows, CSV_COLUMNS)
+        return records_table(self.cell_rows, csv_columns())
 
     @property
     def exit_code(self) -> int:
@@ -122,9 +167,10 @@ def _interval(values: Any) -> tuple[float, float] | None:
 
 def cell_metrics(run: RunResult, records: Sequence[FrameRecord], key: str) -> CellMetrics:
     """Frames, FPS, p50 and p99 latency with 95 % block-bootstrap intervals over all the cell's
-    measured frames (every topic together), and each of ``SWEEP_METRICS`` (mAP@0.5, mIoU, tag
-    recall and rotation error: the mean over the topics that have it; None where none has).
-    ``records``: frames.csv's rows as written (``as_written``)."""
+    measured frames (every topic together), and each of ``sweep_metrics()`` (the built-in tasks'
+    mAP@0.5, mIoU, tag recall and rotation error: the mean over the topics that have it, read
+    by ``metric_value``; None where none has). ``records``: frames.csv's rows as written
+    (``as_written``)."""
     import numpy as np
 
     from replaybench.results.bootstrap import replicates
@@ -147,9 +193,9 @@ def cell_metrics(run: RunResult, records: Sequence[FrameRecord], key: str) -> Ce
     series = measured_series(records)  # every topic together, in replay order
     reps = replicates(*series, rng=np.random.default_rng(int(key[:16], 16)))
 
-    def mean_of(name: str) -> float | None:
+    def mean_of(spec: MetricSpec) -> float | None:
         # a task's accuracy over the cell's topics that have it
-        values = [v for row in rows if (v := getattr(row, name)) is not None]
+        values = [v for row in rows if (v := metric_value(row, spec)) is not None]
         return float(np.mean(values)) if values else None
 
     return CellMetrics(
@@ -161,7 +207,7 @@ def cell_metrics(run: RunResult, records: Sequence[FrameRecord], key: str) -> Ce
         p99_ms=p99,
         p99_ci=_interval(reps.p99) if reps is not None else None,
         topics=len({r.topic for r in records}),
-        **{name: mean_of(name) for name in SWEEP_METRICS},
+        values={spec.name: mean_of(spec) for spec in sweep_metrics()},
     )
 
 
@@ -250,9 +296,11 @@ class NodeSpans:
         return best
 
 
-def csv_row(cell: SweepCell) -> dict[str, Any]:
-    """sweep.csv's row of one cell, keyed by ``CSV_COLUMNS``."""
+def csv_row(cell: SweepCell, metrics: Sequence[MetricSpec] | None = None) -> dict[str, Any]:
+    """sweep.csv's row of one cell, keyed by ``csv_columns()``; ``metrics``: the sweep's
+    (``sweep_metrics()`` when not given). A metric the cell has no value of is None."""
     m = cell.metrics
+    shown = sweep_metrics() if metrics is None else metrics
 
     def ci(found: tuple[float, float] | None, side: int) -> float | None:
         return found[side] if found else None
@@ -273,7 +321,7 @@ def csv_row(cell: SweepCell) -> dict[str, Any]:
         'p99_ms': m.p99_ms if m else None,
         'p99_low': ci(m.p99_ci, 0) if m else None,
         'p99_high': ci(m.p99_ci, 1) if m else None,
-        **{name: getattr(m, name) if m else None for name in SWEEP_METRICS},
+        **{spec.name: m.value(spec.name) if m else None for spec in shown},
         'node': cell.hostname or cell.node_id,
         'gpu': ','.join(cell.gpu_ids),
         'concurrency': cell.concurrency.max_cells_on_node if cell.concurrency else None,
@@ -285,19 +333,21 @@ def csv_row(cell: SweepCell) -> dict[str, Any]:
 
 
 def csv_rows(cells: Iterable[SweepCell]) -> list[dict[str, Any]]:
-    """One row per cell, with the ``CSV_COLUMNS``."""
-    return [csv_row(c) for c in cells]
+    """One row per cell, with the ``csv_columns()``."""
+    shown = sweep_metrics()
+    return [csv_row(c, shown) for c in cells]
 
 
-def _line(row: Mapping[str, Any]) -> str:
+def _line(row: Mapping[str, Any], columns: Sequence[str]) -> str:
     buffer = io.StringIO()
-    csv.writer(buffer).writerow(['' if row[c] is None else row[c] for c in CSV_COLUMNS])
+    csv.writer(buffer).writerow(['' if row[c] is None else row[c] for c in columns])
     return buffer.getvalue()
 
 
 def csv_text(rows: Sequence[Mapping[str, Any]]) -> str:
     """sweep.csv: the header, then ``rows``."""
-    return _line({c: c for c in CSV_COLUMNS}) + ''.join(_line(r) for r in rows)
+    columns = csv_columns()
+    return _line({c: c for c in columns}, columns) + ''.join(_line(r, columns) for r in rows)
 
 
 class CsvLog:
@@ -308,8 +358,9 @@ class CsvLog:
         from replaybench.results.atomic import write_text_atomic
 
         self.path = path
+        self.columns = csv_columns()
         write_text_atomic(path, csv_text(rows))
 
     def append(self, row: Mapping[str, Any]) -> None:
         with self.path.open('a', encoding='utf-8', newline='') as f:
-            f.write(_line(row))
+            f.write(_line(row, self.columns))

@@ -9,7 +9,10 @@ from typing import TYPE_CHECKING, Any
 from replaybench.app.sweep.record import csv_rows
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+
     from replaybench.app.sweep.record import SweepProgress, SweepResult
+    from replaybench.tasks import MetricSpec
 
 __all__ = ['ProgressBar', 'progress_bar', 'result_lines']
 
@@ -44,22 +47,36 @@ def progress_bar(stream: Any) -> ProgressBar | None:
     return ProgressBar(stream) if callable(isatty) and isatty() else None
 
 
-#: The accuracy column of the cells table.
-_ACCURACY = 'map50'
-
-
 def _fmt(value: Any, digits: int = 2) -> str:
     return '-' if value is None or value == '' else f'{float(value):.{digits}f}'
+
+
+def _accuracy_columns(rows: Sequence[Mapping[str, Any]]) -> list[MetricSpec]:
+    """The sweep metrics in the cells table: each one with a terminal heading, as
+    ``replaybench run``'s table shows them: a task shown on every row (``terminal='always'``:
+    the boxes', which every backend has) always, another only where a cell has a value."""
+    from replaybench.app.sweep.record import sweep_metrics
+    from replaybench.tasks import get_task, task_names, task_views
+
+    every_row = {
+        m.name
+        for name in task_names()
+        if task_views(task := get_task(name)).terminal == 'always'
+        for m in task.metrics
+    }
+    return [
+        m
+        for m in sweep_metrics()
+        if m.terminal_label is not None
+        and (m.name in every_row or any(r[m.name] is not None for r in rows))
+    ]
 
 
 def result_lines(result: SweepResult) -> tuple[list[str], list[str]]:
     """What the ``sweep`` command prints: the cells table and where the outputs are (stdout),
     failed and flagged cells (stderr)."""
-    from replaybench.tasks import all_metrics
-
     rows = csv_rows(result.sweep.cells)
-    # the boxes' main figure, which every backend has (its terminal heading and digits)
-    (boxes,) = [m for m in all_metrics() if m.name == _ACCURACY]
+    shown = _accuracy_columns(rows)
     header = (
         'input',
         'backend',
@@ -68,7 +85,7 @@ def result_lines(result: SweepResult) -> tuple[list[str], list[str]]:
         'fps',
         'p50 ms',
         'p99 ms',
-        str(boxes.terminal_label),
+        *(str(m.terminal_label) for m in shown),
         'node',
     )
     table = [
@@ -80,15 +97,16 @@ def result_lines(result: SweepResult) -> tuple[list[str], list[str]]:
             _fmt(r['fps'], 1),
             _fmt(r['p50_ms']),
             _fmt(r['p99_ms']),
-            _fmt(r[boxes.name], boxes.terminal_digits),
+            *(_fmt(r[m.name], m.terminal_digits) for m in shown),
             str(r['node'] or '-') + (f' gpu {r["gpu"]}' if r['gpu'] else ''),
         )
         for r in rows
     ]
+    numbers = range(4, 7 + len(shown))  # right-aligned: the timings and the metrics
     widths = [max([len(h), *(len(t[i]) for t in table)]) for i, h in enumerate(header)]
     out = [
         '  '.join(
-            c.rjust(w) if 4 <= i <= 7 else c.ljust(w)
+            c.rjust(w) if i in numbers else c.ljust(w)
             for i, (c, w) in enumerate(zip(line, widths, strict=True))
         ).rstrip()
         for line in (header, *table)

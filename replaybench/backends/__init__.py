@@ -9,9 +9,9 @@ group; the entry point's name is the backend name. A broken entry point is liste
 from __future__ import annotations
 
 import importlib
-import re
 from typing import TYPE_CHECKING, NamedTuple, cast
 
+from replaybench._entrypoints import PLUGIN_NAME, sorted_entry_points
 from replaybench.backends.base import Availability, Backend, BackendOptions
 from replaybench.errors import BackendUnavailableError, UsageError
 
@@ -48,7 +48,6 @@ BUILTIN_BACKENDS: dict[str, str] = {
     'aruco': 'replaybench.backends.aruco:ArucoBackend',
 }
 
-_NAME_RE = re.compile(r'[A-Za-z0-9][A-Za-z0-9_-]*\Z')
 _REQUIRED_MEMBERS = ('name', 'description', 'available', 'open', 'detect', 'info', 'close')
 
 
@@ -63,10 +62,7 @@ class BackendStatus(NamedTuple):
 
 def _entry_points() -> list[EntryPoint]:
     """Entry points of the backend group, in a stable order (name, then target)."""
-    import importlib.metadata  # only third-party backends need it: not on a built-in's path
-
-    eps = importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
-    return sorted(eps, key=lambda ep: (ep.name, ep.value))
+    return sorted_entry_points(ENTRY_POINT_GROUP)
 
 
 def _origin(ep: EntryPoint) -> str:
@@ -83,7 +79,7 @@ def _plugins() -> tuple[dict[str, EntryPoint], list[tuple[EntryPoint, str]]]:
     for ep in _entry_points():
         if ep.name in BUILTIN_BACKENDS:
             rejected.append((ep, f'name {ep.name!r} is taken by a built-in backend; ignored'))
-        elif not _NAME_RE.match(ep.name):
+        elif not PLUGIN_NAME.match(ep.name):
             rejected.append((ep, f'invalid backend name {ep.name!r} (letters, digits, _ and -)'))
         elif ep.name in usable:
             other = usable[ep.name].value

@@ -20,10 +20,10 @@ name without importing a built-in task).
 from __future__ import annotations
 
 import importlib
-import re
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
+from replaybench._entrypoints import PLUGIN_NAME, declares, sorted_entry_points
 from replaybench.errors import TaskUnavailableError, UsageError
 from replaybench.tasks.base import LazyMapping, MetricSpec, Task, TaskTruth, TaskViews, TruthInput
 from replaybench.tasks.common import COMMON_METRICS
@@ -61,62 +61,13 @@ TASKS: dict[str, str] = {
     'segmentation': 'replaybench.tasks.segmentation.task:TASK',
 }
 
-_NAME_RE = re.compile(r'[A-Za-z0-9][A-Za-z0-9_-]*\Z')
-
-
-#: the import system's own finders: they find distributions only as ``_declares`` looks for them
-_PLAIN_FINDERS = frozenset({'BuiltinImporter', 'FrozenImporter', 'PathFinder'})
-
-
-def _declares(group: str) -> bool:
-    """Whether an installed distribution may declare entry points of ``group``: a look at the
-    ``entry_points.txt`` files of the distributions on ``sys.path``, so that
-    ``importlib.metadata`` (with the email and zip modules it imports, some 20 ms) is loaded
-    before a run's first frame only where one does. True wherever the look cannot be sure (a
-    zip or other file on ``sys.path``, a finder of distributions besides the import system's);
-    false only where ``importlib.metadata`` would find no entry point of ``group`` either."""
-    import sys
-    from pathlib import Path
-
-    for finder in sys.meta_path:
-        name = getattr(finder, '__name__', type(finder).__name__)
-        if callable(getattr(finder, 'find_distributions', None)) and name not in _PLAIN_FINDERS:
-            return True
-    heading = f'[{group}]'
-    for entry in sys.path:
-        root = Path(entry or '.')
-        try:
-            children = [child.name for child in root.iterdir()]
-        except NotADirectoryError:
-            return True  # a zip file: importlib.metadata reads it
-        except OSError:
-            continue  # not there: nothing found in it
-        folders = [root / 'EGG-INFO'] if root.name.lower().endswith('.egg') else []
-        for child in children:
-            low = child.lower()
-            if low.endswith(('.dist-info', '.egg-info')):
-                folders.append(root / child)
-            elif low.endswith('.egg'):
-                folders.append(root / child / 'EGG-INFO')
-        for folder in folders:
-            try:
-                if heading in (folder / 'entry_points.txt').read_text(encoding='utf-8'):
-                    return True
-            except (FileNotFoundError, NotADirectoryError):
-                continue
-            except (OSError, UnicodeError):
-                return True  # unreadable here: let importlib.metadata say
-    return False
-
 
 def _entry_points() -> list[EntryPoint]:
-    """Entry points of the task group, in a stable order (name, then target)."""
-    if not _declares(ENTRY_POINT_GROUP):
+    """Entry points of the task group, in a stable order (name, then target); none without
+    ``importlib.metadata`` loaded where no installed distribution declares the group."""
+    if not declares(ENTRY_POINT_GROUP):
         return []
-    import importlib.metadata  # only third-party tasks need it
-
-    eps = importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
-    return sorted(eps, key=lambda ep: (ep.name, ep.value))
+    return sorted_entry_points(ENTRY_POINT_GROUP)
 
 
 def _plugins() -> tuple[dict[str, EntryPoint], dict[str, str]]:
@@ -126,7 +77,7 @@ def _plugins() -> tuple[dict[str, EntryPoint], dict[str, str]]:
     for ep in _entry_points():
         if ep.name in TASKS:
             refused[ep.name] = f'{ep.value}: name {ep.name!r} is taken by a built-in task'
-        elif not _NAME_RE.match(ep.name):
+        elif not PLUGIN_NAME.match(ep.name):
             refused[ep.name] = f'{ep.value}: invalid task name {ep.name!r} (letters, digits, _, -)'
         elif ep.name in usable:
             refused[ep.name] = (

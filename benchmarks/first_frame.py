@@ -124,6 +124,19 @@ def write_sparse_bag(path: Path, size_bytes: int) -> int:
     import numpy as np
     from mcap.writer import CompressionType, Writer
 
+    frame = np.zeros((HEIGHT, WIDTH, 3), dtype=np.uint8)
+    frames = max(1, size_bytes // frame.nbytes)
+    stream = _SparseStream(path.open('wb'))
+    writer: Any = Writer(cast('Any', stream), chunk_size=8 << 20, compression=CompressionType.NONE)
+    _write_frames(writer, frame, frames)
+    writer.finish()
+    stream.close()
+    return frames
+
+
+def _write_frames(writer: Any, frame: Any, frames: int) -> None:
+    """Start ``writer`` (an MCAP writer) and write ``frames`` copies of ``frame`` (rgb8) on
+    ``/camera/image_raw``, each after its CameraInfo on ``/camera/camera_info``."""
     from replaybench.fixtures.writer import camera_info, stamp_ns
     from replaybench.msgs import (
         CAMERA_INFO,
@@ -133,10 +146,6 @@ def write_sparse_bag(path: Path, size_bytes: int) -> int:
         serialize_image,
     )
 
-    frame = np.zeros((HEIGHT, WIDTH, 3), dtype=np.uint8)
-    frames = max(1, size_bytes // frame.nbytes)
-    stream = _SparseStream(path.open('wb'))
-    writer: Any = Writer(cast('Any', stream), chunk_size=8 << 20, compression=CompressionType.NONE)
     writer.start(profile='ros2', library='replaybench benchmarks')
     schema = writer.register_schema(
         name=IMAGE, encoding='ros2msg', data=ros2msg_schema(IMAGE).encode()
@@ -150,17 +159,15 @@ def write_sparse_bag(path: Path, size_bytes: int) -> int:
     info_channel = writer.register_channel(
         topic='/camera/camera_info', message_encoding='cdr', schema_id=info_schema
     )
+    size = (frame.shape[1], frame.shape[0])
     for i in range(frames):
         t = stamp_ns(i)
-        info = serialize_camera_info(camera_info((WIDTH, HEIGHT), t, 'camera_optical_frame'))
+        info = serialize_camera_info(camera_info(size, t, 'camera_optical_frame'))
         writer.add_message(
             channel_id=info_channel, log_time=t, data=info, publish_time=t, sequence=i
         )
         data = serialize_image(t, 'camera_optical_frame', frame, 'rgb8')
         writer.add_message(channel_id=channel, log_time=t, data=data, publish_time=t, sequence=i)
-    writer.finish()
-    stream.close()
-    return frames
 
 
 def write_chunk_bag(path: Path, chunks: int) -> int:
@@ -170,44 +177,12 @@ def write_chunk_bag(path: Path, chunks: int) -> int:
     import numpy as np
     from mcap.writer import CompressionType, Writer
 
-    from replaybench.fixtures.writer import camera_info, stamp_ns
-    from replaybench.msgs import (
-        CAMERA_INFO,
-        IMAGE,
-        ros2msg_schema,
-        serialize_camera_info,
-        serialize_image,
-    )
-
     frame = np.zeros((SMALL_HEIGHT, SMALL_WIDTH, 3), dtype=np.uint8)
     frames = max(1, chunks - 1)
     with path.open('wb') as f:
         # a chunk is closed once it holds more than 1 kB: after each frame
         writer: Any = Writer(f, chunk_size=1024, compression=CompressionType.NONE)
-        writer.start(profile='ros2', library='replaybench benchmarks')
-        schema = writer.register_schema(
-            name=IMAGE, encoding='ros2msg', data=ros2msg_schema(IMAGE).encode()
-        )
-        channel = writer.register_channel(
-            topic='/camera/image_raw', message_encoding='cdr', schema_id=schema
-        )
-        info_schema = writer.register_schema(
-            name=CAMERA_INFO, encoding='ros2msg', data=ros2msg_schema(CAMERA_INFO).encode()
-        )
-        info_channel = writer.register_channel(
-            topic='/camera/camera_info', message_encoding='cdr', schema_id=info_schema
-        )
-        size = (SMALL_WIDTH, SMALL_HEIGHT)
-        for i in range(frames):
-            t = stamp_ns(i)
-            info = serialize_camera_info(camera_info(size, t, 'camera_optical_frame'))
-            writer.add_message(
-                channel_id=info_channel, log_time=t, data=info, publish_time=t, sequence=i
-            )
-            data = serialize_image(t, 'camera_optical_frame', frame, 'rgb8')
-            writer.add_message(
-                channel_id=channel, log_time=t, data=data, publish_time=t, sequence=i
-            )
+        _write_frames(writer, frame, frames)
         writer.finish()
     return frames
 

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal, NamedTuple
-
-import numpy as np
+from typing import TYPE_CHECKING, Literal, NamedTuple
 
 from replaybench.comparison.metric import MetricComparison
 from replaybench.comparison.recorded import (
@@ -40,6 +38,7 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
     from pathlib import Path
 
+    import numpy as np
     import numpy.typing as npt
 
     from replaybench.comparison.runs import RunInfo
@@ -214,21 +213,14 @@ def _recorded_flags(rec: RecordedSeries) -> list[str]:
 
 
 def _accuracy(run: RunResult) -> dict[tuple[str, str], dict[str, float]]:
+    """Each row's accuracy metrics (every task's, ``SummaryRow.metric``) that it has."""
     table: dict[tuple[str, str], dict[str, float]] = {}
     for row in run.summary_rows:
-        source: Any = row.accuracy if row.accuracy is not None else row
         values: dict[str, float] = {}
-        for name in ACCURACY_METRICS:
-            # detection accuracy from ``accuracy``, segmentation's from the row itself
-            number = getattr(source, name, None)
-            if number is None:
-                number = getattr(row, name, None)
-            if number is not None and np.isfinite(number):
-                values[name] = float(number)
-        for name in TAG_METRICS:
-            number = getattr(row, name)
-            if number is not None and np.isfinite(number):
-                values[name] = float(number)
+        for name in (*ACCURACY_METRICS, *TAG_METRICS):
+            number = row.metric(name)
+            if number is not None:
+                values[name] = number
         table[(row.backend, row.topic)] = values
     return table
 

@@ -1,9 +1,9 @@
 """The run record: the summaries (statistics, accuracy, resource use, intervals) and run.json's
 ``RunResult``, built typed from what the passes recorded.
 
-``summaries`` is where a task type's metrics join the statistics of each (backend, topic)
-(``accuracy`` scores the detections, ``segmentation`` the label masks, ``Recorder.tags``
-the tags);
+``summaries`` is where a task type's metrics join the statistics of each (backend, topic):
+``accuracy`` scores every backend's boxes, and each task's recording gives its own part of the
+row (``TaskRecording.summary``: the label masks' mIoU, the tags' figures, a task's metrics);
 ``input_info`` and ``run_result`` construct the model classes of ``replaybench.results.model``
 directly, with values as run.json holds them (NaN and infinities None, tuples for arrays), so
 that the result kept in memory equals the one read back from the folder.
@@ -17,6 +17,7 @@ import time
 from typing import TYPE_CHECKING, Any, cast
 
 from replaybench._version import __version__
+from replaybench.errors import TaskUnavailableError
 from replaybench.results.agreement import AGREEMENT_IOU
 from replaybench.results.intervals import with_intervals
 from replaybench.results.io import to_json
@@ -29,8 +30,7 @@ from replaybench.results.model import (
     RunOutputs,
     RunResult,
     RunSettings,
-    SegmentationAgreementRow,
-    SegmentationSummary,
+    SummaryRow,
     Tool,
     TopicMeta,
 )
@@ -49,12 +49,12 @@ if TYPE_CHECKING:
     from replaybench.tasks.detections.truth import BoxTruth
     from replaybench.types import Detection
 
-__all__ = ['accuracy', 'input_info', 'run_result', 'segmentation', 'summaries']
+__all__ = ['accuracy', 'input_info', 'run_result', 'summaries']
 
 
 def summaries(recorder: Recorder, resources: Mapping[str, Mapping[str, Any]]) -> list[Summary]:
     """The statistics of each (backend, topic) with its metrics: its accuracy against ground
-    truth (``accuracy``), its tags' against tag ground truth (``TagScores.accuracy``), its
+    truth (``accuracy``), its task's figures (``TaskRecording.summary``), its
     backend's resource use (``resources``, by label, as ``ResourceSampler.summary()`` gives
     it), its intervals and warnings, and, for a backend replaying recorded outputs, their
     latency from the recording (``with_recorded_latency``)."""
@@ -71,19 +71,6 @@ def summaries(recorder: Recorder, resources: Mapping[str, Mapping[str, Any]]) ->
                 map50=found.map50,
                 map50_95=found.map50_95,
             )
-        tags = recorder.tags.accuracy(s.backend, s.topic)
-        if tags is not None:
-            s = dataclasses.replace(
-                s,
-                tag_accuracy=tags,
-                tag_recall=tags.recall,
-                tag_wrong_ids=tags.wrong_ids,
-                tag_phantoms=tags.phantoms,
-                tag_corner_rmse_px=tags.corner_rmse_px,
-                tag_trans_err_m=tags.trans_err_m,
-                tag_trans_err_pct=tags.trans_err_pct,
-                tag_rot_err_deg=tags.rot_err_deg,
-            )
         used = resources.get(s.backend)
         if used is not None:
             s = dataclasses.replace(
@@ -96,11 +83,7 @@ def summaries(recorder: Recorder, resources: Mapping[str, Mapping[str, Any]]) ->
                 gpu_mem_mb_peak=_number(used.get('gpu_mem_mb_peak')),
                 gpu_power_w_mean=_number(used.get('gpu_power_w_mean')),
             )
-        masks = segmentation(recorder, s.backend, s.topic)
-        if masks is not None:
-            s = dataclasses.replace(
-                s, segmentation=masks, miou=masks.miou, pixel_accuracy=masks.pixel_accuracy
-            )
+        s = _with_tasks(s, recorder)
         out.append(s)
     rows = with_intervals(out, recorder.records, resources=resources)
     return with_recorded_latency(rows, recorder.records)
@@ -125,35 +108,39 @@ def accuracy(recorder: Recorder, scored: Mapping[TruthKey, tuple[Detection, ...]
     )
 
 
-def segmentation(recorder: Recorder, backend: str, topic: str) -> SegmentationSummary | None:
-    """A segmentation backend's accuracy on ``topic`` against the ground-truth masks; None
-    for a detector."""
-    found = recorder.segmentation.summary(backend, topic)
-    if found is None:
-        return None
-    return SegmentationSummary(
-        frames=found['frames'],
-        miou=_number(found['miou']),
-        pixel_accuracy=_number(found['pixel_accuracy']),
-        iou={name: float(value) for name, value in found['iou'].items()},
-        class_names=tuple(found['class_names']),
-    )
+_ROW_FIELDS = frozenset(f.name for f in dataclasses.fields(SummaryRow))
 
 
-def _segmentation_agreement(recorder: Recorder) -> tuple[SegmentationAgreementRow, ...]:
-    """Each pair of segmentation backends on a topic: the later one's masks against the
-    earlier one's."""
-    return tuple(
-        SegmentationAgreementRow(
-            backend_a=row['backend_a'],
-            backend_b=row['backend_b'],
-            topic=row['topic'],
-            frames=row['frames'],
-            miou=_number(row['miou']),
-            pixel_agreement=_number(row['pixel_agreement']),
-        )
-        for row in recorder.segmentation.agreements()
-    )
+def _with_tasks(row: Summary, recorder: Recorder) -> Summary:
+    """``row`` with what each task's recording gives it (``TaskRecording.summary``): the
+    fields a built-in task has on ``SummaryRow``, the metrics of any other task in
+    ``task_metrics`` (numbers, or None)."""
+    fields: dict[str, Any] = {}
+    metrics: dict[str, float | None] = {}
+    for recording in recorder.task_recordings():
+        found = recording.summary(row.backend, row.topic)
+        for name, value in (found or {}).items():
+            if name in _ROW_FIELDS:
+                fields[name] = value
+            elif value is None or (isinstance(value, int | float) and not isinstance(value, bool)):
+                metrics[name] = _number(value)
+            else:
+                msg = (
+                    f'{type(recording).__name__}.summary gave {name}={value!r}: a metric of a '
+                    'task without a SummaryRow field must be a number or None'
+                )
+                raise TaskUnavailableError(msg)
+    if metrics:
+        fields['task_metrics'] = metrics
+    return dataclasses.replace(row, **fields) if fields else row
+
+
+def _task_fields(recorder: Recorder) -> dict[str, Any]:
+    """The ``RunResult`` fields the tasks' recordings fill (``TaskRecording.run_fields``)."""
+    found: dict[str, Any] = {}
+    for recording in recorder.task_recordings():
+        found.update(recording.run_fields())
+    return found
 
 
 def _number(value: Any) -> float | None:
@@ -279,7 +266,6 @@ def run_result(
         backends=tuple(backends),
         summary_rows=tuple(summary),
         agreement=tuple(_agreement_row(a) for a in agreements),
-        segmentation_agreement=_segmentation_agreement(recorder),
         counts=RunCounts(
             frames=len(records),
             processed=sum(1 for r in records if r.status == 'ok'),
@@ -299,4 +285,5 @@ def run_result(
         if config.out_dir is not None
         else None,
         frame_records=tuple(as_written(r) for r in records),
+        **_task_fields(recorder),
     )

@@ -20,8 +20,10 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING, Any, Protocol, cast
 
+from replaybench.errors import TaskUnavailableError
 from replaybench.replay.recorded import NOT_RECORDED, frame_recorded_times, recorded_note
 from replaybench.results.records import FrameRecord
+from replaybench.tasks.base import TaskRecording
 from replaybench.types import BackendResult, StageTimes
 
 if TYPE_CHECKING:
@@ -31,8 +33,6 @@ if TYPE_CHECKING:
     from replaybench.replay.passes import LogEntry, Pass, Warmups
     from replaybench.results.groundtruth import ExternalGroundTruth
     from replaybench.tasks.detections.truth import BoxTruth, DetectionTable
-    from replaybench.tasks.segmentation.recording import Segmentation
-    from replaybench.tasks.tags.recording import TagScores
     from replaybench.types import CameraInfo, Detection, RawMessage
 
 __all__ = ['DetectionsSink', 'FrameSink', 'Recorder', 'Sample', 'TaskRecording']
@@ -105,40 +105,6 @@ class DetectionsSink(Protocol):
     def add_metadata(self, name: str, data: dict[str, str], /) -> None: ...
 
 
-class TaskRecording(Protocol):
-    """A task's part of recording the processed frames of its backends (the task's
-    ``recording``: ``(recorder) -> TaskRecording``), made once per run, called per frame of
-    the first pass after the pass, outside any timed region."""
-
-    @property
-    def scores_boxes(self) -> bool:
-        """Whether the frame's boxes are scored against box ground truth (not a mask's)."""
-        ...
-
-    @property
-    def writes_first(self) -> bool:
-        """Whether its messages go before the frame's detections message (their channels
-        come first in outputs.mcap), else after it."""
-        ...
-
-    def frame(
-        self,
-        writer: DetectionsSink,
-        label: str,
-        inp: OpenedInput,
-        key: FrameKey,
-        result: BackendResult,
-    ) -> Mapping[str, Any]:
-        """The frame's outputs written into ``writer`` and scored; the task's own
-        ``FrameRecord`` fields of it (none: an empty mapping)."""
-        ...
-
-    def sample(self, result: BackendResult) -> Any:
-        """What the sample picture draws of the frame beside its boxes (a mask's labels), or
-        None."""
-        ...
-
-
 class Sample:
     """The frame drawn for a topic (by its seq and log time), with each backend's detections.
 
@@ -206,22 +172,20 @@ class Recorder:
         made: TaskRecording | None = None
         if target is not None:
             made = load_view(found, target, 'recording')(self)
+            if not isinstance(made, TaskRecording):
+                msg = (
+                    f'task {name!r}: {target} made {type(made).__name__}, which is no '
+                    'TaskRecording (replaybench.tasks.base; TaskRecordingBase has the defaults)'
+                )
+                raise TaskUnavailableError(msg)
         self._recordings[name] = made
         return made
 
-    @property
-    def segmentation(self) -> Segmentation:
-        """The segmentation task's recording (``replaybench.tasks.segmentation.recording``):
-        its backends' masks written, scored against ground-truth masks, compared; made here
-        (empty) when no backend of the task made it."""
-        return cast('Segmentation', self.task_recording('segmentation'))
-
-    @property
-    def tags(self) -> TagScores:
-        """The tags task's recording (``replaybench.tasks.tags.recording``): its backends'
-        tags scored against tag ground truth; made here (empty) when no backend of the task
-        made it."""
-        return cast('TagScores', self.task_recording('tags'))
+    def task_recordings(self) -> list[TaskRecording]:
+        """The recordings made so far (one per task whose backends' frames were recorded), in
+        the order they were made: what ``replaybench.replay.record`` asks for the summaries,
+        the warnings and run.json's task fields after the passes."""
+        return [made for made in self._recordings.values() if made is not None]
 
     def take(self, done: Pass) -> float:
         """Turn the pass's log into records and frames.csv rows, detections messages, scores

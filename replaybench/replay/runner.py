@@ -320,7 +320,8 @@ def _execute(
                         warnings=warnings,
                         runs=backend_runs,
                     )
-            recorder.segmentation.write_names(detections_out)
+            for recording in recorder.task_recordings():
+                recording.finish(detections_out)
             if config.copy_images:
                 copy_problems = copy_images(inputs, detections_out)
         except (KeyboardInterrupt, Stopped):
@@ -368,7 +369,8 @@ def _execute(
         for run in backend_runs
         if run.resources is not None and run.resources.summary is not None
     }
-    warnings.extend(recorder.tags.warnings())
+    for recording in recorder.task_recordings():
+        warnings.extend(recording.warnings())
     summary = summaries(recorder, resources)
     agreements = (
         agreement_table(recorder.detections, iou=AGREEMENT_IOU) if len(config.backends) > 1 else []

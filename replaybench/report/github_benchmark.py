@@ -76,16 +76,16 @@ def _extra(run: RunResult, row: SummaryRow) -> str:
     return '; '.join(parts)
 
 
-def _tracked() -> list[tuple[str, MetricSpec]]:
-    """(the ``SummaryRow`` field of the task's summary, metric) of each task's tracked metric."""
+def _tracked() -> list[tuple[str | None, MetricSpec]]:
+    """(the ``SummaryRow`` field of the task's summary, None for a task without one; metric)
+    of each task's tracked metric."""
     from replaybench.tasks import get_task, task_names, task_views
 
-    tracked = []
+    tracked: list[tuple[str | None, MetricSpec]] = []
     for name in task_names():
         task = get_task(name)
         field = task_views(task).summary_field
-        if field is not None:
-            tracked += [(field, m) for m in task.metrics if m.tracked]
+        tracked += [(field, m) for m in task.metrics if m.tracked]
     return tracked
 
 
@@ -105,10 +105,10 @@ def github_benchmark(run: RunResult) -> tuple[list[dict[str, Any]], list[dict[st
         if fps is not None:
             span = _range(row, 'throughput_fps_ci_low', 'throughput_fps_ci_high')
             bigger.append(_entry(f'{key} throughput', 'frames/s', fps, span, extra))
-        for field, metric in tracked:
-            if getattr(row, field, None) is None:
-                continue
-            value = _number(getattr(row, metric.name, None))
+        for summary_field, metric in tracked:
+            if summary_field is not None and getattr(row, summary_field, None) is None:
+                continue  # not the task's row
+            value = row.metric(metric.name)
             if value is not None:
                 bigger.append(_entry(f'{key} {metric.label}', 'fraction', value, None, extra))
     return smaller, bigger

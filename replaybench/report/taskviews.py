@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, cast
 
-from replaybench.tasks import get_task, load_view, task_names, task_views
+from replaybench.tasks import TaskViews, get_task, load_view, task_names, task_views
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     Panel = Callable[[Rows], str]
     Columns = Callable[[Rows], tuple[tuple[str, ...], list[tuple[str, ...]]]]
 
-__all__ = ['ReportParts', 'main_value', 'report_parts']
+__all__ = ['ReportParts', 'main_value', 'metric_columns', 'report_parts']
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,10 +40,28 @@ class ReportParts:
 
 
 def main_value(row: SummaryRow, spec: MetricSpec) -> float | None:
-    """A row's value of a task's main figure; None where the row has none (a task from an entry
-    point has no field of its own on ``SummaryRow``)."""
-    value: float | None = getattr(row, spec.name, None)
-    return value
+    """A row's value of a task's main figure (``SummaryRow.metric``); None where the row has
+    none."""
+    return row.metric(spec.name)
+
+
+def metric_columns(specs: Sequence[MetricSpec]) -> Columns:
+    """The "More figures" columns of a task that declares no views (``TaskViews``): each
+    metric of ``specs`` that a row has (``SummaryRow.metric``), headed by its short label,
+    its value with the terminal's digits ('–' in the other rows)."""
+
+    def columns(rows: Rows) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
+        shown = [m for m in specs if any(r.metric(m.name) is not None for r in rows)]
+        cells = [
+            tuple(
+                '–' if (v := r.metric(m.name)) is None else f'{v:.{m.terminal_digits}f}'
+                for m in shown
+            )
+            for r in rows
+        ]
+        return tuple(m.short_label for m in shown), cells
+
+    return columns
 
 
 def report_parts() -> ReportParts:
@@ -63,6 +81,8 @@ def report_parts() -> ReportParts:
             summary.append(cast('Panel', load_view(task, views.summary_panel)))
         if views.more_columns is not None:
             columns.append(cast('Columns', load_view(task, views.more_columns)))
+        elif views == TaskViews():  # a task that declares no views: its metrics shown plainly
+            columns.append(metric_columns(tuple(m for m in task.metrics if not m.main)))
         if views.section_panel is not None:
             sections.append(cast('Panel', load_view(task, views.section_panel)))
     return ReportParts(tuple(main), tuple(summary), tuple(columns), tuple(sections))

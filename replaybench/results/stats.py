@@ -26,7 +26,7 @@ from replaybench.results.records import written
 from replaybench.results.repeats import by_repeat, pooled_throughput
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Iterable, Sequence
 
     from replaybench.results.records import FrameRecord
 
@@ -41,6 +41,7 @@ __all__ = [
     'summarize',
     'summary_json',
     'summary_row',
+    'task_metric_columns',
 ]
 
 #: One (backend, topic) of a run: the summary row run.json and summary.csv hold; the one type
@@ -200,10 +201,21 @@ def repeat_statistics(records: Sequence[FrameRecord]) -> tuple[RepeatStats, ...]
 
 def summary_row(summary: SummaryRow) -> dict[str, Any]:
     """Flat dict of one summary.csv row; accuracy keys are None when there is no accuracy;
-    ``warnings`` joined by ``'; '`` ('' when there is none)."""
+    ``warnings`` joined by ``'; '`` ('' when there is none); then the row's ``task_metrics``
+    (the metrics of tasks without fields of their own), by metric name."""
     row = {name: getattr(summary, name) for name in SUMMARY_CSV_COLUMNS}
     row['warnings'] = '; '.join(summary.warnings)
+    row.update(summary.task_metrics or {})
     return row
+
+
+def task_metric_columns(summaries: Iterable[SummaryRow]) -> tuple[str, ...]:
+    """The columns summary.csv writes after ``SUMMARY_CSV_COLUMNS``: the names in the rows'
+    ``task_metrics``, in the order they first appear (row order, then each row's own)."""
+    names: dict[str, None] = {}
+    for summary in summaries:
+        names.update(dict.fromkeys(summary.task_metrics or {}))
+    return tuple(names)
 
 
 def summary_json(summary: SummaryRow) -> dict[str, Any]:

@@ -122,7 +122,28 @@ def summary_table(rows: Sequence[object]) -> pd.DataFrame:
         name: [parsers[name](cell(getattr(row, name))) for row in rows]
         for name in SUMMARY_CSV_COLUMNS
     }
-    return _frame(columns, SUMMARY_DTYPES)
+    extra = _task_metric_names(rows)
+    for name in extra:
+        columns[name] = [_task_number(cell(_task_metric(row, name))) for row in rows]
+    return _frame(columns, {**SUMMARY_DTYPES, **dict.fromkeys(extra, 'float64')})
+
+
+def _task_metric(row: object, name: str) -> Any:
+    found: Mapping[str, Any] | None = getattr(row, 'task_metrics', None)
+    return None if found is None else found.get(name)
+
+
+def _task_metric_names(rows: Sequence[object]) -> tuple[str, ...]:
+    """summary.csv's columns after ``SUMMARY_CSV_COLUMNS``: the rows' ``task_metrics`` names
+    in the order they first appear (``replaybench.results.stats.task_metric_columns``)."""
+    names: dict[str, None] = {}
+    for row in rows:
+        names.update(dict.fromkeys(getattr(row, 'task_metrics', None) or {}))
+    return tuple(names)
+
+
+def _task_number(text: str) -> float | None:
+    return float(text) if text else None
 
 
 @functools.cache
@@ -142,23 +163,37 @@ def read_summary_csv(path: str | Path) -> pd.DataFrame:
         with path.open(newline='', encoding='utf-8') as file:
             reader = csv.reader(file)
             header = tuple(next(reader, ()))
-            if header not in (SUMMARY_CSV_COLUMNS, _BEFORE_SEGMENTATION):
+            # after the known columns: the metrics of tasks without fields of their own
+            extra = header[len(SUMMARY_CSV_COLUMNS) :]
+            known = header[: len(SUMMARY_CSV_COLUMNS)]
+            if known not in (SUMMARY_CSV_COLUMNS, _BEFORE_SEGMENTATION) or (
+                extra and not _task_columns_ok(extra)
+            ):
                 msg = f'{path}: not a summary.csv (header does not match the expected columns)'
                 raise SourceError(msg)
-            parsers = _parsers()
-            columns: dict[str, list[Any]] = {name: [] for name in SUMMARY_CSV_COLUMNS}
+            parsers = {**_parsers(), **dict.fromkeys(extra, _task_number)}
+            names = (*SUMMARY_CSV_COLUMNS, *extra)
+            columns: dict[str, list[Any]] = {name: [] for name in names}
             # a summary.csv from before the recorded-latency columns: those read empty
-            missing = [''] * (len(SUMMARY_CSV_COLUMNS) - len(header))
+            missing = [''] * (len(SUMMARY_CSV_COLUMNS) - len(known))
             for cells in reader:
                 if len(cells) != len(header):
                     msg = f'{path}:{reader.line_num}: {len(cells)} cells, not {len(header)}'
                     raise SourceError(msg)
-                for name, text in zip(SUMMARY_CSV_COLUMNS, cells + missing, strict=True):
+                texts = [*cells[: len(known)], *missing, *cells[len(known) :]]
+                for name, text in zip(names, texts, strict=True):
                     columns[name].append(parsers[name](text))
     except (OSError, ValueError, csv.Error) as err:
         msg = f'{path}: cannot read summary.csv: {err}'
         raise SourceError(msg) from err
-    return _frame(columns, SUMMARY_DTYPES)
+    return _frame(columns, {**SUMMARY_DTYPES, **dict.fromkeys(extra, 'float64')})
+
+
+def _task_columns_ok(extra: Sequence[str]) -> bool:
+    """Whether columns after the known ones can be task metrics: new, distinct names."""
+    return len(set(extra)) == len(extra) and all(
+        name and name not in SUMMARY_DTYPES for name in extra
+    )
 
 
 def trials_table(trials: Sequence[object], cls: type[Any]) -> pd.DataFrame:

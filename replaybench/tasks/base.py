@@ -19,7 +19,9 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from replaybench.decode.recorded import OutputReader
+    from replaybench.sinks.writer import OutputWriter
     from replaybench.sources import Source
+    from replaybench.types import BackendResult
 
 __all__ = [
     'Better',
@@ -27,6 +29,8 @@ __all__ = [
     'MetricKind',
     'MetricSpec',
     'Task',
+    'TaskRecording',
+    'TaskRecordingBase',
     'TaskTruth',
     'TaskViews',
     'TerminalColumns',
@@ -216,3 +220,102 @@ class TaskTruth(Protocol):
         """The input's truth of the task, as the task's scoring reads it; None where the input
         has none."""
         ...
+
+
+#: a processed frame as a task's recording sees it: (topic, seq, log_time_ns, stamp_ns, frame_id)
+FrameKey = tuple[str, int, int, int, str]
+
+
+@runtime_checkable
+class TaskRecording(Protocol):
+    """A task's part of recording the processed frames of its backends: the lifecycle the
+    engine (``replaybench.replay.recording.Recorder``, ``replaybench.replay.record``) drives
+    without knowing the task.
+
+    Made once per run by the task's ``recording`` (``'module:attr'`` of a callable ``(recorder)
+    -> TaskRecording``) when the frames of a backend that declares the task are first recorded;
+    ``frame`` is called per processed frame of the first pass, after the pass, outside any timed
+    region; the rest once, after the passes: ``finish`` before outputs.mcap closes,
+    ``warnings`` into run.json's warnings, ``summary`` for each (backend, topic) row,
+    ``run_fields`` for run.json. ``TaskRecordingBase`` gives every method but ``frame`` a
+    default that adds nothing.
+    """
+
+    @property
+    def scores_boxes(self) -> bool:
+        """Whether the frame's boxes are scored against box ground truth (not a mask's)."""
+        ...
+
+    @property
+    def writes_first(self) -> bool:
+        """Whether its messages go before the frame's detections message (their channels
+        come first in outputs.mcap), else after it."""
+        ...
+
+    def frame(
+        self,
+        writer: OutputWriter,
+        label: str,
+        inp: Any,
+        key: FrameKey,
+        result: BackendResult,
+    ) -> Mapping[str, Any]:
+        """The frame's outputs written into ``writer`` and scored (``inp``: the
+        ``replaybench.replay.inputs.OpenedInput``, its task truth in ``inp.truth[name]``); the
+        task's own ``FrameRecord`` fields of it (none: an empty mapping)."""
+        ...
+
+    def sample(self, result: BackendResult) -> Any:
+        """What the sample picture draws of the frame beside its boxes (a mask's labels), or
+        None."""
+        ...
+
+    def finish(self, writer: OutputWriter) -> None:
+        """After the passes, before outputs.mcap closes: what the task writes once (metadata)."""
+        ...
+
+    def warnings(self) -> list[str]:
+        """Lines for run.json's warnings and the terminal."""
+        ...
+
+    def summary(self, backend: str, topic: str) -> Mapping[str, Any] | None:
+        """The task's part of the (backend label, topic) row: ``SummaryRow`` fields by name
+        (a built-in task's metrics and full summary), and for a task without fields of its own
+        its metrics by ``MetricSpec.name`` (numbers or None, into ``SummaryRow.task_metrics``);
+        None where the row is not the task's."""
+        ...
+
+    def run_fields(self) -> Mapping[str, Any]:
+        """``RunResult`` fields the task fills (the agreement of its backends); empty for
+        none."""
+        ...
+
+
+class TaskRecordingBase:
+    """Defaults of a ``TaskRecording``: boxes scored, messages after the detections, nothing
+    drawn, written, warned, summarised or added to run.json. A task's recording subclasses it
+    and defines ``frame`` and what it adds."""
+
+    scores_boxes: bool = True
+    writes_first: bool = False
+
+    def sample(self, result: BackendResult) -> Any:
+        """Nothing beside the boxes."""
+        del result
+
+    def finish(self, writer: OutputWriter) -> None:
+        """Nothing written once."""
+        del writer
+
+    def warnings(self) -> list[str]:
+        """No lines."""
+        return []
+
+    def summary(self, backend: str, topic: str) -> Mapping[str, Any] | None:
+        """No row is the task's."""
+        del backend, topic
+        return None
+
+    def run_fields(self) -> Mapping[str, Any]:
+        """Nothing for run.json."""
+        return {}

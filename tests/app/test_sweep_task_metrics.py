@@ -13,14 +13,14 @@ import shutil
 import sys
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
 from replaybench.tasks import ENTRY_POINT_GROUP, MetricSpec
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator, Mapping
+    from collections.abc import Iterator
 
 REPO = Path(__file__).resolve().parents[2]
 SCHEMA = REPO / 'replaybench' / 'schemas' / 'sweep.schema.json'
@@ -148,26 +148,17 @@ def test_a_task_from_an_entry_point_has_its_sweep_metric_in_sweep_csv_and_json(
     assert [line.split()[-2] for line in lines[1:3]] == ['0.250', '0.750']
 
 
-class _Row(NamedTuple):
-    backend: str
-    task_metrics: Mapping[str, float | None]
-
-
-class _OtherRow(NamedTuple):
-    backend: str
-    metrics: Mapping[str, Any]
-
-
 def test_a_metric_value_is_the_rows_field_else_its_entry_in_the_rows_task_metrics() -> None:
     from replaybench.app.sweep.record import metric_value
     from replaybench.results.model import SummaryRow
 
     toy = MetricSpec('toy_score', 'toy score', 'toy', 'higher', sweep=True)
     miou = MetricSpec('miou', 'mIoU', 'mIoU', 'higher', sweep=True)
-    assert metric_value(_Row('x', {'toy_score': 1}), toy) == 1.0
-    assert metric_value(_Row('x', {}), toy) is None
-    assert metric_value(_OtherRow('x', {'toy_score': 0.5}), toy) == 0.5
+    assert metric_value(SummaryRow(task_metrics={'toy_score': 1}), toy) == 1.0
+    assert metric_value(SummaryRow(task_metrics={}), toy) is None
+    assert metric_value(SummaryRow(task_metrics={'toy_score': float('nan')}), toy) is None
     assert metric_value(SummaryRow(miou=0.25), miou) == 0.25
+    assert metric_value(SummaryRow(miou=0.25, task_metrics={'miou': 0.5}), miou) == 0.25
     assert metric_value(SummaryRow(), miou) is None
     assert metric_value(SummaryRow(), toy) is None  # no field and no mapping of it
 

@@ -12,19 +12,18 @@ import bisect
 import csv
 import io
 from collections import Counter
-from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from replaybench.tasks import all_metrics
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable, Sequence
+    from collections.abc import Iterable, Mapping, Sequence
     from pathlib import Path
 
     import pandas as pd
 
-    from replaybench.results.model import RunResult
+    from replaybench.results.model import RunResult, SummaryRow
     from replaybench.results.records import FrameRecord
     from replaybench.results.sweepfile import CellConditions, CellMetrics, SweepCell, SweepRecord
     from replaybench.tasks import MetricSpec
@@ -57,19 +56,10 @@ def sweep_metrics() -> tuple[MetricSpec, ...]:
     return tuple(m for m in shown if m.sweep and m.accuracy)
 
 
-def metric_value(row: object, spec: MetricSpec) -> float | None:
-    """``row``'s (a ``SummaryRow``'s) value of the metric ``spec``: the row's field of that
-    name, else its entry in a mapping of the row's task metrics (``task_metrics`` or
-    ``metrics``); None where the row has none (a row of another task's backend). The one place
-    that knows where a summary row keeps a task's metric."""
-    if hasattr(row, spec.name):
-        found = getattr(row, spec.name)
-    else:
-        table = getattr(row, 'task_metrics', None)
-        if table is None:
-            table = getattr(row, 'metrics', None)
-        found = table.get(spec.name) if isinstance(table, Mapping) else None
-    return None if found is None else float(found)
+def metric_value(row: SummaryRow, spec: MetricSpec) -> float | None:
+    """``row``'s value of the metric ``spec`` (``SummaryRow.metric``); None where the row has
+    none (a row of another task's backend)."""
+    return row.metric(spec.name)
 
 
 _BEFORE_METRICS: tuple[str, ...] = (

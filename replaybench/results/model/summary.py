@@ -8,8 +8,11 @@ intervals, warnings, the recorded outputs' latency) and each task's metrics: det
 order of the fields is the order of run.json's keys.
 """
 
-from dataclasses import dataclass
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
 
+from replaybench.results.model.common import OMIT_NONE
 from replaybench.results.model.detections import Accuracy
 from replaybench.results.model.segmentation import SegmentationSummary
 from replaybench.results.model.tags import TagAccuracy
@@ -105,6 +108,28 @@ class SummaryRow:
     tag_trans_err_pct: float | None = None
     tag_rot_err_deg: float | None = None
     tag_accuracy: TagAccuracy | None = None
+
+    #: the metrics of a task that has no field of its own here (a task from an entry point),
+    #: by metric name, in the order the task gave them; None (not in run.json) where the row
+    #: has none. summary.csv writes them after the columns above.
+    task_metrics: Mapping[str, float | None] | None = field(default=None, metadata=OMIT_NONE)
+
+    def metric(self, name: str) -> float | None:
+        """The row's value of the metric ``name`` (a ``MetricSpec.name``): its field of that
+        name, else its entry in ``task_metrics``; None where the row has none (a row of another
+        task's backend) or the value is not finite. The one place that knows where a row keeps
+        a task's metric."""
+        found = getattr(self, name, None) if name in _FIELDS else None
+        if found is None and self.task_metrics is not None:
+            found = self.task_metrics.get(name)
+        if isinstance(found, bool) or not isinstance(found, int | float):
+            return None
+        value = float(found)
+        return value if math.isfinite(value) else None
+
+
+#: SummaryRow's fields that a metric may be (``SummaryRow.metric``)
+_FIELDS: frozenset[str] = frozenset(f.name for f in fields(SummaryRow))
 
 
 @dataclass(frozen=True, slots=True)

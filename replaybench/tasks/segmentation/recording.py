@@ -32,7 +32,9 @@ from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, cast
 import numpy as np
 
 from replaybench.errors import UsageError
+from replaybench.results.io import to_json
 from replaybench.results.segmentation import class_name, confusion, scores
+from replaybench.tasks.base import TaskRecordingBase
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -43,6 +45,12 @@ if TYPE_CHECKING:
     from replaybench.types import BackendResult, LabelMask
 
 __all__ = ['NO_MASK', 'FrameScore', 'MaskTruth', 'MaskedInput', 'Segmentation', 'recording']
+
+
+def _number(value: Any) -> float | None:
+    """A value as run.json holds it: a finite float (numpy's too), or None."""
+    plain = to_json(value)
+    return float(plain) if plain is not None else None
 
 
 class MaskTruth(Protocol):
@@ -83,7 +91,7 @@ class MaskedInput(Protocol):
     def truth(self) -> Mapping[str, object]: ...
 
 
-class Segmentation:
+class Segmentation(TaskRecordingBase):
     """The run's masks: confusion sums, class names, kept masks."""
 
     #: the task's frames are scored against masks, not their boxes against box ground truth
@@ -165,8 +173,44 @@ class Segmentation:
         result = scores(matrix)
         return FrameScore(result.miou, result.pixel_accuracy)
 
-    def summary(self, backend: str, topic: str) -> dict[str, Any] | None:
-        """The ``segmentation`` entry of a summary row; None for a detector."""
+    def summary(self, backend: str, topic: str) -> Mapping[str, Any] | None:
+        """The row's segmentation fields: ``segmentation`` (a ``SegmentationSummary``), its
+        ``miou`` and ``pixel_accuracy``; None for a row of another task's backend."""
+        from replaybench.results.model import SegmentationSummary
+
+        found = self.scored(backend, topic)
+        if found is None:
+            return None
+        masks = SegmentationSummary(
+            frames=found['frames'],
+            miou=_number(found['miou']),
+            pixel_accuracy=_number(found['pixel_accuracy']),
+            iou={name: float(value) for name, value in found['iou'].items()},
+            class_names=tuple(found['class_names']),
+        )
+        return {'segmentation': masks, 'miou': masks.miou, 'pixel_accuracy': masks.pixel_accuracy}
+
+    def run_fields(self) -> Mapping[str, Any]:
+        """run.json's ``segmentation_agreement``: each pair of segmentation backends on a topic,
+        the later one's masks against the earlier one's."""
+        from replaybench.results.model import SegmentationAgreementRow
+
+        return {
+            'segmentation_agreement': tuple(
+                SegmentationAgreementRow(
+                    backend_a=row['backend_a'],
+                    backend_b=row['backend_b'],
+                    topic=row['topic'],
+                    frames=row['frames'],
+                    miou=_number(row['miou']),
+                    pixel_agreement=_number(row['pixel_agreement']),
+                )
+                for row in self.agreements()
+            )
+        }
+
+    def scored(self, backend: str, topic: str) -> dict[str, Any] | None:
+        """The ``segmentation`` entry of a summary row as plain values; None for a detector."""
         names = self.class_names.get(backend)
         if names is None:
             return None
@@ -218,6 +262,10 @@ class Segmentation:
                     }
                 )
         return rows
+
+    def finish(self, writer: OutputWriter) -> None:
+        """The class names of every segmentation backend into the MCAP metadata."""
+        self.write_names(writer)
 
     def write_names(self, writer: OutputWriter) -> None:
         """The class names of every segmentation backend into the MCAP metadata (none made

@@ -7,9 +7,9 @@ when it opens, ``replaybench.tasks.tags.truth``; scored by ``replaybench.results
 when the frames of a backend that declares the task (``Backend.task``) are first recorded, after
 the first frame: ``Recorder.task_outputs`` calls ``frame`` for each processed frame, after the
 pass, outside any timed region, and it reads the frame's truth from the input's truth of the
-task (``OpenedInput.truth``). It gives each (backend, topic) its ``TagAccuracy``
-(``replaybench.replay.record.summaries``). The backends of other tasks never reach it (their
-tag columns stay empty); the scorer and the sink are imported at the first tag result.
+task (``OpenedInput.truth``). It gives each (backend, topic) its ``TagAccuracy`` (``summary``,
+read by ``replaybench.replay.record.summaries``). The backends of other tasks never reach it
+(their tag columns stay empty); the scorer and the sink are imported at the first tag result.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, Protocol, cast
 
 from replaybench.errors import BackendError
+from replaybench.tasks.base import TaskRecordingBase
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -40,7 +41,7 @@ class TaggedInput(Protocol):
     def truth(self) -> Mapping[str, object]: ...
 
 
-class TagScores:
+class TagScores(TaskRecordingBase):
     """The tag task's state over one run: each (backend label, topic)'s frame scores."""
 
     #: a tag backend's boxes (the tags' bounding boxes) are scored against box ground truth
@@ -86,16 +87,29 @@ class TagScores:
         self.scores.setdefault((label, topic), []).append(score)
         return score.columns()
 
-    def sample(self, result: BackendResult) -> None:
-        """Nothing beside the boxes: the sample picture draws the tags' boxes."""
-        del result
-
     def accuracy(self, backend: str, topic: str) -> TagAccuracy | None:
         """The tag accuracy of a (backend label, topic), None where no frame was scored."""
         from replaybench.results.tags import tag_accuracy
 
         scores = self.scores.get((backend, topic))
         return tag_accuracy(scores) if scores else None
+
+    def summary(self, backend: str, topic: str) -> Mapping[str, Any] | None:
+        """The row's tag fields: ``tag_accuracy`` and its figures as the ``tag_*`` columns;
+        None where no frame of it was scored."""
+        tags = self.accuracy(backend, topic)
+        if tags is None:
+            return None
+        return {
+            'tag_accuracy': tags,
+            'tag_recall': tags.recall,
+            'tag_wrong_ids': tags.wrong_ids,
+            'tag_phantoms': tags.phantoms,
+            'tag_corner_rmse_px': tags.corner_rmse_px,
+            'tag_trans_err_m': tags.trans_err_m,
+            'tag_trans_err_pct': tags.trans_err_pct,
+            'tag_rot_err_deg': tags.rot_err_deg,
+        }
 
     def warnings(self) -> list[str]:
         """One line per (backend label, topic) whose tags got no pose."""

@@ -6,7 +6,7 @@ They are immutable (NamedTuples / frozen dataclasses) and know nothing of any li
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Literal, NamedTuple
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 if TYPE_CHECKING:
     import numpy as np
@@ -180,9 +180,11 @@ class BackendResult:
     """What ``Backend.detect`` returns for one frame.
 
     ``mask``: the label mask of a segmentation backend (its ``detections`` are then empty);
-    None for detectors.
+    None for detectors. ``output``: the output of a task that has no type of its own here (a
+    task from an entry point), as that task's recording reads it; None for the built-in tasks.
     """
 
     detections: tuple[Detection, ...]
     stages: StageTimes = field(default_factory=StageTimes)
     mask: LabelMask | None = None
+    output: Any = None

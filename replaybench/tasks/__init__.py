@@ -25,7 +25,16 @@ from typing import TYPE_CHECKING, Any
 
 from replaybench._entrypoints import PLUGIN_NAME, declares, sorted_entry_points
 from replaybench.errors import TaskUnavailableError, UsageError
-from replaybench.tasks.base import LazyMapping, MetricSpec, Task, TaskTruth, TaskViews, TruthInput
+from replaybench.tasks.base import (
+    LazyMapping,
+    MetricSpec,
+    Task,
+    TaskRecording,
+    TaskRecordingBase,
+    TaskTruth,
+    TaskViews,
+    TruthInput,
+)
 from replaybench.tasks.common import COMMON_METRICS
 
 if TYPE_CHECKING:
@@ -38,6 +47,8 @@ __all__ = [
     'LazyMapping',
     'MetricSpec',
     'Task',
+    'TaskRecording',
+    'TaskRecordingBase',
     'TaskTruth',
     'TaskViews',
     'TruthInput',

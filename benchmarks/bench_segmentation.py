@@ -220,8 +220,8 @@ def _ms_sampler(name: str, work: Callable[[int], object], count: int) -> Sampler
 def _mcap_bytes(ctx: Context, *, annotations: bool) -> tuple[float, int]:
     """outputs.mcap bytes per 1080p mask, and the frames written."""
     from replaybench.backends.hsv_seg import HsvSegBackend
-    from replaybench.sinks.masks import add_mask
     from replaybench.sinks.mcap_writer import DetectionsWriter
+    from replaybench.tasks.segmentation.sink import add_mask
 
     images = ctx.scene_frames(ctx.settings.big)
     backend = HsvSegBackend()

@@ -120,7 +120,7 @@ def _timed(backend: Any, frames: Sequence[Frame], repeats: int) -> tuple[list[An
 def _fixture_row(
     name: str, refine: str, frames: Sequence[tuple[Frame, tuple[TagDetection, ...]]], repeats: int
 ) -> dict[str, Any]:
-    from replaybench.results.tags import score_frame, tag_accuracy
+    from replaybench.tasks.tags.scoring import score_frame, tag_accuracy
 
     backend = _backend(name, refine, FIXTURE_SIZES)
     results, ms = _timed(backend, [f for f, _ in frames], repeats)

@@ -168,7 +168,7 @@ def evaluate(path: Path, frames: int) -> None:
     """mIoU of the model through onnx-seg on held-out frames (the fixture seed, camera 0)."""
     from replaybench.backends.base import BackendOptions
     from replaybench.backends.onnx_seg import OnnxSegBackend
-    from replaybench.results.segmentation import confusion, scores
+    from replaybench.tasks.segmentation.scoring import confusion, scores
     from replaybench.types import Frame
 
     backend = OnnxSegBackend(BackendOptions(model=path, threads=1))

@@ -110,7 +110,7 @@ RECORDED_COLUMNS: tuple[str, ...] = (
     'pipeline_ms_max',
     'recorded_latency_note',
 )
-#: Tag accuracy of tag backends against tag ground truth (``replaybench.results.tags``), after
+#: Tag accuracy of tag backends against tag ground truth (``replaybench.tasks.tags.scoring``), after
 #: ``warnings``; empty for other backends.
 TAG_SUMMARY_COLUMNS: tuple[str, ...] = (
     'tag_recall',

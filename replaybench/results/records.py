@@ -80,7 +80,7 @@ class FrameRecord(NamedTuple):
     output_log_time_ns: int | None = None
     capture_to_output_ms: float | None = None
     pipeline_ms: float | None = None
-    # tag backends (replaybench.results.tags.TAG_FRAME_COLUMNS); empty for the others
+    # tag backends (replaybench.tasks.tags.scoring.TAG_FRAME_COLUMNS); empty for the others
     tags: int | None = None
     tag_truth: int | None = None
     tag_matched: int | None = None

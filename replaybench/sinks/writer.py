@@ -2,8 +2,9 @@
 
 Two writers take a run's outputs: outputs.mcap's (``replaybench.sinks.mcap_writer.
 DetectionsWriter``) and, for a run kept in memory, ``replaybench.replay.output.Discard``, whose
-calls do nothing. Both are an ``OutputWriter``, so a sink (``sinks/tags.py``, ``sinks/masks.py``)
-calls the same methods on either and tests neither's type nor its attributes.
+calls do nothing. Both are an ``OutputWriter``, so a task's sink (``tasks/tags/sink.py``,
+``tasks/segmentation/sink.py``) calls the same methods on either and tests neither's type nor its
+attributes.
 """
 
 from __future__ import annotations

@@ -27,9 +27,9 @@ from replaybench.fixtures.live_tasks import (
     write_live_tag_mcap,
 )
 from replaybench.replay.runner import RunConfig, run_benchmark
-from replaybench.results.segmentation import confusion, scores
-from replaybench.results.tags import score_frame, tag_accuracy
 from replaybench.sources import open_source
+from replaybench.tasks.segmentation.scoring import confusion, scores
+from replaybench.tasks.tags.scoring import score_frame, tag_accuracy
 
 if TYPE_CHECKING:
     from collections.abc import Iterator

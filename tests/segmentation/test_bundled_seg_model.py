@@ -8,8 +8,8 @@ from replaybench.backends.base import BackendOptions
 from replaybench.backends.onnx_seg import OnnxSegBackend
 from replaybench.fixtures.masks import MASK_CLASS_NAMES, semantic_labels
 from replaybench.fixtures.scene import DEFAULT_SEED, Scene
-from replaybench.results.segmentation import confusion, scores
 from replaybench.segmentation.spec import DEFAULT_SEG_MODEL
+from replaybench.tasks.segmentation.scoring import confusion, scores
 from replaybench.types import Frame
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from replaybench.results.segmentation import class_name, confusion, scores
+from replaybench.tasks.segmentation.scoring import class_name, confusion, scores
 
 
 def test_iou_miou_and_pixel_accuracy_of_a_small_case_are_the_hand_computed_values() -> None:

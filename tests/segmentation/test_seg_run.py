@@ -22,9 +22,9 @@ from replaybench.fixtures.writer import stamp_ns, write_mcap, write_rosbag2
 from replaybench.msgs import typestore
 from replaybench.replay.output import Discard
 from replaybench.replay.runner import RunConfig, run_benchmark
-from replaybench.results.segmentation import confusion, scores
 from replaybench.segmentation.palette import palette
 from replaybench.tasks.segmentation.recording import Segmentation
+from replaybench.tasks.segmentation.scoring import confusion, scores
 from replaybench.types import Frame, LabelMask
 
 if TYPE_CHECKING:

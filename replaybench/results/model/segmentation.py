@@ -1,5 +1,5 @@
 """The segmentation task's accuracy types: a backend's masks against ground-truth masks, and
-two backends' masks against each other (``replaybench.results.segmentation``)."""
+two backends' masks against each other (``replaybench.tasks.segmentation.scoring``)."""
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -11,7 +11,7 @@ __all__ = ['SegmentationAgreementRow', 'SegmentationSummary']
 
 @dataclass(frozen=True, slots=True)
 class SegmentationSummary:
-    """A segmentation backend's accuracy on one topic (``replaybench.results.segmentation``):
+    """A segmentation backend's accuracy on one topic (``replaybench.tasks.segmentation.scoring``):
     frames scored against a ground-truth mask, mIoU, pixel accuracy, IoU by class name (classes
     in the truth or the prediction), and the backend's class names by id."""
 

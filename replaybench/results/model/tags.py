@@ -1,5 +1,5 @@
 """The tag task's accuracy types: tags against tag ground truth, and the wrong-size hints
-(``replaybench.results.tags`` computes them)."""
+(``replaybench.tasks.tags.scoring`` computes them)."""
 
 from dataclasses import dataclass
 
@@ -8,7 +8,7 @@ __all__ = ['TagAccuracy', 'TagSizeHint']
 
 @dataclass(frozen=True, slots=True)
 class TagSizeHint:
-    """One tag id whose distances one scale factor explains (replaybench.results.tags):
+    """One tag id whose distances one scale factor explains (replaybench.tasks.tags.scoring):
     ``scale`` the median of detected / true distance over its ``detections``, all within
     ``spread_pct`` of it; ``size_m`` the size its poses were solved with, ``suggested_size_m``
     the size that scale implies; ``line`` the sentence the terminal prints."""
@@ -24,7 +24,8 @@ class TagSizeHint:
 
 @dataclass(frozen=True, slots=True)
 class TagAccuracy:
-    """Tag accuracy of one (backend, topic) against tag ground truth (replaybench.results.tags).
+    """Tag accuracy of one (backend, topic) against tag ground truth
+    (replaybench.tasks.tags.scoring).
 
     Counts over the frames with truth; errors over the matched tags (poses: where both have
     one); None where nothing was matched.

@@ -1,2 +1,2 @@
 """Segmentation masks scored against ground-truth label images (``replaybench.segmentation``,
-``replaybench.results.segmentation``); the task is ``replaybench.tasks.segmentation.task``."""
+``replaybench.tasks.segmentation.scoring``); the task is ``replaybench.tasks.segmentation.task``."""

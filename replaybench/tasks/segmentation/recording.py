@@ -8,13 +8,13 @@ A backend that declares the segmentation task (``Backend.task``) returns
 the first frame. When the engine records one of its frames (after the timed pass,
 ``Recorder.task_outputs``), ``Segmentation.add``
 
-* stages the mask in outputs.mcap (``replaybench.sinks.masks``);
+* stages the mask in outputs.mcap (``replaybench.tasks.segmentation.sink``);
 * scores it against the frame's ground-truth mask, when there is one: the input's truth of the
   segmentation task (``replaybench.tasks.segmentation.truth``: its mask topic, matched by
   frame_id and header stamp, or a folder of PNG masks named ``<stamp_ns>.png``), which the
   ``Segmentation.frame`` reads from ``OpenedInput.truth``; the frame's own mIoU and pixel accuracy
   go into its frames.csv row, its confusion matrix into the (backend, topic) sum that gives
-  the summary (``replaybench.results.segmentation``);
+  the summary (``replaybench.tasks.segmentation.scoring``);
 * keeps the mask, PNG-compressed, when the run has several backends, for the agreement of its
   segmentation backends (the mIoU of each later backend against the earlier one, frame by
   frame).
@@ -33,8 +33,8 @@ import numpy as np
 
 from replaybench.errors import UsageError
 from replaybench.results.io import to_json
-from replaybench.results.segmentation import class_name, confusion, scores
 from replaybench.tasks.base import TaskRecordingBase
+from replaybench.tasks.segmentation.scoring import class_name, confusion, scores
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -145,7 +145,7 @@ class Segmentation(TaskRecordingBase):
         labels = mask.labels
         self.class_names.setdefault(backend, tuple(mask.class_names))
         if writer.keeps:
-            from replaybench.sinks.masks import add_mask
+            from replaybench.tasks.segmentation.sink import add_mask
 
             add_mask(writer, backend, topic, log_time_ns, stamp_ns, frame_id, labels)
         group = (backend, topic)
@@ -271,7 +271,7 @@ class Segmentation(TaskRecordingBase):
         """The class names of every segmentation backend into the MCAP metadata (none made
         for a writer that keeps nothing)."""
         if writer.keeps:
-            from replaybench.sinks.masks import write_class_names
+            from replaybench.tasks.segmentation.sink import write_class_names
 
             write_class_names(writer, self.class_names)
 

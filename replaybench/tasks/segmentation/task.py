@@ -21,14 +21,14 @@ def mask_truth_topic(spec: str | None) -> str | None:
     """The ground-truth mask topic asked for: ``spec`` when it names a topic, the default when
     ``spec`` is None, None when ``spec`` is a folder of PNG masks."""
     if spec is None:
-        from replaybench.results.segmentation import GROUND_TRUTH_MASK_TOPIC
+        from replaybench.tasks.segmentation.scoring import GROUND_TRUTH_MASK_TOPIC
 
         return GROUND_TRUTH_MASK_TOPIC
     return None if Path(spec).is_dir() else spec
 
 
 class SegmentationTask:
-    """Masks (``replaybench.results.segmentation``): mean IoU over classes, pixel accuracy."""
+    """Masks (``replaybench.tasks.segmentation.scoring``): mean IoU over classes, pixel accuracy."""
 
     name: ClassVar[str] = 'segmentation'
     metrics: ClassVar[tuple[MetricSpec, ...]] = (

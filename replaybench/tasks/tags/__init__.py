@@ -1,5 +1,5 @@
 """AprilTags with pose scored against tag ground truth (``replaybench.fiducials``,
-``replaybench.results.tags``); the task is ``replaybench.tasks.tags.task``."""
+``replaybench.tasks.tags.scoring``); the task is ``replaybench.tasks.tags.task``."""
 
 __all__ = ['TAG_GROUND_TRUTH_TOPIC']
 

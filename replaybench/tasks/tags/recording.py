@@ -1,6 +1,6 @@
 """The tags task's part of recording a run: each tag backend's tags written into outputs.mcap
-(``replaybench.sinks.tags``) and scored per frame against the input's tag ground truth (read
-when it opens, ``replaybench.tasks.tags.truth``; scored by ``replaybench.results.tags``).
+(``replaybench.tasks.tags.sink``) and scored per frame against the input's tag ground truth (read
+when it opens, ``replaybench.tasks.tags.truth``; scored by ``replaybench.tasks.tags.scoring``).
 
 ``TagScores`` is the tags task's ``TaskRecording`` (``recording``, named by
 ``replaybench.tasks.tags.task``), made by the ``Recorder`` (``replaybench.replay.recording``)
@@ -24,8 +24,8 @@ if TYPE_CHECKING:
 
     from replaybench.fiducials.types import TagResult
     from replaybench.results.model import TagAccuracy
-    from replaybench.results.tags import FrameTagScore
     from replaybench.sinks.writer import OutputWriter
+    from replaybench.tasks.tags.scoring import FrameTagScore
     from replaybench.tasks.tags.truth import TagTable
     from replaybench.types import BackendResult
 
@@ -66,8 +66,8 @@ class TagScores(TaskRecordingBase):
         tag ground truth (where it has some), scored; its frames.csv tag columns.
         ``BackendError`` for a result that is no ``TagResult`` (a backend that declares the
         task and returns no tags)."""
-        from replaybench.results.tags import score_frame
-        from replaybench.sinks.tags import write_tags
+        from replaybench.tasks.tags.scoring import score_frame
+        from replaybench.tasks.tags.sink import write_tags
 
         topic, _, log_time_ns, stamp_ns, frame_id = key
         tagged = cast('TagResult', result)
@@ -89,7 +89,7 @@ class TagScores(TaskRecordingBase):
 
     def accuracy(self, backend: str, topic: str) -> TagAccuracy | None:
         """The tag accuracy of a (backend label, topic), None where no frame was scored."""
-        from replaybench.results.tags import tag_accuracy
+        from replaybench.tasks.tags.scoring import tag_accuracy
 
         scores = self.scores.get((backend, topic))
         return tag_accuracy(scores) if scores else None

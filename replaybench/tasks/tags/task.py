@@ -17,7 +17,8 @@ __all__ = ['TASK', 'TagsTask']
 
 
 class TagsTask:
-    """AprilTags (``replaybench.results.tags``): the summary.csv tag columns, in their order."""
+    """AprilTags (``replaybench.tasks.tags.scoring``): the summary.csv tag columns, in their
+    order."""
 
     name: ClassVar[str] = 'tags'
     metrics: ClassVar[tuple[MetricSpec, ...]] = (
@@ -30,11 +31,11 @@ class TagsTask:
         MetricSpec('tag_rot_err_deg', 'tag rotation error (deg)', 'rot deg', 'lower', sweep=True),
     )
     #: the report's section lives in the report layer (report/tags.py), the terminal's lines
-    #: beside the tag scoring (results/tags.py); both imported where shown
+    #: beside the tag scoring (tasks/tags/scoring.py); both imported where shown
     views: ClassVar[TaskViews] = TaskViews(
         summary_field='tag_accuracy',
         section_panel='replaybench.report.tags:tag_accuracy_html',
-        terminal_lines='replaybench.results.tags:tag_lines',
+        terminal_lines='replaybench.tasks.tags.scoring:tag_lines',
     )
 
     #: a processed frame's tags written and scored (``replaybench.tasks.tags.recording``,

@@ -226,6 +226,14 @@ class RunOptions:
         '<stamp_ns>.png (default: /ground_truth/labels when present).',
         metavar='TOPIC|DIR',
     )
+    sync: str | None = _opt(
+        None,
+        '--sync',
+        "Group the replayed topics' frames into synchronised sets by header stamp: exact, or "
+        'approx:SLOP_MS (message_filters ApproximateTime); frames without a partner are counted '
+        'per topic (docs/rigs.md).',
+        metavar='exact|approx:MS',
+    )
     # the tag backends (apriltag, aruco; docs/fiducials.md): BackendOptions.tag_options
     tag_family: str | None = _opt(
         None,
@@ -374,4 +382,8 @@ def run_options(given: Mapping[str, Any] | None = None, /, **values: Any) -> Run
             _check(spec, checked[name])
     options = RunOptions(**checked)
     check_gpu_options(options.engine, options.precision)
+    if options.sync is not None:
+        from replaybench.replay.sync import parse_sync
+
+        parse_sync(options.sync)  # a bad --sync is refused with the other options
     return options

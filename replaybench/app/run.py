@@ -106,6 +106,7 @@ def config_of(
     ``run_config`` builds, and each cell of a sweep); ``input_sha256``: the inputs' digests
     when already known (not computed again by the run)."""
     from replaybench.replay.rate import Rate, parse_rate
+    from replaybench.replay.sync import parse_sync
 
     rate = options.rate
     if isinstance(rate, str):
@@ -147,6 +148,7 @@ def config_of(
         ground_truth_masks=(
             None if options.ground_truth_masks is None else str(options.ground_truth_masks)
         ),
+        sync=parse_sync(options.sync) if options.sync is not None else None,
     )
 
 

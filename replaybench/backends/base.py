@@ -110,6 +110,11 @@ class Backend(Protocol):
       whose task differs between inputs says it per input with ``task_of(input_index)``
       (``recorded``: each input's recorded topic). The runner reads it once per backend and
       input after ``open()`` (``backend_task``) and refuses a task that is not registered.
+    * ``takes_frame_sets``: False (default): ``detect`` gets single frames, also with
+      ``--sync``, which then pairs the topics' frames and reports the sets without changing
+      what the backend gets; True: it takes the synchronised sets of ``--sync`` as one input.
+      No backend of this version does, and a run refuses one that declares it (nothing here
+      hands a backend a set yet).
 
     Optional methods: ``prepare(recorded)`` (above); ``forget_warmup()``: the runner calls it
     after detects that are neither timed nor recorded (the warm-up detect of a topic too short
@@ -143,6 +148,8 @@ class BackendTraits(NamedTuple):
     reads_camera_info: bool = True
     #: the task declared by the class (``backend_task`` gives the one after ``open()``)
     task: str = DEFAULT_TASK
+    #: the backend takes synchronised frame sets (``--sync``), not single frames
+    takes_frame_sets: bool = False
 
 
 def _task_name(name: str, task: object) -> str:
@@ -161,16 +168,26 @@ def backend_traits(backend: object) -> BackendTraits:
         msg = f'backend {name!r} declares device {device!r}; use one of {", ".join(DEVICES)}'
         raise BackendUnavailableError(msg)
     flags: list[bool] = []
-    for trait in ('measures_latency', 'uses_recorded_detections', 'reads_camera_info'):
+    for trait in (
+        'measures_latency',
+        'uses_recorded_detections',
+        'reads_camera_info',
+        'takes_frame_sets',
+    ):
         value = getattr(backend, trait, BackendTraits._field_defaults[trait])
         if not isinstance(value, bool):
             msg = f'backend {name!r} declares {trait} {value!r}; it must be True or False'
             raise BackendUnavailableError(msg)
         flags.append(value)
     task = _task_name(name, getattr(backend, 'task', DEFAULT_TASK))
-    measures_latency, uses_recorded_detections, reads_camera_info = flags
+    measures_latency, uses_recorded_detections, reads_camera_info, takes_frame_sets = flags
     return BackendTraits(
-        str(device), measures_latency, uses_recorded_detections, reads_camera_info, task
+        str(device),
+        measures_latency,
+        uses_recorded_detections,
+        reads_camera_info,
+        task,
+        takes_frame_sets,
     )
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 import threading
-from pathlib import Path  # noqa: TC003 - typer reads the annotations at run time
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
@@ -206,6 +206,28 @@ def _task_lines(run: RunResult) -> list[str]:
     return lines
 
 
+def _sync_lines(run: RunResult) -> list[str]:
+    """--sync: per input, its sets and each topic's unpaired frames (full topic names)."""
+    sync = run.sync
+    if sync is None:
+        return []
+    lines = []
+    names = {inp.index: inp.path for inp in run.inputs}
+    for entry in sync.inputs:
+        where = f' {visible(Path(names[entry.input]).name)}' if len(sync.inputs) > 1 else ''
+        spread = (
+            f', largest spread {entry.spread_ms_max:.3f} ms'
+            if entry.spread_ms_max is not None and sync.mode == 'approx'
+            else ''
+        )
+        unpaired = ', '.join(f'{visible(t.topic)} {t.unpaired}' for t in entry.topics)
+        lines.append(
+            f'replaybench: sync {sync.sync}{where}: {entry.sets} set(s) of '
+            f'{len(entry.topics)} topic(s){spread}; unpaired frames: {unpaired}'
+        )
+    return lines
+
+
 def _show_run(outcome: RunOutcome) -> int:
     """Print a finished run (the table, its warnings, the folder); its exit status."""
     from replaybench.backends.gpu import engine_lines
@@ -224,6 +246,8 @@ def _show_run(outcome: RunOutcome) -> int:
         echo(f'replaybench: warning: skipped {count} message(s): {reason}', err=True)
     for warning in outcome.run.warnings:
         echo(f'replaybench: warning: {warning}', err=True)
+    for line in _sync_lines(outcome.run):
+        echo(line, err=True)
     for entry in outcome.run.backends:
         facts = entry.info
         if facts.get('nonfinite_dropped'):

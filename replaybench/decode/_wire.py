@@ -27,6 +27,7 @@ __all__ = [
     'parse_camera_info',
     'parse_compressed',
     'parse_image',
+    'parse_stamp',
 ]
 
 
@@ -132,6 +133,18 @@ def _payload(buf: memoryview, pos: int, lay: _Layout) -> tuple[int, int]:
         msg = f'data length {size} runs past the end of the message ({len(buf) - pos} bytes left)'
         raise DecodeError(msg)
     return pos, size
+
+
+def parse_stamp(buf: memoryview, serialization: str) -> int:
+    """The header stamp (ns) of a message that begins with a std_msgs/Header (sensor_msgs
+    Image and CompressedImage, ``'cdr'`` or ``'ros1'``): 8 bytes read, nothing else."""
+    lay = _layout(buf, serialization)
+    try:
+        sec, nsec = lay.stamp.unpack_from(buf, lay.start)
+    except struct.error as err:
+        msg = f'truncated message: no header stamp in {len(buf)} bytes'
+        raise DecodeError(msg) from err
+    return int(sec) * 1_000_000_000 + int(nsec)
 
 
 def parse_image(buf: memoryview, serialization: str) -> ImageFields:

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
-from replaybench.decode._wire import as_bytes_view, parse_compressed, parse_image
+from replaybench.decode._wire import as_bytes_view, parse_compressed, parse_image, parse_stamp
 from replaybench.decode.compressed import decode_compressed
 from replaybench.decode.encodings import check_dimensions, lookup
 from replaybench.decode.kinds import message_kind
@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 
     from replaybench.types import RawMessage
 
-__all__ = ['decode_image', 'raw_image_array', 'to_bgr8']
+__all__ = ['decode_image', 'image_stamp', 'raw_image_array', 'to_bgr8']
 
 
 def raw_image_array(
@@ -157,6 +157,20 @@ def decode_image(msg: RawMessage) -> Frame:
         raise DecodeError(err)
     decoded = _decode_foxglove(msg, compressed) if foxglove else _decode_ros(msg, compressed)
     return Frame(msg.topic, msg.seq, msg.log_time_ns, *decoded)
+
+
+def image_stamp(msg: RawMessage) -> int:
+    """The header stamp (ns) of an image message, as ``decode_image`` reads it, without its
+    pixels: the 8 bytes of the header stamp of a ROS message, the timestamp field of a
+    Foxglove one (its bytes skipped). DecodeError when it has none."""
+    if message_kind(msg.msgtype) not in {'image', 'compressed_image'}:
+        err = f'{msg.msgtype} is not an image message'
+        raise DecodeError(err)
+    if msg.msgtype.startswith('foxglove.'):
+        from replaybench.decode._protobuf import wire_timestamp
+
+        return wire_timestamp(msg.data)
+    return parse_stamp(as_bytes_view(msg.data), msg.serialization)
 
 
 _TO_BGR = {

@@ -20,6 +20,8 @@ from replaybench.replay.rate import Rate
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
+    from replaybench.replay.sync import SyncSpec
+
 __all__ = [
     'DEFAULT_GROUND_TRUTH_TOPIC',
     'InputOptions',
@@ -89,6 +91,9 @@ class RunConfig:
     #: ground-truth label masks of segmentation backends: a topic, or a folder of
     #: <stamp_ns>.png files; None: /ground_truth/labels when present (tasks/segmentation/)
     ground_truth_masks: str | None = None
+    #: --sync: the replayed topics' frames grouped into synchronised sets by header stamp
+    #: (``replaybench.replay.sync``); None: no pairing
+    sync: SyncSpec | None = None
 
     def input_options(self) -> InputOptions:
         """The part of the config that opens and reads the inputs."""

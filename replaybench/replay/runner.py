@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import datetime as dt
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -67,6 +68,7 @@ from replaybench.replay.output import (
     write_summary,
     writers,
 )
+from replaybench.replay.pairing import pair_inputs, sync_report
 from replaybench.replay.passes import Replay, Stopped, Warmups
 from replaybench.replay.recording import Recorder
 from replaybench.replay.sessions import (
@@ -87,6 +89,7 @@ if TYPE_CHECKING:
     from replaybench.backends.base import Backend, BackendOptions
     from replaybench.replay.hashing import InputHash
     from replaybench.replay.inputs import OpenedInput
+    from replaybench.replay.pairing import Pairing
     from replaybench.replay.sessions import OpenBackend
     from replaybench.results.model import BackendRun, RunResult
     from replaybench.results.records import FrameRecord
@@ -178,6 +181,7 @@ def run_benchmark(
     try:
         with folder if folder is not None else contextlib.nullcontext():
             made = make_backends(config.backends, _with_bag_sizes(config), factory)
+            _refuse_frame_sets(made)
             recorded = any(backend_traits(b).uses_recorded_detections for _, b in made)
             for index, path in enumerate(config.inputs):
                 inp = open_input(
@@ -185,6 +189,10 @@ def run_benchmark(
                 )
                 # small inputs hashed now, larger ones after the passes (deferred_hash)
                 inputs.append(deferred_hash(inp, input_options, hasher))
+            # --sync: the header stamps read and paired before any model loads
+            pairing = (
+                pair_inputs(inputs, config.sync, config.topics) if config.sync is not None else None
+            )
             opened = open_backends(made, inputs, notice)
             outcome = _execute(
                 config,
@@ -194,6 +202,7 @@ def run_benchmark(
                 out=folder.path if folder is not None else None,
                 started=started,
                 t_start=t_start,
+                pairing=pairing,
             )
             if folder is not None:
                 folder.commit()
@@ -216,8 +225,6 @@ def run_benchmark(
 def _with_bag_sizes(config: RunConfig) -> BackendOptions:
     """The backend options with the tag sizes the inputs record (``BAG_SIZE_KEYS``; the tag
     backends use them when the options give none, docs/fiducials.md)."""
-    from dataclasses import replace
-
     from replaybench.fiducials.bagsizes import bag_size_keys
 
     keys = bag_size_keys([Path(p) for p in config.inputs])
@@ -262,9 +269,11 @@ def _execute(
     out: Path | None,
     started: dt.datetime,
     t_start: float,
+    pairing: Pairing | None = None,
 ) -> RunOutcome:
     """Replay into the (temporary) folder ``out``, then record; run.json is its last file.
-    ``out`` None: in memory, nothing is written.
+    ``out`` None: in memory, nothing is written. ``pairing``: the frame sets of --sync, put
+    in run.json's ``sync`` section (the backends get their frames as without it).
 
     Raises ``BackendFailedError`` when every backend raised, and a ``ReplaybenchError`` saying
     why when no frame was measured (``_nothing_measured``).
@@ -289,6 +298,8 @@ def _execute(
     load = load_snapshot()
     output = config.output_options(out)
     warnings = list(warmups.warnings)
+    if pairing is not None:
+        warnings.extend(pairing.warnings)
     backend_runs: list[BackendRun] = []
     copy_problems: dict[int, str] = {}
     status = 'complete'
@@ -393,8 +404,33 @@ def _execute(
         samples=sample_paths,
         report=config.report and calls.render is not None and out is not None,
     )
+    if pairing is not None:
+        record = replace(
+            record,
+            sync=sync_report(
+                pairing,
+                [
+                    (backend_label(e.name), backend_traits(e.backend).takes_frame_sets)
+                    for e in opened
+                ],
+                pairing.spec.policy,
+            ),
+        )
     finish_files(output, calls.render, record)
     return RunOutcome(out, status, summary, record, tuple(recorder.records))
+
+
+def _refuse_frame_sets(made: Sequence[tuple[str, Backend]]) -> None:
+    """A backend that takes frame sets (``BackendTraits.takes_frame_sets``) cannot run yet:
+    the passes hand every backend single frames."""
+    for name, backend in made:
+        if backend_traits(backend).takes_frame_sets:
+            msg = (
+                f'backend {name!r} takes synchronised frame sets (takes_frame_sets), which '
+                'this version of replaybench does not hand to a backend: the passes give '
+                'single frames'
+            )
+            raise BackendUnavailableError(msg)
 
 
 def _gpu_index(backend: Backend, options: BackendOptions) -> int | None:

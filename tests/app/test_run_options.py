@@ -51,6 +51,7 @@ CHANGED: dict[str, Any] = {
     'hash_inputs': False,
     'repeat': 3,
     'ground_truth_masks': '/labels',
+    'sync': 'approx:5',
     'tag_family': 'tag25h9',
     'tag_size': 0.16,
     'tag_sizes': '14=0.2,3=0.1',

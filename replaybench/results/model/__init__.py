@@ -21,7 +21,8 @@ A field's JSON key is its name, except where ``metadata['json']`` says otherwise
 The types live in one module per kind, and are imported from here: ``common`` (the program,
 the inputs, the machine), ``run`` (run.json), ``summary`` (a summary row and a repeat's
 statistics), the tasks' accuracy types ``detections``, ``tags`` and ``segmentation``,
-``peak`` (peak.json) and ``comparison`` (comparison.json). Each type's ``__module__`` is this
+``sync`` (run.json's ``--sync`` section), ``peak`` (peak.json) and ``comparison``
+(comparison.json). Each type's ``__module__`` is this
 package, the one place that names it for the API, so that a pickle names
 ``replaybench.results.model`` whichever module defines the type.
 """
@@ -74,6 +75,7 @@ from replaybench.results.model.run import (
 )
 from replaybench.results.model.segmentation import SegmentationAgreementRow, SegmentationSummary
 from replaybench.results.model.summary import RepeatStats, SummaryRow
+from replaybench.results.model.sync import SyncInput, SyncReport, SyncTopic
 
 # importable from here as before, though not in __all__
 from replaybench.results.model.tags import TagAccuracy as TagAccuracy
@@ -121,6 +123,9 @@ __all__ = [
     'SegmentationAgreementRow',
     'SegmentationSummary',
     'SummaryRow',
+    'SyncInput',
+    'SyncReport',
+    'SyncTopic',
     'Tool',
     'TopicMeta',
 ]

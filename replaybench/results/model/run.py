@@ -16,6 +16,7 @@ from replaybench.results.model.common import (
 from replaybench.results.model.detections import AgreementRow
 from replaybench.results.model.segmentation import SegmentationAgreementRow
 from replaybench.results.model.summary import RepeatStats, SummaryRow
+from replaybench.results.model.sync import SyncReport
 from replaybench.results.records import FrameRecord
 from replaybench.results.runfolder import OUTPUTS_MCAP
 
@@ -235,6 +236,8 @@ class RunResult:
     sweep: Mapping[str, Any] | None = field(default=None, metadata=OMIT_NONE)
     #: per pass of ``--repeat N`` (N > 1) and (backend, topic); absent for a single pass
     repeats: tuple[RepeatStats, ...] | None = field(default=None, metadata=OMIT_NONE)
+    #: ``--sync``: the synchronised frame sets and each topic's unpaired frames; absent without
+    sync: SyncReport | None = field(default=None, metadata=OMIT_NONE)
     #: frames.csv's rows as the file holds them (not in run.json): set by ``replaybench.run``
     #: and ``replaybench.load_run``, None on a RunResult read from run.json alone
     frame_records: tuple[FrameRecord, ...] | None = field(

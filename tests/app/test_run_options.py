@@ -50,6 +50,7 @@ CHANGED: dict[str, Any] = {
     'report': False,
     'hash_inputs': False,
     'repeat': 3,
+    'pipelines': 'per-topic',
     'ground_truth_masks': '/labels',
     'tag_family': 'tag25h9',
     'tag_size': 0.16,

@@ -78,7 +78,8 @@ class Waiting:
 
 def _run(bag: Path, backend: str, pipelines: str, rate: str, threads: int | None) -> Any:
     from replaybench.replay.rate import parse_rate
-    from replaybench.replay.runner import RunConfig, make_backend, run_benchmark
+    from replaybench.replay.runner import RunConfig, run_benchmark
+    from replaybench.replay.sessions import make_backend
 
     def factory(name: str, options: BackendOptions) -> Any:
         return Waiting() if name == 'waiting' else make_backend(name, options)
@@ -98,14 +99,14 @@ def _run(bag: Path, backend: str, pipelines: str, rate: str, threads: int | None
 
 def _drop_rate(outcome: Any) -> float:
     records = outcome.records
-    return sum(r.dropped for r in records) / len(records)
+    return float(sum(r.dropped for r in records) / len(records))
 
 
 def _throughput(outcome: Any) -> float:
     """Frames detected per second, from the first release to the last detection."""
     ok = [r for r in outcome.records if r.status == 'ok']
     span = max(r.done_s for r in ok) - min(r.release_s for r in ok)
-    return len(ok) / span
+    return float(len(ok) / span)
 
 
 def _gil_share(bag: Path, seconds: float = 2.0) -> dict[str, float]:

@@ -8,11 +8,14 @@ CPU, four cameras at 30 Hz. One shared backend can serve at most 50 of the 120 f
 from __future__ import annotations
 
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
 from replaybench.replay import Lane, ThreadVirtualClock, VirtualClock, replay_lanes, replay_timed
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 CAMERAS = [f'/rig/cam{j}' for j in range(4)]
 HZ = 30.0
@@ -29,11 +32,11 @@ def _shared(releases: list[tuple[float, str, Any]], service_s: float) -> tuple[i
     clock = VirtualClock()
     done, dropped = [0], [0]
 
-    def process(item: Any, release: float, start: float) -> None:
+    def process(_item: Any, _release: float, _start: float) -> None:
         clock.advance(service_s)
         done[0] += 1
 
-    def drop(item: Any, release: float) -> None:
+    def drop(_item: Any, _release: float) -> None:
         dropped[0] += 1
 
     replay_timed(releases, clock=clock, queue_depth=1, process=process, drop=drop)
@@ -41,7 +44,7 @@ def _shared(releases: list[tuple[float, str, Any]], service_s: float) -> tuple[i
 
 
 def _per_topic(
-    releases: list[tuple[float | None, str, Any]], service_s: float, depth: int = 1
+    releases: Sequence[tuple[float | None, str, Any]], service_s: float, depth: int = 1
 ) -> dict[str, list[tuple[str, Any, float, float, float]]]:
     clock = ThreadVirtualClock()
     events: dict[str, list[tuple[str, Any, float, float, float]]] = {c: [] for c in CAMERAS}
@@ -96,7 +99,7 @@ def test_a_lane_slower_than_its_camera_drops_only_its_own_frames() -> None:
     kept: dict[str, list[int]] = {c: [] for c in CAMERAS}
 
     def lane(cam: str) -> Lane[int]:
-        def process(item: int, release: float, start: float) -> None:
+        def process(item: int, _release: float, _start: float) -> None:
             clock.advance(0.25 if cam in slow else 0.05)
             kept[cam].append(item)
 
@@ -122,14 +125,14 @@ def test_what_a_lane_raises_stops_every_lane_and_is_raised_to_the_reader() -> No
     clock = ThreadVirtualClock()
     served: list[int] = []
 
-    def failing(item: int, release: float, start: float) -> None:
+    def failing(item: int, _release: float, _start: float) -> None:
         if item == 3:
             msg = 'detector broke'
             raise RuntimeError(msg)
         clock.advance(0.01)
         served.append(item)
 
-    def fine(item: int, release: float, start: float) -> None:
+    def fine(_item: int, _release: float, _start: float) -> None:
         clock.advance(0.01)
 
     releases = ((i * 0.1, cam, i) for i in range(10_000) for cam in ('a', 'b'))

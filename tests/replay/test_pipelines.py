@@ -86,7 +86,7 @@ def _run(
 ) -> Any:
     clock = ThreadVirtualClock()
 
-    def factory(name: str, options: BackendOptions) -> Waiting:
+    def factory(name: str, _options: BackendOptions) -> Waiting:
         backend = Waiting(clock, fail_on if name == 'waiting' else None)
         made.append(backend)
         return backend
@@ -106,7 +106,7 @@ def _run(
 
 def _drop_rate(outcome: Any) -> float:
     records = outcome.records
-    return sum(r.dropped for r in records) / len(records)
+    return float(sum(r.dropped for r in records) / len(records))
 
 
 def test_one_shared_instance_of_20_ms_drops_at_least_55_percent_of_four_cameras_at_30_hz(
@@ -205,9 +205,7 @@ def test_a_pipeline_whose_detector_raises_stops_its_backend_and_the_others_finis
     assert len(other) == 4 * FRAMES - LATE_FRAMES
 
 
-def test_per_topic_over_one_camera_topic_is_shared_and_says_so_once(
-    rig: Path, tmp_path: Path
-) -> None:
+def test_per_topic_over_one_camera_topic_is_shared_and_says_so_once(tmp_path: Path) -> None:
     from replaybench.fixtures.writer import write_mcap
 
     bag = write_mcap(tmp_path / 'one.mcap', 12, (64, 48), 'jpeg')
@@ -217,8 +215,10 @@ def test_per_topic_over_one_camera_topic_is_shared_and_says_so_once(
     assert len(made) == 1
     lines = [w for w in per_topic.run.warnings if '--pipelines' in w]
     assert lines == [
-        '--pipelines per-topic: the inputs hold one camera topic '
-        '(/camera/image_raw/compressed): replayed as --pipelines shared'
+        (
+            '--pipelines per-topic: the inputs hold one camera topic '
+            '(/camera/image_raw/compressed): replayed as --pipelines shared'
+        )
     ]
     assert per_topic.run.settings.pipelines.pipelines == 1
     for file in ('frames.csv', 'outputs.mcap'):

@@ -148,6 +148,8 @@ ADDED_KEYS: tuple[str, ...] = (
     'segmentation',
     'segmentation_agreement',
     'tag_accuracy',
+    # settings.pipelines: null for --pipelines shared, which every case runs
+    'pipelines',
 )
 
 

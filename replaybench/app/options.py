@@ -219,6 +219,14 @@ class RunOptions:
         'own warm-up; compare then judges the variation between passes (docs/compare.md).',
         low=1,
     )
+    pipelines: str = _opt(
+        'shared',
+        '--pipelines',
+        'shared: one backend instance serves every camera topic in turn; per-topic: one '
+        'instance per camera topic, each with its own queue and worker thread, replayed '
+        'concurrently (docs/rigs.md).',
+        choices=('shared', 'per-topic'),
+    )
     ground_truth_masks: str | None = _opt(
         None,
         '--ground-truth-masks',

@@ -145,6 +145,7 @@ def config_of(
         hash_inputs=options.hash_inputs,
         input_sha256=input_sha256,
         repeat=options.repeat,
+        pipelines=options.pipelines,
         ground_truth_masks=(
             None if options.ground_truth_masks is None else str(options.ground_truth_masks)
         ),

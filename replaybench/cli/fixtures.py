@@ -46,6 +46,14 @@ def fixtures(
             "live_tags.mcap: a tag node's outputs recorded live).",
         ),
     ] = False,
+    rig: Annotated[
+        int | None,
+        typer.Option(
+            '--rig',
+            help='Write only rig.mcap: N JPEG cameras (1 to 8) at 30 Hz with ground truth, '
+            'hardware-synchronised stamps, the last camera starting 2 frames late.',
+        ),
+    ] = None,
 ) -> None:
     """Generate the synthetic fixture bags (MCAP raw/jpeg, rosbag2 .db3, ROS 1 .bag, two cameras,
     and live_detections.mcap: a detector's outputs recorded live, logged after their images).
@@ -60,6 +68,8 @@ def fixtures(
 
         typer.echo(str(write_ci_fixture(out)))
         return
+    if rig is not None and tags:
+        raise fail(UsageError('--rig and --tags write different bags: give one of them'))
     if size is None:
         size = '640x480' if tags else '320x240'
     try:
@@ -67,7 +77,9 @@ def fixtures(
         if not (w.isdigit() and h.isdigit() and int(w) >= 32 and int(h) >= 32):
             msg = f'invalid --size {size!r}: use WxH with both at least 32, e.g. 640x480'
             raise UsageError(msg)
-        if tags:
+        if rig is not None:
+            paths = [_write_rig(out, rig, frames, (int(w), int(h)))]
+        elif tags:
             from replaybench.fixtures.live_tasks import write_live_tag_fixture
             from replaybench.fixtures.tags import generate_tag_fixtures
 
@@ -92,3 +104,25 @@ def fixtures(
         raise fail(err) from None
     for path in paths:
         typer.echo(str(path))
+
+
+def _write_rig(out: Path, cameras: int, frames: int, size: tuple[int, int]) -> Path:
+    """``rig.mcap`` in ``out`` (replacing it); a count or frames it cannot hold: UsageError."""
+    from replaybench.errors import UsageError
+    from replaybench.fixtures.rig import LATE_FRAMES, MAX_CAMERAS, RIG_FIXTURE, write_rig_mcap
+
+    if not 1 <= cameras <= MAX_CAMERAS:
+        msg = f'invalid --rig {cameras}: a rig holds 1 to {MAX_CAMERAS} cameras'
+        raise UsageError(msg)
+    if cameras > 1 and frames <= LATE_FRAMES:
+        msg = f'--frames {frames} is too few for a rig: its last camera starts {LATE_FRAMES} late'
+        raise UsageError(msg)
+    out.mkdir(parents=True, exist_ok=True)
+    target = out / RIG_FIXTURE
+    target.unlink(missing_ok=True)
+    progress = FixtureProgress(sys.stderr)
+
+    def report(done: int) -> None:
+        progress(RIG_FIXTURE, done, frames)
+
+    return write_rig_mcap(target, frames, size, cameras, progress=report)

@@ -94,6 +94,9 @@ class RunConfig:
     #: --sync: the replayed topics' frames grouped into synchronised sets by header stamp
     #: (``replaybench.replay.sync``); None: no pairing
     sync: SyncSpec | None = None
+    #: --pipelines: 'shared' (one backend instance serves every camera topic's queue in turn)
+    #: or 'per-topic' (one instance per camera topic, each in a worker thread of its own)
+    pipelines: str = 'shared'
 
     def input_options(self) -> InputOptions:
         """The part of the config that opens and reads the inputs."""
@@ -118,6 +121,7 @@ class RunConfig:
             prefetch=self.prefetch,
             warmup=self.warmup,
             repeat=self.repeat,
+            pipelines=self.pipelines,
         )
 
     def output_options(self, out: Path | None) -> OutputOptions:
@@ -164,14 +168,16 @@ class InputOptions:
 @dataclass(frozen=True, slots=True)
 class PassOptions:
     """How the frames of a pass are released: the rate, the queues, the read-ahead and the
-    warm-up asked for (None: the default per topic, in each pass), and how many passes each
-    backend makes over the inputs (``--repeat``)."""
+    warm-up asked for (None: the default per topic, in each pass), how many passes each
+    backend makes over the inputs (``--repeat``) and whether each camera topic has a pipeline
+    of its own (``--pipelines``)."""
 
     rate: Rate = field(default_factory=lambda: Rate('max'))
     queue_depth: int = 1
     prefetch: int = 4
     warmup: int | None = None
     repeat: int = 1
+    pipelines: str = 'shared'
 
 
 @dataclass(frozen=True, slots=True)

@@ -8,12 +8,15 @@ measures the backend, not the harness's own record keeping.
 
 Rates: ``run_max`` (every frame as fast as possible, read ahead in a thread where reading and
 decoding cost enough to overlap) and ``run_timed`` (recorded, scaled or fixed-Hz releases
-through per-topic queues, ``replaybench.replay.scheduler``).
+through per-topic queues, ``replaybench.replay.scheduler``). With ``--pipelines per-topic``
+(``run_lanes``) each camera topic has a backend instance of its own, served in a worker thread
+of its own at the same rates (``replay_lanes``).
 """
 
 from __future__ import annotations
 
 import math
+import threading
 from itertools import islice
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -22,10 +25,9 @@ from replaybench.errors import DecodeError, one_line
 from replaybench.replay.config import default_warmup
 from replaybench.replay.inputs import decoder, replayed
 from replaybench.replay.prefetch import Prefetched, Prefetcher
-from replaybench.replay.scheduler import replay_timed
+from replaybench.replay.scheduler import Lane, replay_lanes, replay_timed
 
 if TYPE_CHECKING:
-    import threading
     from collections.abc import Callable, Iterator, Mapping
 
     from replaybench.backends.base import Backend
@@ -190,7 +192,10 @@ class Pass:
     """One backend over one input: fetch, decode, detect; one ``LogEntry`` per frame in
     ``log``, whose times are relative to ``t0``. ``repeat``: which of the backend's passes over
     the inputs it is (``--repeat N``: 0 to N - 1). ``task``: the task of the backend's results
-    on this input (``replaybench.backends.base.backend_task``, read once after ``open()``)."""
+    on this input (``replaybench.backends.base.backend_task``, read once after ``open()``).
+    ``pipelines``: one opened instance of the backend per camera topic (``--pipelines
+    per-topic``; ``backend`` is one of them); where the input holds more than one of those
+    topics, each is replayed by its own (``run_lanes``)."""
 
     def __init__(
         self,
@@ -200,6 +205,7 @@ class Pass:
         inp: OpenedInput,
         repeat: int = 0,
         task: str = DEFAULT_TASK,
+        pipelines: Mapping[str, Backend] | None = None,
     ) -> None:
         self.replay = replay
         self.task = task
@@ -214,6 +220,12 @@ class Pass:
         self.measures_latency = traits.measures_latency
         # at max rate: whether frames were read ahead in a thread, and why (run.json)
         self.read_ahead: dict[str, Any] | None = None
+        names = [t.name for t in inp.topics]
+        self.pipelines: dict[str, Backend] = (
+            {name: pipelines[name] for name in names}
+            if pipelines is not None and len(names) > 1
+            else {}
+        )
 
     def run(self) -> None:
         """The pass at the run's rate, after warming up the topics too short for warm-up
@@ -221,7 +233,9 @@ class Pass:
         self.replay.check_stop()
         self.warm_short_topics()
         rate = self.replay.options.rate
-        if rate.timed:
+        if self.pipelines:
+            self.run_lanes(rate)
+        elif rate.timed:
             self.run_timed(rate)
         else:
             self.run_max()
@@ -251,17 +265,21 @@ class Pass:
                 frame = self.decode(raw)
             except DecodeError:
                 continue  # the next frame of the topic may decode
+            backend = self.pipelines.get(raw.topic, self.backend)
             try:
-                self.backend.detect(frame)
+                backend.detect(frame)
             except Exception as err:
                 raise self._detect_failed(frame.topic, frame.seq, err) from err
             pending.discard(raw.topic)
             warmed.append(raw.topic)
             if not pending:
                 break
-        forget = getattr(self.backend, 'forget_warmup', None)
-        if warmed and callable(forget):
-            forget()
+        for backend in {
+            id(b): b for b in (self.pipelines.get(t, self.backend) for t in warmed)
+        }.values():
+            forget = getattr(backend, 'forget_warmup', None)
+            if callable(forget):
+                forget()
         return warmed
 
     # -- the replay loops: nothing but read, decode, detect and one log entry per frame --------
@@ -407,28 +425,114 @@ class Pass:
     def run_timed(self, rate: Rate) -> None:
         clock = self.replay.clock
         self.t0 = clock.now()
-
-        def releases() -> Iterator[tuple[float, str, RawMessage]]:
-            first_log: int | None = None
-            per_topic: dict[str, int] = {}
-            last = 0.0
-            for raw in self.messages():
-                self.replay.check_stop()
-                if rate.mode == 'fixed':
-                    k = per_topic.get(raw.topic, 0)
-                    per_topic[raw.topic] = k + 1
-                    offset = max(last, k / rate.hz)
-                else:
-                    if first_log is None:
-                        first_log = raw.log_time_ns
-                    offset = max(last, (raw.log_time_ns - first_log) / _NS / rate.scale)
-                last = offset
-                yield offset, raw.topic, raw
-
         replay_timed(
-            releases(),
+            self._releases(rate),
             clock=clock,
             queue_depth=self.replay.options.queue_depth,
             process=self.process,
             drop=self.drop,
         )
+
+    def _releases(self, rate: Rate) -> Iterator[tuple[float, str, RawMessage]]:
+        """Each frame's release offset (s from the pass's start) at a timed rate: log-time
+        spacing (scaled) or the topic's k-th frame at k / Hz, never before the previous one."""
+        first_log: int | None = None
+        per_topic: dict[str, int] = {}
+        last = 0.0
+        for raw in self.messages():
+            self.replay.check_stop()
+            if rate.mode == 'fixed':
+                k = per_topic.get(raw.topic, 0)
+                per_topic[raw.topic] = k + 1
+                offset = max(last, k / rate.hz)
+            else:
+                if first_log is None:
+                    first_log = raw.log_time_ns
+                offset = max(last, (raw.log_time_ns - first_log) / _NS / rate.scale)
+            last = offset
+            yield offset, raw.topic, raw
+
+    def run_lanes(self, rate: Rate) -> None:
+        """One worker per camera topic, each with its own backend instance, decoder, queue and
+        log, replayed concurrently at the run's rate (``replay_lanes``): at a timed rate each
+        frame released at its own time into its camera's queue, at ``max`` each camera's frames
+        back to back as fast as its worker goes. The lanes' logs are joined in the bag's order
+        of the frames (each camera's in its own order) when the pass ends, however it ends."""
+        clock = self.replay.clock
+        lanes = {topic: _PipelineLane(self, backend) for topic, backend in self.pipelines.items()}
+        if any(lane.reads_camera_info for lane in lanes.values()):
+            # a deferred CameraInfo index is read once, here, not by the first two workers
+            self.inp.camera_infos.lookup(next(iter(lanes)), 0)
+        progress = threading.Lock()
+
+        def advance() -> None:
+            with progress:
+                self.replay.advance(1)
+
+        for lane in lanes.values():
+            lane.advance = advance
+        self.t0 = clock.now()
+
+        def releases() -> Iterator[tuple[float | None, str, tuple[int, RawMessage]]]:
+            if rate.timed:
+                for index, (offset, topic, raw) in enumerate(self._releases(rate)):
+                    yield offset, topic, (index, raw)
+                return
+            for index, raw in enumerate(self.messages()):
+                self.replay.check_stop()
+                yield None, raw.topic, (index, raw)
+
+        try:
+            replay_lanes(
+                releases(),
+                {topic: Lane(lane.process, lane.drop) for topic, lane in lanes.items()},
+                clock=clock,
+                queue_depth=self.replay.options.queue_depth,
+                start=self.t0,
+            )
+        finally:
+            joined = sorted(
+                (item for lane in lanes.values() for item in lane.log), key=lambda item: item[0]
+            )
+            self.log.extend(entry for _, entry in joined)
+
+
+class _PipelineLane:
+    """One camera's pipeline in a per-topic pass: its backend instance, decoder and log of
+    ``(frame's index in the pass, LogEntry)``; ``process`` and ``drop`` as ``Pass``'s."""
+
+    def __init__(self, owner: Pass, backend: Backend) -> None:
+        self.owner = owner
+        self.backend = backend
+        self.reads_camera_info = backend_traits(backend).reads_camera_info
+        self.decode = decoder(owner.inp, camera_info=self.reads_camera_info)
+        self.log: list[tuple[int, LogEntry]] = []
+        self.advance: Callable[[], None] = lambda: None
+
+    def process(self, item: tuple[int, RawMessage], release: float, start: float) -> None:
+        index, raw = item
+        now = self.owner.replay.clock.now
+        try:
+            frame = self.decode(raw)
+        except DecodeError as err:
+            done = now()
+            entry = LogEntry.undecoded(
+                raw, err, release, start, done, done - start, start - release
+            )
+        else:
+            t_detect = now()
+            try:
+                result = self.backend.detect(frame)
+            except Exception as err:
+                raise self.owner._detect_failed(frame.topic, frame.seq, err) from err
+            done = now()
+            entry = LogEntry(
+                frame[:5], result, release, start, t_detect - start, t_detect, done, start - release
+            )
+        self.log.append((index, entry))
+        self.advance()
+
+    def drop(self, item: tuple[int, RawMessage], release: float) -> None:
+        index, raw = item
+        self.log.append((index, LogEntry.dropped(raw, release)))
+        self.advance()

@@ -46,6 +46,7 @@ if TYPE_CHECKING:
     from replaybench.replay.recording import Recorder, TruthKey
     from replaybench.results.agreement import Agreement
     from replaybench.results.model import BackendRun, Environment
+    from replaybench.results.model.run import Pipelines
     from replaybench.tasks.detections.truth import BoxTruth
     from replaybench.types import Detection
 
@@ -222,6 +223,7 @@ def run_result(
     t_start: float,
     samples: Sequence[str] = (),
     report: bool = False,
+    pipelines: Pipelines | None = None,
 ) -> RunResult:
     """What run.json holds (written by the caller, last), with frames.csv's rows as
     ``frame_records`` (as the file holds them)."""
@@ -260,6 +262,7 @@ def run_result(
             detections_format=config.detections_format,
             agreement_iou=AGREEMENT_IOU,
             repeat=config.repeat,
+            pipelines=pipelines,
         ),
         inputs=tuple(inputs),
         environment=environment,

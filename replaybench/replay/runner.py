@@ -75,6 +75,7 @@ from replaybench.replay.sessions import (
     make_backend,
     make_backends,
     open_backends,
+    open_pipelines,
     run_backend,
     run_repeated,
 )
@@ -92,6 +93,7 @@ if TYPE_CHECKING:
     from replaybench.replay.pairing import Pairing
     from replaybench.replay.sessions import OpenBackend
     from replaybench.results.model import BackendRun, RunResult
+    from replaybench.results.model.run import Pipelines
     from replaybench.results.records import FrameRecord
     from replaybench.results.stats import Summary
 
@@ -194,6 +196,10 @@ def run_benchmark(
                 pair_inputs(inputs, config.sync, config.topics) if config.sync is not None else None
             )
             opened = open_backends(made, inputs, notice)
+            topics = _camera_topics(inputs)
+            if config.pipelines == 'per-topic' and len(topics) > 1:
+                options = _with_bag_sizes(config)
+                open_pipelines(opened, topics, inputs, factory, options)
             outcome = _execute(
                 config,
                 calls,
@@ -231,6 +237,40 @@ def _with_bag_sizes(config: RunConfig) -> BackendOptions:
     return replace(config.options, tag_options={**config.options.tag_options, **keys})
 
 
+#: What ``--pipelines`` may name.
+PIPELINES = ('shared', 'per-topic')
+
+
+def _camera_topics(inputs: Sequence[OpenedInput]) -> list[str]:
+    """The camera topics replayed, over every input, in the order first met."""
+    return list(dict.fromkeys(t.name for inp in inputs for t in inp.topics))
+
+
+def _pipelines(
+    config: RunConfig, opened: Sequence[OpenBackend], inputs: Sequence[OpenedInput]
+) -> tuple[Pipelines | None, str | None]:
+    """run.json's ``settings.pipelines`` (None: shared), and the warning for per-topic over a
+    single camera topic (replayed as shared)."""
+    if config.pipelines != 'per-topic':
+        return None, None
+    import os
+
+    from replaybench.results.model.run import Pipelines
+
+    count = max((len(e.pipelines) for e in opened), default=0) or 1
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else os.cpu_count()
+    settings = Pipelines(
+        pipelines=count, threads_per_pipeline=config.threads, cores=max(1, cores or 1)
+    )
+    if count > 1:
+        return settings, None
+    topics = _camera_topics(inputs)
+    return settings, (
+        f'--pipelines per-topic: the inputs hold one camera topic ({", ".join(topics)}): '
+        'replayed as --pipelines shared'
+    )
+
+
 def _check_config(config: RunConfig, *, check_available: bool) -> None:
     """Refuse bad options, missing inputs, unavailable backends and an output folder that may
     not be written, before anything is read or created."""
@@ -242,6 +282,9 @@ def _check_config(config: RunConfig, *, check_available: bool) -> None:
         raise UsageError(msg)
     if config.repeat < 1:
         msg = f'--repeat must be at least 1, not {config.repeat}'
+        raise UsageError(msg)
+    if config.pipelines not in PIPELINES:
+        msg = f'unknown --pipelines {config.pipelines!r}: use shared or per-topic'
         raise UsageError(msg)
     if config.detections_format not in {'mcap', 'rosbag2'}:
         msg = f'unknown --format {config.detections_format!r}: use mcap or rosbag2'
@@ -300,6 +343,9 @@ def _execute(
     warnings = list(warmups.warnings)
     if pairing is not None:
         warnings.extend(pairing.warnings)
+    pipelines, one_topic = _pipelines(config, opened, inputs)
+    if one_topic is not None:
+        warnings.append(one_topic)
     backend_runs: list[BackendRun] = []
     copy_problems: dict[int, str] = {}
     status = 'complete'
@@ -403,6 +449,7 @@ def _execute(
         t_start=t_start,
         samples=sample_paths,
         report=config.report and calls.render is not None and out is not None,
+        pipelines=pipelines,
     )
     if pairing is not None:
         record = replace(

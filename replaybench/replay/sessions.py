@@ -44,6 +44,7 @@ __all__ = [
     'make_backend',
     'make_backends',
     'open_backends',
+    'open_pipelines',
     'run_backend',
     'run_repeated',
 ]
@@ -54,12 +55,15 @@ SLOW_OPEN_S = 2.0
 
 class OpenBackend:
     """A backend made and opened before the replay; closed once, after its pass. ``tasks``:
-    the task of its results by input number, as it declared it once opened."""
+    the task of its results by input number, as it declared it once opened. ``pipelines``
+    (``--pipelines per-topic``): an opened instance per camera topic, ``backend`` the first
+    topic's; empty for one shared instance."""
 
     def __init__(self, name: str, backend: Backend, tasks: Mapping[int, str] | None = None) -> None:
         self.name = name
         self.backend = backend
         self.tasks: Mapping[int, str] = tasks if tasks is not None else {}
+        self.pipelines: dict[str, Backend] = {}
         self.closed = False
 
     def task(self, input_number: int) -> str:
@@ -71,11 +75,14 @@ class OpenBackend:
         if self.closed:
             return None
         self.closed = True
-        try:
-            self.backend.close()
-        except Exception as err:  # noqa: BLE001  a plugin's close() must not lose the run
-            return one_line(err)
-        return None
+        problems: list[str] = []
+        others = [b for b in self.pipelines.values() if b is not self.backend]
+        for backend in (self.backend, *others):
+            try:
+                backend.close()
+            except Exception as err:  # noqa: BLE001  a plugin's close() must not lose the run
+                problems.append(one_line(err))
+        return '; '.join(problems) if problems else None
 
 
 def make_backend(name: str, options: BackendOptions) -> Backend:
@@ -196,6 +203,38 @@ def open_backends(
     return opened
 
 
+def open_pipelines(
+    opened: Sequence[OpenBackend],
+    topics: Sequence[str],
+    inputs: Sequence[OpenedInput],
+    factory: Callable[[str, BackendOptions], Backend],
+    options: BackendOptions,
+) -> None:
+    """``--pipelines per-topic``: each opened backend gets an instance per camera topic in
+    ``topics`` (its own for the first topic, the others made with ``factory`` and opened as
+    ``open_backends`` opens one). What fails is raised in one line; the caller closes them."""
+    for entry in opened:
+        entry.pipelines = {topics[0]: entry.backend}
+        for topic in topics[1:]:
+            try:
+                backend = factory(entry.name, options)
+                backend_traits(backend)
+            except ReplaybenchError:
+                raise
+            except Exception as err:  # a plugin's own error: one line
+                raise _could_not_open(entry.name, err) from err
+            try:
+                if backend_traits(backend).uses_recorded_detections:
+                    backend.prepare(_recorded_detections(inputs))  # type: ignore[attr-defined]
+                backend.open()
+            except ReplaybenchError:
+                raise
+            except Exception as err:  # a plugin's own error: one line
+                raise _could_not_open(entry.name, err) from err
+            finally:
+                entry.pipelines[topic] = backend  # closed with the others, opened or not
+
+
 def run_backend(
     replay: Replay,
     recorder: Recorder,
@@ -288,7 +327,15 @@ class _BackendPasses:
         ``error`` and ends the passes."""
         try:
             for inp in inputs:
-                p = Pass(replay, label, entry.backend, inp, repeat, entry.task(inp.number))
+                p = Pass(
+                    replay,
+                    label,
+                    entry.backend,
+                    inp,
+                    repeat,
+                    entry.task(inp.number),
+                    pipelines=entry.pipelines or None,
+                )
                 self.passes.append(p)
                 try:
                     p.run()

@@ -50,6 +50,7 @@ CHANGED: dict[str, Any] = {
     'report': False,
     'hash_inputs': False,
     'repeat': 3,
+    'pipelines': 'per-topic',
     'ground_truth_masks': '/labels',
     'sync': 'approx:5',
     'tag_family': 'tag25h9',

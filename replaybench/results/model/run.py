@@ -27,6 +27,7 @@ __all__ = [
     'RUN_SCHEMA_VERSION',
     'BackendFailure',
     'BackendRun',
+    'Pipelines',
     'ReadAhead',
     'ResourcePoint',
     'ResourceSummary',
@@ -41,6 +42,22 @@ __all__ = [
 #: MCAP is outputs.mcap, named by ``outputs.outputs_mcap`` (1: detections.mcap, named by
 #: ``outputs.detections_mcap``, which still reads).
 RUN_SCHEMA_VERSION = 2
+
+
+@dataclass(frozen=True, slots=True)
+class Pipelines:
+    """``--pipelines per-topic``: how the machine's cores were divided between the pipelines.
+
+    ``pipelines``: backend instances per backend, one per camera topic, each in a worker thread
+    of its own (1: the inputs held one camera topic, replayed as shared); ``threads_per_pipeline``:
+    ``--threads`` (each pipeline's OpenCV and native thread pools; None: the libraries'
+    defaults); ``cores``: the cores this process could run on."""
+
+    mode: str = 'per-topic'
+    pipelines: int = 1
+    workers: str = 'threads'
+    threads_per_pipeline: int | None = None
+    cores: int = 1
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,6 +84,9 @@ class RunSettings:
     agreement_iou: float = 0.5
     #: ``--repeat N``: passes of each backend over the inputs, interleaved (1 before it existed)
     repeat: int = 1
+    #: ``--pipelines per-topic``: the pipelines and the cores they had; None: one shared
+    #: backend instance per backend (``--pipelines shared``, and every run before it existed)
+    pipelines: Pipelines | None = None
 
 
 @dataclass(frozen=True, slots=True)

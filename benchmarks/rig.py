@@ -1,0 +1,228 @@
+"""Camera rigs: ``--pipelines shared`` against ``per-topic`` on the real clock, ratios in one run.
+
+    python -m benchmarks.rig [--repeats 3] [--out PATH]
+
+Both on ``rig.mcap`` (``replaybench fixtures --rig 4``: four JPEG cameras at 30 Hz, the last
+one 2 frames late), written here into a temporary folder:
+
+* **waiting**: a backend that waits 20 ms per frame without using the CPU (``time.sleep``,
+  which releases the GIL), 320x240, 90 frames a camera, ``--rate recorded``. One shared
+  instance can serve at most 50 of the 120 frames a second (drops >= 55 %); one instance per
+  camera serves them all (drops <= 1 %). The same case runs on a virtual clock in
+  ``tests/replay/test_pipelines.py``.
+* **hsv at max**: ``hsv`` at 640x480, 150 frames a camera, ``--threads 1`` (each pipeline's
+  OpenCV on one thread), ``--rate max``: the aggregate throughput (frames measured over the
+  time from the first release to the last detection) of ``per-topic`` over ``shared``; the
+  median of ``--repeats`` pairs, each pair run back to back. Its limit is the machine's cores
+  (2x on two) where ``hsv`` releases the GIL; it stays near 1x where it does not.
+* **GIL**: ``HsvBackend.detect`` on decoded frames in one thread and in two at once (no
+  replay): two threads' throughput over one thread's, the share of ``detect`` that runs
+  outside the GIL.
+
+Writes benchmarks/results/rig.json and prints the figures. Not part of ``python -m
+benchmarks``: it writes its own bag.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import statistics
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from replaybench.backends.base import Availability, BackendOptions
+    from replaybench.types import BackendResult, Frame
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / 'benchmarks' / 'results' / 'rig.json'
+WAIT_S = 0.020
+
+
+class Waiting:
+    """Sleeps ``WAIT_S`` per frame: a device of fixed service time that leaves the CPU idle."""
+
+    name: ClassVar[str] = 'waiting'
+    description: ClassVar[str] = 'sleeps 20 ms a frame'
+
+    @classmethod
+    def available(cls) -> Availability:
+        from replaybench.backends.base import Availability
+
+        return Availability(True)
+
+    def open(self) -> None:
+        pass
+
+    def detect(self, frame: Frame) -> BackendResult:  # noqa: ARG002 - the protocol's signature
+        from replaybench.types import BackendResult, StageTimes
+
+        time.sleep(WAIT_S)
+        return BackendResult((), StageTimes(infer_ns=int(WAIT_S * 1e9)))
+
+    def info(self) -> dict[str, Any]:
+        return {'wait_ms': WAIT_S * 1e3}
+
+    def close(self) -> None:
+        pass
+
+
+def _run(bag: Path, backend: str, pipelines: str, rate: str, threads: int | None) -> Any:
+    from replaybench.replay.rate import parse_rate
+    from replaybench.replay.runner import RunConfig, run_benchmark
+    from replaybench.replay.sessions import make_backend
+
+    def factory(name: str, options: BackendOptions) -> Any:
+        return Waiting() if name == 'waiting' else make_backend(name, options)
+
+    config = RunConfig(
+        inputs=[bag],
+        backends=[backend],
+        out_dir=None,
+        rate=parse_rate(rate),
+        pipelines=pipelines,
+        threads=threads,
+        report=False,
+        hash_inputs=False,
+    )
+    return run_benchmark(config, backend_factory=factory if backend == 'waiting' else None)
+
+
+def _drop_rate(outcome: Any) -> float:
+    records = outcome.records
+    return float(sum(r.dropped for r in records) / len(records))
+
+
+def _throughput(outcome: Any) -> float:
+    """Frames detected per second, from the first release to the last detection."""
+    ok = [r for r in outcome.records if r.status == 'ok']
+    span = max(r.done_s for r in ok) - min(r.release_s for r in ok)
+    return float(len(ok) / span)
+
+
+def _gil_share(bag: Path, seconds: float = 2.0) -> dict[str, float]:
+    """hsv's ``detect`` in one thread, then in two at once: frames a second of each."""
+    import cv2
+
+    from replaybench.backends.hsv import HsvBackend
+    from replaybench.decode import decode_image
+    from replaybench.sources import open_source
+    from replaybench.types import Frame
+
+    frames = []
+    with open_source(bag) as source:
+        topic = '/rig/cam0/image_raw/compressed'
+        for _, raw in zip(range(8), source.messages(topics=[topic]), strict=False):
+            d = decode_image(raw)
+            frames.append(
+                Frame(
+                    raw.topic,
+                    raw.seq,
+                    raw.log_time_ns,
+                    d.stamp_ns,
+                    d.frame_id,
+                    d.image.copy(),
+                    d.encoding,
+                    d.source_encoding,
+                )
+            )
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        backend = HsvBackend()
+        backend.open()
+
+        def spin(counts: list[int], until: float) -> None:
+            n = 0
+            while time.perf_counter() < until:
+                backend.detect(frames[n % len(frames)])
+                n += 1
+            counts.append(n)
+
+        one: list[int] = []
+        spin(one, time.perf_counter() + seconds)
+        two: list[int] = []
+        until = time.perf_counter() + seconds
+        workers = [threading.Thread(target=spin, args=(two, until)) for _ in range(2)]
+        for w in workers:
+            w.start()
+        for w in workers:
+            w.join()
+    finally:
+        cv2.setNumThreads(before)
+    return {
+        'one_thread_fps': one[0] / seconds,
+        'two_threads_fps': sum(two) / seconds,
+        'ratio': sum(two) / one[0],
+    }
+
+
+def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog='python -m benchmarks.rig', description=__doc__)
+    parser.add_argument('--repeats', type=int, default=3)
+    parser.add_argument('--out', type=Path, default=OUT)
+    return parser.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parse(argv)
+    from replaybench.fixtures.rig import write_rig_mcap
+
+    load_before = os.getloadavg()
+    with tempfile.TemporaryDirectory() as tmp:
+        small = write_rig_mcap(Path(tmp) / 'rig_320.mcap', 90, (320, 240), 4)
+        large = write_rig_mcap(Path(tmp) / 'rig_640.mcap', 150, (640, 480), 4)
+        waiting = {
+            mode: _drop_rate(_run(small, 'waiting', mode, 'recorded', None))
+            for mode in ('shared', 'per-topic')
+        }
+        pairs = []
+        for _ in range(args.repeats):
+            shared = _throughput(_run(large, 'hsv', 'shared', 'max', 1))
+            per_topic = _throughput(_run(large, 'hsv', 'per-topic', 'max', 1))
+            pairs.append({'shared_fps': shared, 'per_topic_fps': per_topic})
+        gil = _gil_share(large)
+    ratios = [p['per_topic_fps'] / p['shared_fps'] for p in pairs]
+    document = {
+        'measured_at': dt.datetime.now(dt.UTC).isoformat(timespec='seconds'),
+        'cores': len(os.sched_getaffinity(0)),
+        'load_average_before': [round(v, 2) for v in load_before],
+        'load_average_after': [round(v, 2) for v in os.getloadavg()],
+        'waiting_20ms_4x30hz_recorded': {
+            'shared_drop_rate': waiting['shared'],
+            'per_topic_drop_rate': waiting['per-topic'],
+            'targets': {'shared_drop_rate_min': 0.55, 'per_topic_drop_rate_max': 0.01},
+        },
+        'hsv_640x480_4_cameras_max_threads_1': {
+            'pairs': pairs,
+            'ratio_median': statistics.median(ratios),
+            'ratios': ratios,
+            'target': 1.7,
+        },
+        'hsv_detect_two_threads_over_one': gil,
+    }
+    args.out.write_text(json.dumps(document, indent=1) + '\n', encoding='utf-8')
+    print(
+        f'waiting 20 ms, 4 cameras at 30 Hz: drops shared {waiting["shared"]:.1%}, '
+        f'per-topic {waiting["per-topic"]:.1%}'
+    )
+    print(
+        f'hsv 640x480 at max, 4 cameras, --threads 1: per-topic / shared '
+        f'{statistics.median(ratios):.2f}x (pairs: {", ".join(f"{r:.2f}" for r in ratios)})'
+    )
+    print(f'hsv detect, two threads over one: {gil["ratio"]:.2f}x')
+    print(f'load average before {load_before[0]:.2f}, after {os.getloadavg()[0]:.2f}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

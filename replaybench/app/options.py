@@ -226,6 +226,7 @@ class RunOptions:
         'instance per camera topic, each with its own queue and worker thread, replayed '
         'concurrently (docs/rigs.md).',
         choices=('shared', 'per-topic'),
+        metavar='MODE',
     )
     ground_truth_masks: str | None = _opt(
         None,

@@ -18,7 +18,7 @@ OUTPUTS_MD = REPO / 'docs' / 'outputs.md'
 SCHEMA = load_schema('run.schema.json')
 
 #: Summary rows are documented by the summary.csv table (and these run.json-only keys).
-SUMMARY_JSON_ONLY = {'warnings', 'accuracy', 'segmentation', 'tag_accuracy'}
+SUMMARY_JSON_ONLY = {'warnings', 'accuracy', 'segmentation', 'tag_accuracy', 'task_metrics'}
 
 
 def _section(text: str, heading: str) -> str:

@@ -153,18 +153,18 @@ def config_of(
     )
 
 
-def _mask_samples(out: Path, sample: SampleImage) -> list[str]:
-    """The mask thumbnails of a sample frame, one per segmentation backend."""
-    from replaybench.report.masks import mask_relpath, write_mask_sample
+def _task_samples(out: Path, sample: SampleImage) -> list[str]:
+    """The pictures of what each backend's task drew of a sample frame beside its boxes (a
+    segmentation backend's mask thumbnail): its task's ``TaskViews.sample_picture``."""
+    from replaybench.tasks import get_task, load_view, task_views
 
     paths = []
-    for backend, labels in (sample.masks or {}).items():
-        rel = mask_relpath(sample.input, sample.topic, backend)
-        try:
-            write_mask_sample(out / rel, labels, f'{sample.title} {backend} mask')
-        except OSError as err:
-            raise with_filename(err, out / rel) from None
-        paths.append(rel)
+    for backend, (name, drawn) in (sample.drawn or {}).items():
+        task = get_task(name)
+        target = task_views(task).sample_picture
+        if target is None:
+            continue
+        paths.append(load_view(task, target)(out, sample, backend, drawn))
     return paths
 
 
@@ -184,7 +184,7 @@ class ReportRenderer:
             except OSError as err:
                 raise with_filename(err, out / rel) from None
             paths.append(rel)
-            paths += _mask_samples(out, sample)
+            paths += _task_samples(out, sample)
         return paths
 
     def report(self, out: Path, run: RunResult) -> None:

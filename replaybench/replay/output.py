@@ -49,8 +49,10 @@ class SampleImage(NamedTuple):
     image: Any  # BGR8 ndarray
     detections: Mapping[str, tuple[Detection, ...]]
     title: str
-    #: segmentation backends' label masks of the frame, by backend label
-    masks: Mapping[str, Any] | None = None
+    #: what each backend's task draws beside the boxes (a segmentation backend's label mask),
+    #: by backend label: (the task's name, what it drew); its picture is the task's
+    #: ``TaskViews.sample_picture``
+    drawn: Mapping[str, tuple[str, Any]] | None = None
 
 
 class Renderer(Protocol):
@@ -197,7 +199,7 @@ def sample_images(
         image = _sample_image(inputs[index].source, topic, sample)
         if image is not None:
             yield SampleImage(
-                index, topic, image, sample.detections, sample.title, sample.masks or None
+                index, topic, image, sample.detections, sample.title, sample.drawn or None
             )
 
 

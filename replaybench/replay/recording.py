@@ -117,8 +117,9 @@ class Sample:
         self.log_time_ns = log_time_ns
         self.title = title
         self.detections: dict[str, tuple[Detection, ...]] = {}
-        #: segmentation backends' label masks of the frame, by backend label
-        self.masks: dict[str, Any] = {}
+        #: what each backend's task draws of the frame beside its boxes (a segmentation
+        #: backend's label mask), by backend label: (the task's name, what it drew)
+        self.drawn: dict[str, tuple[str, Any]] = {}
 
 
 def _ms(ns: int | None) -> float | None:
@@ -339,7 +340,7 @@ class Recorder:
         self.detections_out.add(done.label, topic, log_time_ns, stamp_ns, frame_id, detections)
         box_frames, external = _boxes(inp)
         if recording is not None and not recording.scores_boxes:
-            pass  # a mask's task: scored against masks
+            pass  # the task scores its own output, not the boxes
         elif external is not None:
             truth = external.lookup(topic, seq, stamp_ns)
             if truth is not None:
@@ -376,7 +377,7 @@ class Recorder:
             sample.detections[done.label] = result.detections
             drawn = None if recording is None else recording.sample(result)
             if drawn is not None:
-                sample.masks[done.label] = drawn
+                sample.drawn[done.label] = (done.task, drawn)
 
     def ground_truth_frames(self, number: int) -> int:
         """Frames of input ``number`` matched to a ground-truth file."""

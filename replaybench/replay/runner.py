@@ -229,12 +229,12 @@ def run_benchmark(
 
 
 def _with_bag_sizes(config: RunConfig) -> BackendOptions:
-    """The backend options with the tag sizes the inputs record (``BAG_SIZE_KEYS``; the tag
-    backends use them when the options give none, docs/fiducials.md)."""
-    from replaybench.fiducials.bagsizes import bag_size_keys
+    """The backend options with what each task reads of the inputs for its backends
+    (``replaybench.tasks.backend_options``: the tag sizes the bags record)."""
+    from replaybench.tasks import backend_options
 
-    keys = bag_size_keys([Path(p) for p in config.inputs])
-    return replace(config.options, tag_options={**config.options.tag_options, **keys})
+    found: BackendOptions = backend_options(config.options, [Path(p) for p in config.inputs])
+    return found
 
 
 #: What ``--pipelines`` may name.

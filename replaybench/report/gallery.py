@@ -7,10 +7,11 @@ from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING
 
 from replaybench.report.markup import escaped
-from replaybench.report.masks import mask_of
 from replaybench.report.samples import sample_relpath
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from replaybench.results.model import RunResult
 
 __all__ = ['samples_html']
@@ -19,8 +20,23 @@ _MAX_SAMPLE_BYTES = 4 << 20
 _IMAGE_TYPES = {'.jpg': 'image/jpeg', '.jpeg': 'image/jpeg', '.png': 'image/png'}
 
 
+def _captions() -> list[Callable[[str], tuple[str, str] | None]]:
+    """Each registered task's ``TaskViews.sample_caption``, in the tasks' order."""
+    from replaybench.tasks import get_task, load_view, task_names, task_views
+
+    found = []
+    for name in task_names():
+        task = get_task(name)
+        target = task_views(task).sample_caption
+        if target is not None:
+            found.append(load_view(task, target))
+    return found
+
+
 def _sample_entries(run: RunResult) -> list[tuple[str, str, str]]:
-    """(relative path, topic or '', caption) of each sample listed in run.json."""
+    """(relative path, topic or '', caption) of each sample listed in run.json: a frame's
+    sample under its topic, a task's picture of it (``TaskViews.sample_caption``) beside it."""
+    captions = _captions()
     known: dict[str, str] = {}
     for source in run.inputs:
         for meta in source.topics:
@@ -29,8 +45,10 @@ def _sample_entries(run: RunResult) -> list[tuple[str, str, str]]:
     for rel in run.outputs.samples if run.outputs is not None else ():
         topic = known.get(rel, '')
         caption = topic or PurePosixPath(rel).name
-        if not topic and (mask := mask_of(rel)) is not None:  # beside its frame
-            topic, caption = known.get(mask[0], ''), f'{mask[1]} mask'
+        for named in captions if not topic else ():
+            if (found := named(rel)) is not None:  # beside its frame
+                topic, caption = known.get(found[0], ''), found[1]
+                break
         result.append((rel, topic, caption))
     return result
 

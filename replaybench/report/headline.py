@@ -11,7 +11,10 @@ and how well the two agree, in one table narrow enough for a laptop screen.
   ``replaybench compare`` a row's own interval: the same intervals everywhere; none below
   ``MIN_FRAMES`` measured frames); a run.json without them gets the same computation on the
   row's frames. The same run folder gives the same page.
-* **Most accurate**: the highest mAP@0.5 against ground truth; none without ground truth.
+* **Most accurate**: the best by the topic's judging figure: the first registered task's main
+  figure (``MetricSpec.main``, in the tasks' order: the boxes' mAP@0.5, then the tags' recall,
+  the masks' mIoU, a task from an entry point's) that a row of the topic has, the highest or
+  the lowest as the figure's ``better`` says; none without ground truth.
 * **Agreement**: from run.json ``agreement``, the share of each of the two backends' detections
   that the other one matched, and their mean IoU.
 """
@@ -32,6 +35,7 @@ if TYPE_CHECKING:
 
     from replaybench.results.model import RunResult, SummaryRow
     from replaybench.results.records import FrameRecord
+    from replaybench.tasks import MetricSpec
 
 __all__ = ['Agreement', 'TopicHeadline', 'headline_html', 'topic_headlines']
 
@@ -67,14 +71,33 @@ class TopicHeadline:
     p99_ci: Interval | None
     measured: int
     accurate: str | None
-    map50: float | None
+    #: the most accurate backend's value of the judging figure
+    accuracy: float | None
     agreement: Agreement | None
+    #: the figure the most accurate backend was chosen by (None without ground truth)
+    judged_by: MetricSpec | None = None
 
 
-def _map50(row: SummaryRow) -> float | None:
-    if row.accuracy is not None:
-        return finite_number(row.accuracy.map50)
-    return finite_number(row.map50)
+def _judges() -> list[MetricSpec]:
+    """Each registered task's main figure, in the tasks' order."""
+    from replaybench.tasks import get_task, task_names
+
+    found: list[MetricSpec] = []
+    for name in task_names():
+        found += [m for m in get_task(name).metrics if m.main][:1]
+    return found
+
+
+def _most_accurate(
+    rows: Sequence[SummaryRow], judges: Sequence[MetricSpec]
+) -> tuple[SummaryRow | None, MetricSpec | None]:
+    """The best row by the first of ``judges`` that a row has, and that figure."""
+    for spec in judges:
+        scored = [r for r in rows if r.metric(spec.name) is not None]
+        if scored:
+            sign = 1.0 if spec.better == 'higher' else -1.0
+            return max(scored, key=lambda r: sign * (r.metric(spec.name) or 0.0)), spec
+    return None, None
 
 
 def _pair(low: float | None, high: float | None) -> Interval | None:
@@ -140,14 +163,14 @@ def topic_headlines(
     for record in frames:
         groups.setdefault((record.backend, record.topic), []).append(record)
     out = []
+    judges = _judges()
     for topic, topic_rows in by_topic.items():
         replayed = [r for r in topic_rows if not replays_recording(r)]
         timed = [r for r in replayed if finite_number(r.throughput_fps) is not None]
         detectors = [r for r in timed if names.get(r.backend, '') not in REFERENCE_BACKENDS]
         pool = detectors or timed
         fastest = max(pool, key=lambda r: finite_number(r.throughput_fps) or 0.0, default=None)
-        scored = [r for r in topic_rows if _map50(r) is not None]
-        accurate = max(scored, key=lambda r: _map50(r) or 0.0, default=None)
+        accurate, judged_by = _most_accurate(topic_rows, judges)
         fast_name = fastest.backend if fastest is not None else None
         acc_name = accurate.backend if accurate is not None else None
         fps_ci = p50_ci = p99_ci = None
@@ -170,8 +193,11 @@ def topic_headlines(
                 p99_ci=p99_ci,
                 measured=fastest.measured if fastest is not None else 0,
                 accurate=acc_name,
-                map50=_map50(accurate) if accurate is not None else None,
+                accuracy=None
+                if accurate is None or judged_by is None
+                else accurate.metric(judged_by.name),
                 agreement=agreement,
+                judged_by=judged_by,
             )
         )
     return out
@@ -236,7 +262,10 @@ def headline_html(run: RunResult, rows: Sequence[SummaryRow], frames: Sequence[F
     if not heads or all(h.fastest is None and h.accurate is None for h in heads):
         return ''
     many = len(heads) > 1
-    scored = any(h.map50 is not None for h in heads)
+    scored = any(h.accuracy is not None for h in heads)
+    figures = list(dict.fromkeys(h.judged_by for h in heads if h.judged_by is not None))
+    # one figure for every topic: its label heads the column; several: each cell names its own
+    one = figures[0] if len(figures) == 1 else None
     level = f'{CONFIDENCE * 100:.0f} %'
     body = []
     for head in heads:
@@ -257,7 +286,13 @@ def headline_html(run: RunResult, rows: Sequence[SummaryRow], frames: Sequence[F
         if scored:
             cells += [
                 f'<td>{escaped(head.accurate or "no ground truth")}</td>',
-                f'<td class="n"><b>{escaped(_fmt(head.map50, 3))}</b></td>',
+                f'<td class="n"><b>{escaped(_fmt(head.accuracy, 3))}</b>'
+                + (
+                    f'<br><span class="muted">{escaped(head.judged_by.short_label)}</span>'
+                    if one is None and head.judged_by is not None
+                    else ''
+                )
+                + '</td>',
                 f'<td>{_agreement_cell(head)}</td>',
             ]
         body.append(f'<tr>{"".join(cells)}</tr>')
@@ -270,7 +305,11 @@ def headline_html(run: RunResult, rows: Sequence[SummaryRow], frames: Sequence[F
     )
     if scored:
         cols += '<col class="backend"><col class="map"><col class="agree">'
-        head_row += '<th>most accurate</th><th class="n">mAP@0.5</th><th>agreement of the two</th>'
+        label = one.label if one is not None else 'accuracy'
+        head_row += (
+            f'<th>most accurate</th><th class="n">{escaped(label)}</th>'
+            '<th>agreement of the two</th>'
+        )
     notes = [
         (
             f'Under each figure of the fastest backend, its {level} interval (block bootstrap '
@@ -287,9 +326,11 @@ def headline_html(run: RunResult, rows: Sequence[SummaryRow], frames: Sequence[F
             'under Recorded latency).'
         )
     if scored:
+        named = ', '.join(spec.label for spec in figures)
         notes[0] += (
-            ' mAP@0.5 against the ground truth; agreement: share of each backend’s detections '
-            f'the other matched (IoU ≥ {run.settings.agreement_iou:g}, same class).'
+            f' Most accurate: by {named} against the ground truth; agreement: share of each '
+            'backend’s detections the other matched '
+            f'(IoU ≥ {run.settings.agreement_iou:g}, same class).'
         )
     else:
         notes.append(

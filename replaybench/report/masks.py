@@ -7,9 +7,10 @@ report.html shows each under its frame.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from replaybench.report.samples import sample_relpath, write_sample
+from replaybench.results.runfolder import with_filename
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -17,7 +18,7 @@ if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
 
-__all__ = ['mask_of', 'mask_relpath', 'write_mask_sample']
+__all__ = ['mask_caption', 'mask_of', 'mask_picture', 'mask_relpath', 'write_mask_sample']
 
 _MARK = '.mask_'
 
@@ -45,3 +46,22 @@ def write_mask_sample(path: str | Path, labels: npt.NDArray[np.uint8], title: st
 
     bgr = np.ascontiguousarray(colourise(labels)[:, :, ::-1])
     write_sample(path, bgr, {}, title)
+
+
+def mask_picture(out: Path, sample: Any, backend: str, labels: npt.NDArray[np.uint8]) -> str:
+    """The segmentation task's ``TaskViews.sample_picture``: ``backend``'s mask thumbnail of
+    ``sample`` (a ``replaybench.replay.output.SampleImage``) written into the run folder
+    ``out``; its relative path. An ``OSError`` names the file."""
+    rel = mask_relpath(sample.input, sample.topic, backend)
+    try:
+        write_mask_sample(out / rel, labels, f'{sample.title} {backend} mask')
+    except OSError as err:
+        raise with_filename(err, out / rel) from None
+    return rel
+
+
+def mask_caption(rel: str) -> tuple[str, str] | None:
+    """The segmentation task's ``TaskViews.sample_caption``: (the frame sample's path,
+    ``<backend> mask``) of a mask thumbnail; None for other files."""
+    found = mask_of(rel)
+    return None if found is None else (found[0], f'{found[1]} mask')

@@ -11,6 +11,7 @@ empty: the engine adds the first two, and ``replaybench.results.intervals`` fill
 from __future__ import annotations
 
 import dataclasses
+import typing
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -220,13 +221,19 @@ def task_metric_columns(summaries: Iterable[SummaryRow]) -> tuple[str, ...]:
 
 def summary_json(summary: SummaryRow) -> dict[str, Any]:
     """One run.json ``summary`` entry: the summary.csv columns with ``warnings`` as a list, and
-    the full ``accuracy``, ``segmentation`` and ``tag_accuracy`` dicts."""
+    each task's full summary (the fields holding one: ``accuracy``, ``segmentation``,
+    ``tag_accuracy``) as a dict."""
     row = {name: getattr(summary, name) for name in SUMMARY_CSV_COLUMNS}
     row['warnings'] = list(summary.warnings)
-    accuracy = summary.accuracy
-    row['accuracy'] = dataclasses.asdict(accuracy) if accuracy is not None else None
-    segmentation = summary.segmentation
-    row['segmentation'] = dataclasses.asdict(segmentation) if segmentation is not None else None
-    tags = summary.tag_accuracy
-    row['tag_accuracy'] = dataclasses.asdict(tags) if tags is not None else None
+    for name in _TASK_SUMMARIES:
+        found = getattr(summary, name)
+        row[name] = dataclasses.asdict(found) if found is not None else None
     return row
+
+
+#: The fields of ``SummaryRow`` that hold a task's full summary (a dataclass), in field order.
+_TASK_SUMMARIES: tuple[str, ...] = tuple(
+    name
+    for name, hint in typing.get_type_hints(SummaryRow).items()
+    if any(dataclasses.is_dataclass(arm) for arm in typing.get_args(hint))
+)

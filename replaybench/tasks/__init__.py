@@ -38,7 +38,9 @@ from replaybench.tasks.base import (
 from replaybench.tasks.common import COMMON_METRICS
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
     from importlib.metadata import EntryPoint
+    from pathlib import Path
 
 __all__ = [
     'COMMON_METRICS',
@@ -53,6 +55,7 @@ __all__ = [
     'TaskViews',
     'TruthInput',
     'all_metrics',
+    'backend_options',
     'get_task',
     'load_view',
     'require_task',
@@ -256,3 +259,15 @@ def truth_readers() -> list[tuple[str, TaskTruth]]:
         if reader is not None:
             found.append((name, reader))
     return found
+
+
+def backend_options(options: Any, inputs: Sequence[Path]) -> Any:
+    """The run's backend options (``replaybench.backends.BackendOptions``) with what each
+    registered task reads of the inputs for its backends before they open (a task's
+    ``backend_options(options, inputs) -> options``, in ``task_names`` order; the tags task:
+    the tag sizes the bags record). Tasks without one leave them as they are."""
+    for name in task_names():
+        adjust = getattr(get_task(name), 'backend_options', None)
+        if adjust is not None:
+            options = adjust(options, inputs)
+    return options

@@ -120,6 +120,14 @@ class TaskViews:
     section_panel: str | None = None
     #: ``(run) -> list[str]``: lines ``replaybench run`` prints after its table
     terminal_lines: str | None = None
+    #: ``(out, sample, backend, drawn) -> str``: the picture of what a backend of the task drew
+    #: of a topic's sample frame (``TaskRecording.sample``), written into the run folder
+    #: ``out`` beside the frame's sample; returns its relative path (``sample``: a
+    #: ``replaybench.replay.output.SampleImage``)
+    sample_picture: str | None = None
+    #: ``(relative path) -> (the frame's sample path, caption) | None``: how report.html's
+    #: Samples name a picture of ``sample_picture`` (None: not one of the task's)
+    sample_caption: str | None = None
     #: the task's metrics in ``replaybench run``'s table, in its order (each has a
     #: ``terminal_label``), and where they go
     terminal_metrics: tuple[str, ...] = ()

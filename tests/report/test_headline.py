@@ -208,3 +208,24 @@ def test_the_headline_fits_a_1366_pixel_laptop_screen_without_scrolling_sideways
     assert sizes['right'] <= sizes['viewport'] == LAPTOP['width']
     assert sizes['page'] <= sizes['viewport']
     assert sizes['bottom'] <= 2 * LAPTOP['height']  # three topics in well under two screens
+
+
+def test_the_most_accurate_backend_is_judged_by_the_first_task_figure_its_rows_have() -> None:
+    from replaybench.report.headline import _judges, _most_accurate
+    from replaybench.results.model import SummaryRow
+    from replaybench.tasks import MetricSpec
+
+    judges = _judges()
+    assert [m.name for m in judges[:3]] == ['map50', 'tag_recall', 'miou']
+    masks = [SummaryRow(backend='a', miou=0.4), SummaryRow(backend='b', miou=0.7)]
+    best, spec = _most_accurate(masks, judges)
+    assert (best.backend if best else None, spec.name if spec else None) == ('b', 'miou')
+    boxes = [*masks, SummaryRow(backend='c', map50=0.1)]
+    best, spec = _most_accurate(boxes, judges)  # the boxes' figure comes first
+    assert (best.backend if best else None, spec.name if spec else None) == ('c', 'map50')
+    error = MetricSpec('err', 'error', 'err', 'lower')
+    rows = [SummaryRow(backend=n, task_metrics={'err': v}) for n, v in (('x', 2.0), ('y', 0.5))]
+    best, spec = _most_accurate(rows, [error])
+    assert best is not None
+    assert best.backend == 'y'  # lower is better
+    assert _most_accurate([SummaryRow(backend='z')], judges) == (None, None)

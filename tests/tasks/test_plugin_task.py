@@ -164,6 +164,11 @@ def test_the_report_shows_the_tasks_main_metric_in_the_summary_table(run_dir: Pa
     assert '<th class="n">bright. err</th>' in table
     assert table.count('>0.000</td>') == 1
     assert table.count('>4.000</td>') == 1
+    headline = html[html.index('id="headline-table"') :]
+    headline = headline[: headline.index('</table>')]
+    # the most accurate backend by the task's main figure, lower being better
+    assert '<th class="n">brightness error (grey levels)</th>' in headline
+    assert '<b>0.000</b>' in headline
 
 
 def test_compare_gates_on_the_tasks_metric(plugin: dict[str, Any]) -> None:

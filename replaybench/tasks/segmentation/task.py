@@ -44,7 +44,13 @@ class SegmentationTask:
         ),
         MetricSpec('pixel_accuracy', 'pixel accuracy', 'pixel acc.', 'higher', appended=False),
     )
-    views: ClassVar[TaskViews] = TaskViews(summary_field='segmentation', terminal_metrics=('miou',))
+    #: the report's mask thumbnails live in the report layer (report/masks.py)
+    views: ClassVar[TaskViews] = TaskViews(
+        summary_field='segmentation',
+        terminal_metrics=('miou',),
+        sample_picture='replaybench.report.masks:mask_picture',
+        sample_caption='replaybench.report.masks:mask_caption',
+    )
 
     #: a processed frame's mask written and scored, its boxes not scored
     #: (``replaybench.tasks.segmentation.recording``, ``Segmentation``), loaded when the frames

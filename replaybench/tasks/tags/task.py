@@ -8,7 +8,8 @@ from replaybench.tasks.base import LazyMapping, MetricSpec, TaskViews
 from replaybench.tasks.tags import TAG_GROUND_TRUTH_TOPIC
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
+    from collections.abc import Mapping, Sequence
+    from pathlib import Path
 
     from replaybench.decode.recorded import OutputReader
     from replaybench.tasks.base import TruthInput
@@ -46,6 +47,16 @@ class TagsTask:
     recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(
         'replaybench.tasks.tags.recorded:READERS'
     )
+
+    def backend_options(self, options: Any, inputs: Sequence[Path]) -> Any:
+        """``options`` with the tag sizes the inputs record (``BAG_SIZE_KEYS``; the tag
+        backends use them when the options give none, docs/fiducials.md)."""
+        from dataclasses import replace
+
+        from replaybench.fiducials.bagsizes import bag_size_keys
+
+        keys = bag_size_keys(inputs)
+        return replace(options, tag_options={**options.tag_options, **keys})
 
     # the ground truth (``replaybench.tasks.tags.truth``, imported for an input that has some)
 

@@ -139,9 +139,11 @@ ADDED_COLUMNS: tuple[str, ...] = (
     'tag_rot_err_deg',
     'tag_recall',
     'tag_trans_err_pct',
+    # frames.csv's pipeline that served the frame: 0 where one instance serves every topic
+    'pipeline',
 )
 #: what an added column holds in outputs that stand for an older one's absence
-_OLDER_VALUES: dict[str, tuple[Any, ...]] = {'repeat': (0, '0')}
+_OLDER_VALUES: dict[str, tuple[Any, ...]] = {'repeat': (0, '0'), 'pipeline': (0, '0')}
 #: run.json / result keys added likewise (null or empty in these cases)
 ADDED_KEYS: tuple[str, ...] = (
     *ADDED_COLUMNS,

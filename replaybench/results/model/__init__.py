@@ -73,6 +73,7 @@ from replaybench.results.model.run import (
     RunResult,
     RunSettings,
 )
+from replaybench.results.model.rig import RigBackend, RigCamera, RigReport, WorstCamera
 from replaybench.results.model.segmentation import SegmentationAgreementRow, SegmentationSummary
 from replaybench.results.model.summary import RepeatStats, SummaryRow
 from replaybench.results.model.sync import SyncInput, SyncReport, SyncTopic
@@ -116,6 +117,9 @@ __all__ = [
     'ResourcePoint',
     'ResourceSummary',
     'Resources',
+    'RigBackend',
+    'RigCamera',
+    'RigReport',
     'RunCounts',
     'RunOutputs',
     'RunResult',
@@ -128,6 +132,7 @@ __all__ = [
     'SyncTopic',
     'Tool',
     'TopicMeta',
+    'WorstCamera',
 ]
 
 

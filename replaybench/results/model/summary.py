@@ -17,7 +17,14 @@ from replaybench.results.model.detections import Accuracy
 from replaybench.results.model.segmentation import SegmentationSummary
 from replaybench.results.model.tags import TagAccuracy
 
-__all__ = ['RepeatStats', 'SummaryRow']
+__all__ = ['RIG_METRICS', 'RIG_TOPIC', 'RepeatStats', 'SummaryRow']
+
+#: The topic of a backend's rig row: all its camera topics of a run replaying several
+#: (``replaybench.results.rig``); no camera topic of a ROS bag is named without a leading ``/``
+RIG_TOPIC = 'rig'
+#: The metrics only a rig row has (``SummaryRow.metric``): its p99 latency over all the
+#: cameras' measured frames, and its dropped frames over its frames
+RIG_METRICS: tuple[str, ...] = ('rig_p99_ms', 'rig_drop_rate')
 
 
 @dataclass(frozen=True, slots=True)

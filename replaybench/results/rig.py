@@ -39,6 +39,7 @@ __all__ = [
     'with_rig_rows',
 ]
 
+
 def is_rig(row: SummaryRow) -> bool:
     """Whether ``row`` is a rig row (all of a backend's cameras), not one camera's."""
     return row.topic == RIG_TOPIC
@@ -176,9 +177,7 @@ def rig_report(
         backends.append(
             RigBackend(
                 backend=backend,
-                cameras=tuple(
-                    RigCamera(c.topic, p) for c, p in zip(cameras, served, strict=True)
-                ),
+                cameras=tuple(RigCamera(c.topic, p) for c, p in zip(cameras, served, strict=True)),
                 pipelines=len(set(served)),
                 frames=rig.frames,
                 dropped=rig.dropped,
@@ -186,10 +185,7 @@ def rig_report(
                 latency_ms_p99=rig.latency_ms_p99,
                 throughput_fps=rig.throughput_fps,
                 worst_p99=_worst((c.topic, c.latency_ms_p99) for c in cameras),
-                worst_drop_rate=_worst(
-                    (c.topic, rate) for c in cameras if (rate := _drop_rate(c))
-                ),
+                worst_drop_rate=_worst((c.topic, rate) for c in cameras if (rate := _drop_rate(c))),
             )
         )
     return RigReport(mode=mode, cores=cores, threads_per_pipeline=threads, backends=tuple(backends))
-

@@ -105,10 +105,8 @@ def _union_throughput(records: Sequence[FrameRecord]) -> float | None:
     return frames / window if window > 0 else None
 
 
-def rig_summary(
-    backend: str, records: Sequence[FrameRecord], cameras: Sequence[SummaryRow]
-) -> SummaryRow:
-    """The rig row of ``backend`` from its records (every camera's) and its camera rows."""
+def rig_summary(records: Sequence[FrameRecord], cameras: Sequence[SummaryRow]) -> SummaryRow:
+    """A backend's rig row from its records (every camera's) and its camera rows."""
     from replaybench.results.stats import summarize
 
     pooled = [r._replace(topic=RIG_TOPIC) for r in records]
@@ -137,7 +135,7 @@ def with_rig_rows(rows: Sequence[SummaryRow], records: Sequence[FrameRecord]) ->
         last = index + 1 == len(rows) or rows[index + 1].backend != row.backend
         if last and row.backend in groups:
             mine = [r for r in rows if r.backend == row.backend]
-            out.append(rig_summary(row.backend, groups[row.backend], mine))
+            out.append(rig_summary(groups[row.backend], mine))
     return out
 
 

@@ -60,6 +60,7 @@ from replaybench.results.model.peak import (
     PeakStart,
     PeakTrial,
 )
+from replaybench.results.model.rig import RigBackend, RigCamera, RigReport, WorstCamera
 from replaybench.results.model.run import (
     RUN_SCHEMA_VERSION,
     BackendFailure,
@@ -73,7 +74,6 @@ from replaybench.results.model.run import (
     RunResult,
     RunSettings,
 )
-from replaybench.results.model.rig import RigBackend, RigCamera, RigReport, WorstCamera
 from replaybench.results.model.segmentation import SegmentationAgreementRow, SegmentationSummary
 from replaybench.results.model.summary import RepeatStats, SummaryRow
 from replaybench.results.model.sync import SyncInput, SyncReport, SyncTopic

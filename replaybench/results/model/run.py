@@ -14,9 +14,9 @@ from replaybench.results.model.common import (
     empty_mapping,
 )
 from replaybench.results.model.detections import AgreementRow
+from replaybench.results.model.rig import RigReport
 from replaybench.results.model.segmentation import SegmentationAgreementRow
 from replaybench.results.model.summary import RepeatStats, SummaryRow
-from replaybench.results.model.rig import RigReport
 from replaybench.results.model.sync import SyncReport
 from replaybench.results.records import FrameRecord
 from replaybench.results.runfolder import OUTPUTS_MCAP

@@ -53,14 +53,19 @@ def rig_html(run: RunResult, frames: Sequence[FrameRecord]) -> str:
         return ''
     parts = [
         '<h2 id="rig">Rig</h2>',
-        f'<p class="muted">Each backend over all its cameras (<code>--pipelines '
-        f'{escaped(rig.mode)}</code>, {rig.cores} core(s)): the summary\'s '
-        '<code>rig</code> row, and the camera with the highest p99 latency and the one with '
-        'the highest drop rate.</p>',
-        '<div class="table-wrap"><table id="rig-table"><thead><tr><th>backend</th>'
-        '<th class="n">cameras</th><th class="n">pipelines</th><th class="n">frames</th>'
-        '<th class="n">dropped</th><th class="n">drop rate</th><th class="n">p99 ms</th>'
-        '<th class="n">FPS</th><th>worst p99</th><th>worst drop rate</th></tr></thead><tbody>',
+        (
+            '<p class="muted">Each backend over all its cameras (<code>--pipelines '
+            f"{escaped(rig.mode)}</code>, {rig.cores} core(s)): the summary's "
+            '<code>rig</code> row, and the camera with the highest p99 latency and the one '
+            'with the highest drop rate.</p>'
+        ),
+        (
+            '<div class="table-wrap"><table id="rig-table"><thead><tr><th>backend</th>'
+            '<th class="n">cameras</th><th class="n">pipelines</th><th class="n">frames</th>'
+            '<th class="n">dropped</th><th class="n">drop rate</th><th class="n">p99 ms</th>'
+            '<th class="n">FPS</th><th>worst p99</th><th>worst drop rate</th></tr></thead>'
+            '<tbody>'
+        ),
         *(_row(b) for b in rig.backends),
         '</tbody></table></div>',
     ]

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import pytest
 
-from replaybench.backends.base import Availability, BackendOptions
+from replaybench.backends.base import Availability
 from replaybench.comparison import compare_runs, evaluate_gate
 from replaybench.fixtures.rig import LATE_FRAMES, rig_topics, write_rig_mcap
 from replaybench.replay import Rate, ThreadVirtualClock

@@ -17,6 +17,10 @@ detections.mcap against the new outputs.mcap byte for byte, its metadata.yaml (`
 rosbag2``) with that file name changed, and its run.json's ``schema_version`` 1 and
 ``outputs.detections_mcap`` as 2 and ``outputs.outputs_mcap`` (``OLDER_LAYOUT``).
 
+A reference made before the rig rows (``RIG_TOPIC``) is compared without the new outputs'
+summary rows of topic ``rig`` and run.json's ``rig`` section, each such row checked to hold
+its backend's camera rows' frames and drops summed.
+
 A reference made before the recorded-latency columns (``RECORDED_ADDED``) is compared without
 them: the new outputs may hold those columns beside the reference's (the ``recorded`` case
 fills them), and every other cell must still match.
@@ -139,9 +143,11 @@ ADDED_COLUMNS: tuple[str, ...] = (
     'tag_rot_err_deg',
     'tag_recall',
     'tag_trans_err_pct',
+    # frames.csv's pipeline that served the frame: 0 where one instance serves every topic
+    'pipeline',
 )
 #: what an added column holds in outputs that stand for an older one's absence
-_OLDER_VALUES: dict[str, tuple[Any, ...]] = {'repeat': (0, '0')}
+_OLDER_VALUES: dict[str, tuple[Any, ...]] = {'repeat': (0, '0'), 'pipeline': (0, '0')}
 #: run.json / result keys added likewise (null or empty in these cases)
 ADDED_KEYS: tuple[str, ...] = (
     *ADDED_COLUMNS,
@@ -337,14 +343,15 @@ def _frames_records(document: dict[str, Any]) -> list[Any]:
     before = tuple(
         c for c in FRAMES_CSV_COLUMNS if c not in ADDED_COLUMNS and c not in RECORDED_ADDED
     )
+    # a record of this engine, of one before the pipeline column, or of one before the added
+    # columns, told apart by its length
+    layouts = {
+        len(columns): columns for columns in (before, FRAMES_CSV_COLUMNS[:-1], FRAMES_CSV_COLUMNS)
+    }
     return [
         {
             k: ('<number>' if v is not None else None) if _timing(k) else v
-            for k, v in zip(
-                FRAMES_CSV_COLUMNS if len(row) == len(FRAMES_CSV_COLUMNS) else before,
-                row,
-                strict=True,
-            )
+            for k, v in zip(layouts.get(len(row), FRAMES_CSV_COLUMNS), row, strict=True)
         }
         for row in rows
     ]
@@ -471,6 +478,44 @@ def _same_mcap_renamed(ref: bytes, new: bytes) -> bool:
     )
 
 
+#: a newer engine's rig rows: where a reference holds none, the new outputs' summary rows of
+#: topic ``rig`` (summary.csv, run.json's ``summary``) and run.json's ``rig`` section are left
+#: out of the comparison, nothing else; each such row must still hold its backend's camera
+#: rows' frames and drops summed (the two-camera cases gain one per backend)
+RIG_TOPIC = 'rig'
+
+
+def _without_rig_rows(
+    rows_a: list[dict[str, Any]], rows_b: list[dict[str, Any]], where: str, out: list[str]
+) -> list[dict[str, Any]]:
+    """``rows_b`` without its rig rows where ``rows_a`` (the reference's) has none, each
+    checked against the sums of its backend's other rows."""
+    if any(r.get('topic') == RIG_TOPIC for r in rows_a):
+        return rows_b
+    kept = [r for r in rows_b if r.get('topic') != RIG_TOPIC]
+    for row in rows_b:
+        if row.get('topic') != RIG_TOPIC:
+            continue
+        cameras = [r for r in kept if r.get('backend') == row['backend']]
+        for key in ('frames', 'dropped'):
+            total = sum(int(r[key]) for r in cameras)
+            if int(row[key]) != total or len(cameras) < 2:
+                out.append(
+                    f'{where}: rig row of {row["backend"]}: {key} {row[key]} is not the sum '
+                    f'{total} of {len(cameras)} camera rows'
+                )
+    return kept
+
+
+def _without_rig(a: dict[str, Any], b: dict[str, Any], where: str, out: list[str]) -> None:
+    """A run.json (or API document) ``b`` without the rig rows and the ``rig`` section that
+    the reference ``a`` lacks (``RIG_TOPIC``), in place."""
+    if 'rig' in a or not isinstance(b.get('summary'), list):
+        return
+    b['summary'] = _without_rig_rows(a.get('summary') or [], b['summary'], where, out)
+    b.pop('rig', None)
+
+
 def _compare_folder(ref: Path, new: Path, where: str, out: list[str]) -> None:
     files_ref = {_ref_name(ref, p): p for p in ref.rglob('*') if p.is_file()}
     names_ref = sorted(files_ref)
@@ -494,17 +539,23 @@ def _compare_folder(ref: Path, new: Path, where: str, out: list[str]) -> None:
             rows_b[-1]['<header>'] = ','.join(
                 c for c in header_b if c in header_a or c not in ADDED_COLUMNS
             )
+            if Path(name).name == 'summary.csv':
+                rows_b = _without_rig_rows(rows_a, rows_b, f'{where}/{name}', out)
             _diff(rows_a, rows_b, f'{where}/{name}', out)
         elif Path(name).name == 'run.json':
+            ra = _as_newer(json.loads(a.read_text(encoding='utf-8')))
+            rb = json.loads(b.read_text(encoding='utf-8'))
+            _without_rig(ra, rb, f'{where}/{name}', out)
             _diff(
-                _masked(_with_added_setting(_as_newer(json.loads(a.read_text(encoding='utf-8'))))),
-                _masked(_with_added_setting(json.loads(b.read_text(encoding='utf-8')))),
+                _masked(_with_added_setting(ra)),
+                _masked(_with_added_setting(rb)),
                 f'{where}/{name}',
                 out,
             )
         elif name.endswith('.json'):  # an API result document
             da = _as_newer(json.loads(a.read_text(encoding='utf-8')))
             db = json.loads(b.read_text(encoding='utf-8'))
+            _without_rig(da, db, f'{where}/{name}', out)
             _diff(_frames_records(da), _frames_records(db), f'{where}/{name}:frames', out)
             da, db = _with_added_setting(da), _with_added_setting(db)
             _diff(_masked(da), _masked(db), f'{where}/{name}', out)

@@ -228,12 +228,41 @@ def _sync_lines(run: RunResult) -> list[str]:
     return lines
 
 
+def _rig_lines(run: RunResult) -> list[str]:
+    """A run with a rig: per backend, its rig row's figures and its worst cameras."""
+    if run.rig is None:
+        return []
+    lines = []
+    for rig in run.rig.backends:
+        rate = f'{rig.drop_rate * 100:.1f} %' if rig.drop_rate is not None else 'n/a'
+        p99 = f'{rig.latency_ms_p99:.2f} ms' if rig.latency_ms_p99 is not None else 'n/a'
+        fps = f'{rig.throughput_fps:.1f} FPS' if rig.throughput_fps is not None else 'n/a FPS'
+        worst_p99 = (
+            f'{visible(rig.worst_p99.topic)} {rig.worst_p99.value:.2f} ms'
+            if rig.worst_p99 is not None
+            else 'none measured'
+        )
+        worst_drop = (
+            f'{visible(rig.worst_drop_rate.topic)} {rig.worst_drop_rate.value * 100:.1f} %'
+            if rig.worst_drop_rate is not None
+            else 'no camera dropped a frame'
+        )
+        lines.append(
+            f'rig {visible(rig.backend)}: {len(rig.cameras)} camera(s), {rig.pipelines} '
+            f'pipeline(s) ({run.rig.mode}): {rig.frames} frames, {rig.dropped} dropped ({rate}), '
+            f'p99 {p99}, {fps}; worst p99: {worst_p99}; worst drop rate: {worst_drop}'
+        )
+    return lines
+
+
 def _show_run(outcome: RunOutcome) -> int:
     """Print a finished run (the table, its warnings, the folder); its exit status."""
     from replaybench.backends.gpu import engine_lines
     from replaybench.report.recorded import recorded_latency_lines
 
     _print_summary(outcome.summaries)
+    for line in _rig_lines(outcome.run):
+        echo(line)
     for line, is_warning in recorded_latency_lines(outcome.summaries):
         echo(f'replaybench: warning: {line}' if is_warning else line, err=is_warning)
     for s in outcome.summaries:  # stability of each (backend, topic): intervals need not hold

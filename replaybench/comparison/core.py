@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Literal, NamedTuple
 
 from replaybench.comparison.metric import MetricComparison
@@ -31,6 +31,8 @@ from replaybench.results.bootstrap import (
     replicates,
 )
 from replaybench.results.intervals import interval_rng, measured_series
+from replaybench.results.model.summary import RIG_TOPIC
+from replaybench.results.rig import rig_groups, rig_summary
 from replaybench.results.stats import summarize
 from replaybench.tasks import all_metrics
 
@@ -52,6 +54,8 @@ __all__ = [
     'ACCURACY_METRICS',
     'METRICS',
     'RECORDED_METRICS',
+    'RIG_METRICS',
+    'RIG_POINT_METRICS',
     'TAG_METRICS',
     'TIMING_METRICS',
     'Comparison',
@@ -75,9 +79,18 @@ ACCURACY_METRICS: tuple[str, ...] = tuple(m.name for m in _SPECS if m.accuracy a
 #: backends against tag ground truth; the summary.csv names).
 TAG_METRICS: tuple[str, ...] = tuple(m.name for m in _SPECS if m.accuracy and m.appended)
 
+#: A rig row's metrics (``replaybench.results.rig``): compared and gated on rig rows alone
+#: (topic ``rig``), every other metric on the camera rows alone, so that no frame is judged
+#: twice. ``rig_p99_ms`` as ``p99_ms`` is, over every camera's measured frames; the drop rate
+#: as accuracy is, a difference of point estimates (``RIG_POINT_METRICS``).
+RIG_METRICS: tuple[str, ...] = tuple(m.name for m in _SPECS if m.kind == 'rig')
+RIG_POINT_METRICS: tuple[str, ...] = ('rig_drop_rate',)
+
 #: Every metric, in table order; the recorded outputs' latency (``recorded`` backend rows:
-#: ``comparison.recorded``) last, compared as the timing metrics are.
-METRICS: tuple[str, ...] = TIMING_METRICS + ACCURACY_METRICS + TAG_METRICS + RECORDED_METRICS
+#: ``comparison.recorded``), compared as the timing metrics are, then the rig's.
+METRICS: tuple[str, ...] = (
+    TIMING_METRICS + ACCURACY_METRICS + TAG_METRICS + RECORDED_METRICS + RIG_METRICS
+)
 
 _REPLICATE: dict[str, str] = {'median_ms': 'p50', 'p99_ms': 'p99', 'mean_ms': 'mean', 'fps': 'fps'}
 _SUMMARY: dict[str, str] = {
@@ -178,6 +191,11 @@ def _series(records: Sequence[FrameRecord]) -> dict[tuple[str, str], _Series]:
     for record in records:
         groups.setdefault((record.backend, record.topic), []).append(record)
     summaries = {(s.backend, s.topic): s for s in summarize(records)}
+    # a run with a rig: each backend's rig row over all its cameras' frames
+    for backend, pooled in rig_groups(records).items():
+        cameras = [s for (b, _), s in summaries.items() if b == backend]
+        summaries[backend, RIG_TOPIC] = rig_summary(pooled, cameras)
+        groups[backend, RIG_TOPIC] = pooled
     result: dict[tuple[str, str], _Series] = {}
     for key, group in groups.items():
         # the series run reports take their own intervals from (results.intervals)
@@ -272,6 +290,25 @@ def _accuracy_metric(
         return MetricComparison(metric, value, baseline=base_value if paired else None)
     ratio = value / base_value if base_value > 0 else None
     return MetricComparison(metric, value, None, base_value, ratio, None, value - base_value)
+
+
+def _rig_metric(
+    metric: str,
+    metrics: dict[str, MetricComparison],
+    summary: Summary,
+    base_series: _Series | None,
+    *,
+    paired: bool,
+    rig: bool,
+) -> MetricComparison:
+    """A rig metric of a row: a rig row's p99 as its ``p99_ms`` (the same series, interval and
+    change), its drop rate as a point estimate; nothing on a camera's row."""
+    if not rig:
+        return MetricComparison(metric, None)
+    if metric not in RIG_POINT_METRICS:
+        return replace(metrics['p99_ms'], metric=metric)
+    base = base_series.summary.metric(metric) if base_series is not None else None
+    return _accuracy_metric(metric, summary.metric(metric), base, paired)
 
 
 def _reference(
@@ -431,6 +468,10 @@ def compare_runs(
             for metric in RECORDED_METRICS:
                 metrics[metric] = recorded_metric_parts(
                     metric, rec, base_rec, paired=paired, confidence=confidence
+                )
+            for metric in RIG_METRICS:
+                metrics[metric] = _rig_metric(
+                    metric, metrics, summary, base_series, paired=paired, rig=topic == RIG_TOPIC
                 )
             row = Row(
                 run=run.index,

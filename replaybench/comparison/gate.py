@@ -6,12 +6,19 @@ from __future__ import annotations
 import re
 from typing import TYPE_CHECKING, NamedTuple
 
-from replaybench.comparison.core import METRICS, RECORDED_METRICS, TIMING_METRICS
+from replaybench.comparison.core import (
+    METRICS,
+    RECORDED_METRICS,
+    RIG_METRICS,
+    RIG_POINT_METRICS,
+    TIMING_METRICS,
+)
 from replaybench.comparison.repeats import CAUTION_ADVICE
 from replaybench.comparison.verdict import Verdict, decide, overall, past
 from replaybench.errors import UsageError
 from replaybench.results.blocks import change_interval, point_value
 from replaybench.results.bootstrap import CONFIDENCE
+from replaybench.results.model.summary import RIG_TOPIC
 from replaybench.tasks import all_metrics
 
 if TYPE_CHECKING:
@@ -46,7 +53,8 @@ CONDITION_GRAMMAR = (
     + ' (p50_ms = median_ms), OP one of > >= < <=, and a trailing % for a change relative to the '
     "baseline (else an absolute difference in the metric's unit), "
     "e.g. 'p99_ms > +10%', 'fps < -10%', 'map50 < -0.02', 'miou < -0.01', "
-    "'recorded_pipeline_ms > +10%'"
+    "'recorded_pipeline_ms > +10%', 'rig_p99_ms > +10%', 'rig_drop_rate > +0.01' (the rig "
+    'metrics are judged on rig rows, the others on camera rows)'
 )
 
 _PATTERN = re.compile(
@@ -262,7 +270,7 @@ def _judge(
             verdict,
             method,
         )
-    accuracy = _SPECS[condition.metric].accuracy
+    accuracy = _SPECS[condition.metric].accuracy or condition.metric in RIG_POINT_METRICS
     threshold = condition.describe()
     point_past = past(est, condition.op, condition.threshold)
     past_text = 'past' if point_past else 'not past'
@@ -271,7 +279,8 @@ def _judge(
         why = (
             f'strict: the point estimate is {past_text} {threshold}'
             if strict
-            else f'accuracy has no CI: the point estimate is {past_text} {threshold}'
+            else f'{"a drop rate" if condition.metric in RIG_POINT_METRICS else "accuracy"} '
+            f'has no CI: the point estimate is {past_text} {threshold}'
         )
     else:
         verdict = decide(est, ci, condition.op, condition.threshold)
@@ -340,10 +349,12 @@ def evaluate_gate(
     parsed = [parse_condition(c) for c in conditions]
     candidates = [r for r in comparison.rows if r.role == 'candidate']
     level = round(comparison.confidence * 100)
+    # a rig metric on the rig rows, every other on the camera rows: no frame judged twice
     return [
         _judge(row, comparison.baseline_row(row), condition, strict, level)
         for condition in parsed
         for row in candidates
+        if (row.topic == RIG_TOPIC) == (condition.metric in RIG_METRICS)
     ]
 
 

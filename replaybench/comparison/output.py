@@ -11,6 +11,8 @@ from replaybench._version import __version__
 from replaybench.comparison.core import (
     ACCURACY_METRICS,
     RECORDED_METRICS,
+    RIG_METRICS,
+    RIG_POINT_METRICS,
     TAG_METRICS,
     TIMING_METRICS,
 )
@@ -79,6 +81,12 @@ CSV_COLUMNS: tuple[str, ...] = (
     'recorded_ci_method',
     'recorded_outputs',
     'recorded_latency_note',
+    # a rig row's metrics (appended likewise; empty on camera rows)
+    *(
+        m + s
+        for m in RIG_METRICS
+        for s in (_ACCURACY_SUFFIXES if m in RIG_POINT_METRICS else _TIMING_SUFFIXES)
+    ),
 )
 
 
@@ -123,7 +131,8 @@ def csv_rows(comparison: Comparison, gate: Sequence[GateResult] = ()) -> list[di
             'recorded_outputs': row.recorded_outputs,
             'recorded_latency_note': row.recorded_note or None,
         }
-        for metric in (*TIMING_METRICS, *RECORDED_METRICS):
+        timed = [m for m in RIG_METRICS if m not in RIG_POINT_METRICS]
+        for metric in (*TIMING_METRICS, *RECORDED_METRICS, *timed):
             m = row.metrics[metric]
             ci = m.ratio_ci
             record[metric] = m.value
@@ -133,7 +142,7 @@ def csv_rows(comparison: Comparison, gate: Sequence[GateResult] = ()) -> list[di
             record[f'{metric}_ci_low'] = ci[0] if ci else None
             record[f'{metric}_ci_high'] = ci[1] if ci else None
             record[f'{metric}_significant'] = _yes_no(m.significant)
-        for metric in (*ACCURACY_METRICS, *TAG_METRICS):
+        for metric in (*ACCURACY_METRICS, *TAG_METRICS, *RIG_POINT_METRICS):
             m = row.metrics[metric]
             record[metric] = m.value
             record[f'{metric}_baseline'] = m.baseline

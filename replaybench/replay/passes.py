@@ -226,6 +226,11 @@ class Pass:
             if pipelines is not None and len(names) > 1
             else {}
         )
+        # frames.csv's ``pipeline``: the index of the instance serving each topic among the
+        # backend's instances (the run's camera topics' order); a topic served by ``backend``
+        # alone is pipeline 0
+        order = list(pipelines or ())
+        self.pipeline_of: dict[str, int] = {name: order.index(name) for name in self.pipelines}
 
     def run(self) -> None:
         """The pass at the run's rate, after warming up the topics too short for warm-up

@@ -245,7 +245,9 @@ class _Sweep:
         outcome = self.run(Rate('max'), _PROBE_DIR)
         if self.interrupted:
             raise _InterruptedError
-        rates = [s.throughput_fps for s in outcome.summaries if s.throughput_fps]
+        rates = [
+            s.throughput_fps for s in outcome.summaries if s.throughput_fps and s.topic != 'rig'
+        ]
         return min(rates) if rates else None
 
     def trial(self, hz: float, *, again: bool = False) -> Trial:

@@ -35,6 +35,7 @@ from replaybench.results.model import (
     TopicMeta,
 )
 from replaybench.results.recorded_latency import with_recorded_latency
+from replaybench.results.rig import rig_report, with_rig_rows
 from replaybench.results.runfolder import OUTPUTS_MCAP
 from replaybench.results.stats import Summary, repeat_statistics, summarize
 
@@ -58,7 +59,8 @@ def summaries(recorder: Recorder, resources: Mapping[str, Mapping[str, Any]]) ->
     truth (``accuracy``), its task's figures (``TaskRecording.summary``), its
     backend's resource use (``resources``, by label, as ``ResourceSampler.summary()`` gives
     it), its intervals and warnings, and, for a backend replaying recorded outputs, their
-    latency from the recording (``with_recorded_latency``)."""
+    latency from the recording (``with_recorded_latency``); a run with a rig gets each
+    backend's rig row after its camera rows (``with_rig_rows``)."""
     out: list[Summary] = []
     for s in summarize(recorder.records):
         scored = recorder.scored.get((s.backend, s.topic))
@@ -87,7 +89,10 @@ def summaries(recorder: Recorder, resources: Mapping[str, Mapping[str, Any]]) ->
         s = _with_tasks(s, recorder)
         out.append(s)
     rows = with_intervals(out, recorder.records, resources=resources)
-    return with_recorded_latency(rows, recorder.records)
+    rows = with_recorded_latency(rows, recorder.records)
+    # a run replaying several camera topics of an input: each backend's rig row after its
+    # cameras' (replaybench.results.rig)
+    return with_rig_rows(rows, recorder.records)
 
 
 def accuracy(recorder: Recorder, scored: Mapping[TruthKey, tuple[Detection, ...]]) -> Accuracy:
@@ -142,6 +147,14 @@ def _task_fields(recorder: Recorder) -> dict[str, Any]:
     for recording in recorder.task_recordings():
         found.update(recording.run_fields())
     return found
+
+
+def _cores() -> int:
+    """The cores this process may run on (run.json's ``rig.cores``)."""
+    import os
+
+    found = len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else os.cpu_count()
+    return max(1, found or 1)
 
 
 def _number(value: Any) -> float | None:
@@ -230,6 +243,13 @@ def run_result(
     from replaybench.results.records import as_written
 
     records = recorder.records
+    rig = rig_report(
+        summary,
+        records,
+        mode=config.pipelines,
+        cores=pipelines.cores if pipelines is not None else _cores(),
+        threads=config.threads,
+    )
     return RunResult(
         schema_version=RUN_SCHEMA_VERSION,
         tool=Tool(name='replaybench', version=__version__),
@@ -288,5 +308,6 @@ def run_result(
         if config.out_dir is not None
         else None,
         frame_records=tuple(as_written(r) for r in records),
+        rig=rig,
         **_task_fields(recorder),
     )

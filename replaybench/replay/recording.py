@@ -236,6 +236,7 @@ class Recorder:
                 queue_wait_ms=None if dropped else entry.queue_wait_s * 1e3,
                 read_decode_ms=None if dropped else entry.read_decode_s * 1e3,
                 repeat=done.repeat,
+                pipeline=done.pipeline_of.get(topic, 0),
             )
         )
 
@@ -303,6 +304,7 @@ class Recorder:
                 output_log_time_ns=recorded.output_log_time_ns,
                 capture_to_output_ms=recorded.capture_to_output_ms,
                 pipeline_ms=recorded.pipeline_ms,
+                pipeline=done.pipeline_of.get(topic, 0),
                 **task_columns,
             )
         )

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from replaybench.results.model import SummaryRow
     from replaybench.results.records import FrameRecord
 
-__all__ = ['CHART_PIXELS', 'plots_html']
+__all__ = ['CHART_PIXELS', 'latency_timeline', 'plots_html']
 
 CHART_PIXELS = 640  # plot-area width of the default 720 px charts
 
@@ -58,11 +58,13 @@ def _median(values: Sequence[float]) -> float:
     return ordered[mid] if len(ordered) % 2 else (ordered[mid - 1] + ordered[mid]) / 2
 
 
-def _latency_timeline(
+def latency_timeline(
     topic: str,
     groups: Mapping[str, Sequence[FrameRecord]],
     colours: Mapping[str, str],
 ) -> str:
+    """The chart of latency over release time, one line per group (a backend's frames of
+    ``topic``; the Rig section's: a camera's of one backend), dropped frames marked."""
     series: list[Series] = []
     marks: list[Marks] = []
     warm: list[tuple[float, float]] = []
@@ -243,7 +245,7 @@ def plots_html(
         if not groups:
             continue
         parts.append(
-            f'<div class="charts">{_latency_timeline(topic, groups, colours)}'
+            f'<div class="charts">{latency_timeline(topic, groups, colours)}'
             f'{_latency_cdf(topic, groups, colours)}</div>',
         )
     many_topics = len(topics) > 1

@@ -29,6 +29,7 @@ from replaybench.report.page import page_html
 from replaybench.report.plots import plots_html
 from replaybench.report.recorded import recorded_latency_html
 from replaybench.report.resources import resources_html
+from replaybench.report.rig import rig_html
 from replaybench.report.summary import summary_html
 from replaybench.report.svg import colour
 from replaybench.report.taskviews import report_parts
@@ -36,6 +37,7 @@ from replaybench.results.atomic import write_text_atomic
 from replaybench.results.folder import load_run
 from replaybench.results.intervals import with_intervals
 from replaybench.results.recorded_latency import with_recorded_latency
+from replaybench.results.rig import is_rig, with_rig_rows
 from replaybench.results.stats import summarize
 
 if TYPE_CHECKING:
@@ -75,7 +77,8 @@ def _summary_rows(run: RunResult, frames: Sequence[FrameRecord]) -> list[Summary
     resource samples)."""
     if run.summary_rows:
         return list(run.summary_rows)
-    return with_recorded_latency(with_intervals(summarize(frames), frames), frames)
+    rows = with_recorded_latency(with_intervals(summarize(frames), frames), frames)
+    return with_rig_rows(rows, frames)
 
 
 # --------------------------------------------------------------------------- header
@@ -85,19 +88,22 @@ def render_html(data: RunData) -> str:
     """The report page of a loaded run folder."""
     run, frames = data.run, data.frames
     rows = _summary_rows(run, frames)
+    # the rig rows (all of a backend's cameras) are in the Summary table and the Rig section;
+    # the per-topic parts (headlines, charts, the tasks' panels) take the camera rows only
+    cameras = [r for r in rows if not is_rig(r)]
     backends = _backend_order(run, frames)
     for row in rows:
         backend = row.backend or '?'
         if backend not in backends:
             backends.append(backend)
     colours = {b: colour(i) for i, b in enumerate(backends)}
-    topics = _topic_order(frames, rows)
+    topics = _topic_order(frames, cameras)
     status = run.status
     parts = report_parts()
     body = [
         header_html(run),
-        banner_html(run, frames, rows),
-        headline_html(run, rows, frames),
+        banner_html(run, frames, cameras),
+        headline_html(run, cameras, frames),
         '<div class="cards">',
         inputs_html(run),
         environment_html(run.environment),
@@ -105,10 +111,11 @@ def render_html(data: RunData) -> str:
         '</div>',
         '<h2 id="summary">Summary</h2>',
         summary_html(rows, colours, parts),
-        *(panel(rows) for panel in parts.summary_panels),
-        recorded_latency_html(rows, frames, colours),
-        *(section(rows) for section in parts.sections),
-        plots_html(frames, rows, backends, topics, colours),
+        *(panel(cameras) for panel in parts.summary_panels),
+        recorded_latency_html(cameras, frames, colours),
+        *(section(cameras) for section in parts.sections),
+        plots_html(frames, cameras, backends, topics, colours),
+        rig_html(run, frames),
         agreement_html(run, colours),
         resources_html(run, colours),
         samples_html(run, data.dir),

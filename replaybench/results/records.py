@@ -89,6 +89,10 @@ class FrameRecord(NamedTuple):
     tag_corner_rmse_px: float | None = None
     tag_trans_err_m: float | None = None
     tag_rot_err_deg: float | None = None
+    #: which of the backend's pipelines served the frame: 0 for a shared run (one instance
+    #: serves every camera topic); with ``--pipelines per-topic`` the index of the camera
+    #: topic's instance, in the order of the run's camera topics (run.json's ``rig`` section)
+    pipeline: int = 0
 
 
 FRAMES_CSV_COLUMNS: tuple[str, ...] = FrameRecord._fields
@@ -97,7 +101,16 @@ _TAG_INT_FIELDS = frozenset({'tags', 'tag_truth', 'tag_matched', 'tag_wrong_ids'
 _TAG_FIELDS = _TAG_INT_FIELDS | {'tag_corner_rmse_px', 'tag_trans_err_m', 'tag_rot_err_deg'}
 _INT_FIELDS = (
     frozenset(
-        {'input', 'seq', 'log_time_ns', 'stamp_ns', 'detections', 'repeat', 'output_log_time_ns'}
+        {
+            'input',
+            'seq',
+            'log_time_ns',
+            'stamp_ns',
+            'detections',
+            'repeat',
+            'output_log_time_ns',
+            'pipeline',
+        }
     )
     | _TAG_INT_FIELDS
 )
@@ -135,7 +148,14 @@ _COLUMNS_BEFORE_DEVICE_TIMES = FRAMES_CSV_COLUMNS[:22]
 #: The columns of frames.csv files written before the ``repeat``, segmentation and
 #: recorded-output columns.
 _COLUMNS_BEFORE_REPEAT = FRAMES_CSV_COLUMNS[:27]
-_KNOWN_HEADERS = (FRAMES_CSV_COLUMNS, _COLUMNS_BEFORE_DEVICE_TIMES, _COLUMNS_BEFORE_REPEAT)
+#: The columns of frames.csv files written before the ``pipeline`` column.
+_COLUMNS_BEFORE_PIPELINE = FRAMES_CSV_COLUMNS[: FRAMES_CSV_COLUMNS.index('pipeline')]
+_KNOWN_HEADERS = (
+    FRAMES_CSV_COLUMNS,
+    _COLUMNS_BEFORE_DEVICE_TIMES,
+    _COLUMNS_BEFORE_REPEAT,
+    _COLUMNS_BEFORE_PIPELINE,
+)
 
 
 def _float_format(name: str) -> str:
@@ -225,7 +245,7 @@ def _scores(values: list[float | None]) -> str:
     )
 
 
-_TAG_CELLS = _CELLS[FRAMES_CSV_COLUMNS.index('tags') :]
+_TAG_CELLS = _CELLS[FRAMES_CSV_COLUMNS.index('tags') : FRAMES_CSV_COLUMNS.index('pipeline')]
 _NO_TAGS = ',' * len(_TAG_CELLS)
 
 
@@ -268,7 +288,8 @@ def _line(record: FrameRecord) -> str:
         detections,
         *rest,
     ) = record
-    device, repeat, scores, recorded, tagged = rest[:5], rest[5], rest[6:8], rest[8:11], rest[11:]
+    device, repeat, scores, recorded = rest[:5], rest[5], rest[6:8], rest[8:11]
+    tagged, pipeline = rest[11:19], rest[19]
     stages = [preprocess_ms, infer_ms, postprocess_ms, h2d_ms, d2h_ms]
     if (
         latency_ms is not None
@@ -305,7 +326,7 @@ def _line(record: FrameRecord) -> str:
                     f'{quoted.get(status) or _quote(status)},{quoted.get(note) or _quote(note)},'
                     f'{"1" if warmup else "0"},{"1" if dropped else "0"},{times},{staged},'
                     f'{latency},{detections:d},{on_device},{repeat:d},{_scores(scores)},,,'
-                    f'{_tag_cells(tagged)}\r\n'
+                    f'{_tag_cells(tagged)},{pipeline:d}\r\n'
                 )
             except ValueError:  # an int cell holding something else
                 pass
@@ -483,7 +504,7 @@ def read_frames_csv(path: str | Path) -> list[FrameRecord]:
 
     A frames.csv from before the ``*_device_ms`` columns, or before the recorded-output ones
     (``output_log_time_ns``, ``capture_to_output_ms``, ``pipeline_ms``), reads with them empty
-    (None).
+    (None); one from before the ``pipeline`` column reads as pipeline 0 (a shared run's).
     """
     path = Path(path)
     try:
@@ -494,9 +515,11 @@ def read_frames_csv(path: str | Path) -> list[FrameRecord]:
             if columns not in _KNOWN_HEADERS:
                 msg = f'{path}: not a frames.csv (header does not match the expected columns)'
                 raise SourceError(msg) from None
-            # an older file's absent columns: pass 0 of one, the rest empty
+            # an older file's absent columns: pass 0 of one, pipeline 0 (one shared
+            # instance), the rest empty
             missing = [
-                '0' if name == 'repeat' else '' for name in FRAMES_CSV_COLUMNS[len(columns) :]
+                '0' if name in {'repeat', 'pipeline'} else ''
+                for name in FRAMES_CSV_COLUMNS[len(columns) :]
             ]
             records = []
             for cells in reader:

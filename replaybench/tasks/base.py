@@ -41,8 +41,10 @@ _V = TypeVar('_V')
 
 #: ``timing``: a latency or a rate of the replay, compared as a ratio with an interval;
 #: ``recorded``: the latency a recording's outputs had on the robot, compared as timings are;
-#: ``accuracy``: a figure against ground truth, compared as a difference of point estimates.
-MetricKind = Literal['timing', 'recorded', 'accuracy']
+#: ``accuracy``: a figure against ground truth, compared as a difference of point estimates;
+#: ``rig``: a figure of a rig row (all of a backend's cameras, ``replaybench.results.rig``),
+#: compared and gated on rig rows only.
+MetricKind = Literal['timing', 'recorded', 'accuracy', 'rig']
 #: Which way the metric improves.
 Better = Literal['higher', 'lower']
 #: Where ``replaybench run``'s table shows a task's metrics (those with a ``terminal_label``):

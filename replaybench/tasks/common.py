@@ -13,8 +13,9 @@ def _recorded(name: str, label: str, short_label: str) -> MetricSpec:
     )
 
 
-#: In table order: the replay's timings, then the recorded outputs' latency
-#: (``replaybench.comparison.recorded``).
+#: In table order: the replay's timings, the recorded outputs' latency
+#: (``replaybench.comparison.recorded``), then a rig row's figures (a run replaying several
+#: camera topics of an input: ``replaybench.results.rig``).
 COMMON_METRICS: tuple[MetricSpec, ...] = (
     MetricSpec(
         'median_ms',
@@ -70,4 +71,8 @@ COMMON_METRICS: tuple[MetricSpec, ...] = (
         'recorded p99 capture-to-output latency',
         'recorded capture p99 ms',
     ),
+    MetricSpec(
+        'rig_p99_ms', 'rig p99 latency', 'rig p99 ms', 'lower', kind='rig', unit='ms', fmt='.4g'
+    ),
+    MetricSpec('rig_drop_rate', 'rig drop rate', 'rig drop rate', 'lower', kind='rig', fmt='.4f'),
 )

@@ -266,7 +266,13 @@ def test_every_exporter_carries_the_recorded_metrics(runs: dict[str, Path], tmp_
         rows = [dict(zip(header, r, strict=True)) for r in reader]
     assert tuple(header) == CSV_COLUMNS
     assert header.index('tag_rot_err_deg_delta') < header.index('recorded_pipeline_ms')
-    assert header[-3:] == ['recorded_ci_method', 'recorded_outputs', 'recorded_latency_note']
+    rig = header.index('rig_p99_ms')  # the rig's columns appended after them
+    assert header[rig - 3 : rig] == [
+        'recorded_ci_method',
+        'recorded_outputs',
+        'recorded_latency_note',
+    ]
+    assert header[-3:] == ['rig_drop_rate', 'rig_drop_rate_baseline', 'rig_drop_rate_delta']
     [record] = [r for r in rows if r['role'] == 'candidate' and r['backend'] == 'recorded']
     assert float(record['recorded_pipeline_ms_ratio']) == pytest.approx(pipe.ratio, rel=1e-5)
     assert pipe.ratio_ci is not None

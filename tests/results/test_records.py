@@ -63,7 +63,7 @@ def test_columns_are_in_the_documented_order() -> None:
         'postprocess_device_ms', 'h2d_device_ms', 'd2h_device_ms', 'repeat', 'miou',
         'pixel_accuracy', 'output_log_time_ns', 'capture_to_output_ms', 'pipeline_ms',
         'tags', 'tag_truth', 'tag_matched', 'tag_wrong_ids', 'tag_phantoms', 'tag_corner_rmse_px',
-        'tag_trans_err_m', 'tag_rot_err_deg',
+        'tag_trans_err_m', 'tag_rot_err_deg', 'pipeline',
     )  # fmt: skip
 
 
@@ -255,5 +255,25 @@ def test_a_plain_ok_row_takes_the_one_format_path() -> None:
     )
     assert _line(record) == (
         '0,hsv,/cam/image_raw,3,10,10,ok,,0,0,0.500000,0.500000,0.510000,0.0000,1.2500,'
-        ',2.5000,,,,3.7500,2,,,,,,0,,,,,,,,,,,,,\r\n'
+        ',2.5000,,,,3.7500,2,,,,,,0,,,,,,,,,,,,,,0\r\n'
     )
+    assert _line(record._replace(pipeline=3)).endswith(',,,,,,,,,3\r\n')
+    buffer = io.StringIO()
+    csv_writer(buffer).writerow(_row(record._replace(pipeline=3)))
+    assert _line(record._replace(pipeline=3)) == buffer.getvalue()
+
+
+def test_a_frames_csv_without_the_pipeline_column_reads_as_pipeline_0(tmp_path: Path) -> None:
+    path = tmp_path / 'frames.csv'
+    with FramesCsvWriter(path) as writer:
+        writer.write_many([_ok(0, pipeline=2), _ok(1, topic='/b', pipeline=1)])
+    assert [r.pipeline for r in read_frames_csv(path)] == [2, 1]
+    with path.open(newline='', encoding='utf-8') as file:
+        rows = list(csv.reader(file))
+    assert rows[0][-1] == 'pipeline'
+    older = tmp_path / 'older.csv'
+    with older.open('w', newline='', encoding='utf-8') as file:
+        csv_writer(file).writerows([row[:-1] for row in rows])
+    read = read_frames_csv(older)
+    assert [r.pipeline for r in read] == [0, 0]
+    assert [r._replace(pipeline=0) for r in read_frames_csv(path)] == read

@@ -15,7 +15,7 @@ import pytest
 from replaybench.app.sweep.record import CSV_COLUMNS as SWEEP_CSV_COLUMNS
 from replaybench.app.sweep.record import SWEEP_METRICS
 from replaybench.comparison import ACCURACY_METRICS, METRICS, RECORDED_METRICS, TIMING_METRICS
-from replaybench.comparison.core import TAG_METRICS
+from replaybench.comparison.core import RIG_METRICS, TAG_METRICS
 from replaybench.comparison.output import CSV_COLUMNS as COMPARISON_CSV_COLUMNS
 from replaybench.errors import TaskUnavailableError, UsageError
 from replaybench.results.columns import TAG_SUMMARY_COLUMNS
@@ -191,7 +191,11 @@ def test_every_metric_compare_knows_comes_from_a_spec_in_table_order() -> None:
     assert all(specs[m].kind == 'recorded' for m in RECORDED_METRICS)
     assert all(specs[m].accuracy and not specs[m].appended for m in ACCURACY_METRICS)
     assert all(specs[m].accuracy and specs[m].appended for m in TAG_METRICS)
-    assert METRICS == TIMING_METRICS + ACCURACY_METRICS + TAG_METRICS + RECORDED_METRICS
+    assert RIG_METRICS == ('rig_p99_ms', 'rig_drop_rate')
+    assert all(specs[m].kind == 'rig' for m in RIG_METRICS)
+    assert METRICS == (
+        TIMING_METRICS + ACCURACY_METRICS + TAG_METRICS + RECORDED_METRICS + RIG_METRICS
+    )
     # comparison.csv: the appended accuracy metrics after ``flags``
     flags = COMPARISON_CSV_COLUMNS.index('flags')
     assert COMPARISON_CSV_COLUMNS.index(f'{ACCURACY_METRICS[-1]}_delta') < flags

@@ -60,6 +60,7 @@ from replaybench.results.model.peak import (
     PeakStart,
     PeakTrial,
 )
+from replaybench.results.model.rig import RigBackend, RigCamera, RigReport, WorstCamera
 from replaybench.results.model.run import (
     RUN_SCHEMA_VERSION,
     BackendFailure,
@@ -116,6 +117,9 @@ __all__ = [
     'ResourcePoint',
     'ResourceSummary',
     'Resources',
+    'RigBackend',
+    'RigCamera',
+    'RigReport',
     'RunCounts',
     'RunOutputs',
     'RunResult',
@@ -128,6 +132,7 @@ __all__ = [
     'SyncTopic',
     'Tool',
     'TopicMeta',
+    'WorstCamera',
 ]
 
 

@@ -14,6 +14,7 @@ from replaybench.results.model.common import (
     empty_mapping,
 )
 from replaybench.results.model.detections import AgreementRow
+from replaybench.results.model.rig import RigReport
 from replaybench.results.model.segmentation import SegmentationAgreementRow
 from replaybench.results.model.summary import RepeatStats, SummaryRow
 from replaybench.results.model.sync import SyncReport
@@ -258,6 +259,9 @@ class RunResult:
     repeats: tuple[RepeatStats, ...] | None = field(default=None, metadata=OMIT_NONE)
     #: ``--sync``: the synchronised frame sets and each topic's unpaired frames; absent without
     sync: SyncReport | None = field(default=None, metadata=OMIT_NONE)
+    #: a run replaying several camera topics of an input: each backend's rig (its cameras,
+    #: the pipelines that served them, its worst cameras; docs/rigs.md); absent otherwise
+    rig: RigReport | None = field(default=None, metadata=OMIT_NONE)
     #: frames.csv's rows as the file holds them (not in run.json): set by ``replaybench.run``
     #: and ``replaybench.load_run``, None on a RunResult read from run.json alone
     frame_records: tuple[FrameRecord, ...] | None = field(

@@ -17,7 +17,14 @@ from replaybench.results.model.detections import Accuracy
 from replaybench.results.model.segmentation import SegmentationSummary
 from replaybench.results.model.tags import TagAccuracy
 
-__all__ = ['RepeatStats', 'SummaryRow']
+__all__ = ['RIG_METRICS', 'RIG_TOPIC', 'RepeatStats', 'SummaryRow']
+
+#: The topic of a backend's rig row: all its camera topics of a run replaying several
+#: (``replaybench.results.rig``); no camera topic of a ROS bag is named without a leading ``/``
+RIG_TOPIC = 'rig'
+#: The metrics only a rig row has (``SummaryRow.metric``): its p99 latency over all the
+#: cameras' measured frames, and its dropped frames over its frames
+RIG_METRICS: tuple[str, ...] = ('rig_p99_ms', 'rig_drop_rate')
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,7 +125,14 @@ class SummaryRow:
         """The row's value of the metric ``name`` (a ``MetricSpec.name``): its field of that
         name, else its entry in ``task_metrics``; None where the row has none (a row of another
         task's backend) or the value is not finite. The one place that knows where a row keeps
-        a task's metric."""
+        a task's metric, and of the rig metrics (``RIG_METRICS``), which only a rig row
+        (topic ``rig``) has."""
+        if name in RIG_METRICS:  # a rig row's alone: None on a camera's row
+            if self.topic != RIG_TOPIC:
+                return None
+            if name == 'rig_p99_ms':
+                return self.metric('latency_ms_p99')
+            return self.dropped / self.frames if self.frames else None
         found = getattr(self, name, None) if name in _FIELDS else None
         if found is None and self.task_metrics is not None:
             found = self.task_metrics.get(name)

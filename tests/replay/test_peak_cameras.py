@@ -263,3 +263,37 @@ def test_bad_input_for_a_camera_search_is_one_usage_error(rig: Path, tmp_path: P
     )
     with pytest.raises(UsageError, match='no camera of the bag holds two frames'):
         _search(single, None, 0.005)
+
+
+def test_the_command_line_prints_the_copies_sustained_and_the_prediction(
+    one_camera: Path, tmp_path: Path
+) -> None:
+    from typer.testing import CliRunner
+
+    from replaybench.cli import app
+
+    out = tmp_path / 'peak'
+    args = ['peak', str(one_camera), '--backend', 'null', '--cameras', '--max-copies', '2']
+    result = CliRunner().invoke(app, [*args, '--trial-frames', '20', '--out', str(out)])
+    assert result.exit_code == 0, result.output
+    peak = read_peak_result(out)
+    rig = peak.cameras
+    assert rig is not None
+    # what the machine gave is its own; the lines say it as peak.json records it
+    assert f'null: sustains {rig.copies or 0} x this rig (1 camera at 30 Hz)' in result.output
+    assert f'predicted at most {rig.predicted_copies} x' in result.output
+    assert rig.max_copies == 2
+    assert all(t.copies in (1, 2) for t in peak.trial_rows)
+    html = (out / 'peak.html').read_text(encoding='utf-8')
+    assert f'Sustains {rig.copies or 0} × this rig' in html
+    assert '<th class="n">copies</th>' in html
+    assert 'Dropped frames vs copies' in html
+
+
+def test_rate_limits_with_cameras_are_refused_in_one_line(one_camera: Path) -> None:
+    from replaybench.app.peak import peak_config
+
+    with pytest.raises(UsageError, match=r'--max-hz, --refine-steps limit\(s\) a rate search'):
+        peak_config(one_camera, backend='null', cameras=True, max_hz=50.0, refine_steps=2)
+    config = peak_config(one_camera, backend='null', cameras=True, max_copies=4)
+    assert (config.cameras, config.max_copies) == (True, 4)

@@ -17,7 +17,7 @@ and deleted after its trial.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from replaybench.errors import UsageError
 
@@ -137,7 +137,7 @@ def write_copies(bag: Path, path: Path, copies: int, rig: CameraSet, frames: int
     channels: dict[str, int] = {}
     sequences: dict[int, int] = {}
     with path.open('wb') as stream:
-        writer = Writer(stream, chunk_size=1 << 20, compression=CompressionType.NONE)
+        writer: Any = Writer(stream, chunk_size=1 << 20, compression=CompressionType.NONE)
         writer.start(profile='', library='replaybench peak --cameras')
         for log_time, j, i in order:
             message = one[i]

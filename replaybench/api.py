@@ -188,6 +188,8 @@ def peak(
     report: bool = True,
     progress: Callable[[Trial], None] | None = None,
     stop: threading.Event | None = None,
+    cameras: bool = False,
+    max_copies: int = 32,
     **options: Any,
 ) -> PeakResult:
     """The highest fixed rate at which ``backend`` keeps up with ``input``, as ``replaybench
@@ -198,6 +200,8 @@ def peak(
     options of ``replaybench peak`` (``config=``, ``model=``, ``device=``, ...).
     ``progress(trial)`` is called after each trial. Returns the ``PeakResult`` (peak.json's
     contents) with ``peak_hz`` and ``trials``, a pandas DataFrame (``rate_hz``, ``ok``, ...).
+    ``cameras``: instead of a rate, the most copies of the bag's camera set sustained at the
+    recorded rate, at most ``max_copies`` (``PeakResult.cameras``, docs/rigs.md).
     """
     from replaybench.app.peak import peak_config, run_peak
 
@@ -215,6 +219,8 @@ def peak(
         threads=threads,
         force=force,
         report=report,
+        cameras=cameras,
+        max_copies=max_copies,
         **options,
     )
     record = run_peak(settings, progress=progress, stop=stop).record

@@ -4,7 +4,8 @@ report, then peak.json and peak.html.
 The search itself (start rate, coarse search, bisection, confirmation; ``peak_rule``) is the
 engine's, ``replaybench.replay.peak``; this layer adds peak.html (``replaybench.report``).
 The command line and ``replaybench.peak`` both parse their options into a ``PeakConfig``
-(``peak_config``) and search with ``run_peak``.
+(``peak_config``) and search with ``run_peak``: the rate, or with ``cameras`` the copies of the
+bag's camera set sustained at the recorded rate (``replaybench.replay.cameras``).
 """
 
 from __future__ import annotations
@@ -13,6 +14,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from replaybench.errors import UsageError
+from replaybench.replay.cameras import MAX_COPIES
+from replaybench.replay.cameras import find_peak_cameras as search_peak_cameras
 from replaybench.replay.peak import (
     CONFIRM_TRIALS,
     DEFAULT_TRIAL_FRAMES,
@@ -38,12 +42,14 @@ if TYPE_CHECKING:
 __all__ = [
     'CONFIRM_TRIALS',
     'DEFAULT_TRIAL_FRAMES',
+    'MAX_COPIES',
     'MAX_DOUBLINGS',
     'MIN_TRIAL_FRAMES',
     'PEAK_SCHEMA_VERSION',
     'PeakConfig',
     'PeakResult',
     'Trial',
+    'find_peak_cameras',
     'find_peak_rate',
     'peak_config',
     'peak_rule',
@@ -68,6 +74,16 @@ def find_peak_rate(
     return search_peak_rate(bag, backend, out_dir, report=report, render_report=_render, **options)
 
 
+def find_peak_cameras(
+    bag: Path, backend: str, out_dir: Path | None, *, report: bool = True, **options: Any
+) -> PeakResult:
+    """``replaybench.replay.cameras.find_peak_cameras`` (the options are its own) with
+    peak.html written beside peak.json when ``report``."""
+    return search_peak_cameras(
+        bag, backend, out_dir, report=report, render_report=_render, **options
+    )
+
+
 @dataclass(frozen=True, slots=True)
 class PeakConfig:
     """``replaybench peak``'s options, checked (``peak_config``): what ``run_peak`` searches."""
@@ -89,6 +105,9 @@ class PeakConfig:
     threads: int | None = None
     #: the command line recorded in peak.json and each trial's run.json
     command: tuple[str, ...] = ()
+    #: --cameras: search the copies of the camera set sustained at the recorded rate
+    cameras: bool = False
+    max_copies: int = MAX_COPIES
 
 
 def peak_config(
@@ -104,6 +123,8 @@ def peak_config(
     refine_steps: int = 4,
     force: bool = False,
     command: Sequence[str] = (),
+    cameras: bool = False,
+    max_copies: int = MAX_COPIES,
     **options: Any,
 ) -> PeakConfig:
     """The ``PeakConfig`` of ``replaybench peak``'s options: each keyword is the flag of the
@@ -111,7 +132,9 @@ def peak_config(
     ``RunOptions`` fields marked ``peak``: ``topics``, ``threads``, ``report``, and the backend
     options ``config``, ``model``, ``conf``, ``device``, ``engine``, ...). Raises ``UsageError``
     naming the option for a value out of range, before anything runs; ``TypeError`` for a
-    keyword that is not an option of peak."""
+    keyword that is not an option of peak. ``cameras`` searches copies of the camera set at
+    the recorded rate: the rate limits (``min_hz``, ``max_hz``, ``refine_steps``) are then
+    refused when not at their defaults."""
     from replaybench.app.options import option_specs, run_options
 
     takes = {name for name, spec, _ in option_specs() if spec.peak}
@@ -123,6 +146,25 @@ def peak_config(
         )
         raise TypeError(msg)
     check_search(max_drop, p99_ms, trial_frames, min_hz, max_hz, refine_steps)
+    if cameras:
+        given = [
+            flag
+            for flag, value, default in (
+                ('--min-hz', min_hz, 1.0),
+                ('--max-hz', max_hz, None),
+                ('--refine-steps', refine_steps, 4),
+            )
+            if value != default
+        ]
+        if given:
+            msg = (
+                f'{", ".join(given)} limit(s) a rate search; --cameras replays the cameras at '
+                'their recorded rate and searches the copies (bound them with --max-copies)'
+            )
+            raise UsageError(msg)
+    if max_copies < 1:
+        msg = f'--max-copies must be at least 1, not {max_copies}'
+        raise UsageError(msg)
     checked = run_options(**options)
     return PeakConfig(
         input=Path(input),
@@ -140,6 +182,8 @@ def peak_config(
         report=checked.report,
         threads=checked.threads,
         command=tuple(command),
+        cameras=cameras,
+        max_copies=max_copies,
     )
 
 
@@ -152,6 +196,24 @@ def run_peak(
     """Search ``config``'s peak rate; peak.json (and peak.html unless ``config.report`` is
     False) written into ``config.out`` when it is set. ``progress(trial)`` after each trial;
     setting ``stop`` ends the search as interrupted."""
+    if config.cameras:
+        return find_peak_cameras(
+            config.input,
+            config.backend,
+            config.out,
+            report=config.report,
+            options=config.options,
+            topics=list(config.topics) or None,
+            max_drop=config.max_drop,
+            p99_bound_ms=config.p99_bound_ms,
+            trial_frames=config.trial_frames,
+            max_copies=config.max_copies,
+            force=config.force,
+            threads=config.threads,
+            command=config.command,
+            progress=progress,
+            stop=stop,
+        )
     return find_peak_rate(
         config.input,
         config.backend,

@@ -45,12 +45,25 @@ def peak(
     refine_steps: Annotated[
         int, typer.Option('--refine-steps', min=0, help='Bisection steps after the coarse search.')
     ] = 4,
+    cameras: Annotated[
+        bool,
+        typer.Option(
+            '--cameras',
+            help='Find how many copies of the camera set the backend sustains at the recorded '
+            'rate (docs/rigs.md).',
+        ),
+    ] = False,
+    max_copies: Annotated[
+        int, typer.Option('--max-copies', min=1, help='With --cameras: the most copies tried.')
+    ] = 32,
     *,
     options: dict[str, Any],
 ) -> None:
     """Find the highest replay rate a backend sustains without dropping frames.
 
     Example: replaybench peak fixtures/bags/jpeg.mcap --backend hsv --max-drop 0.05 --out runs/peak
+
+    With --cameras: replaybench peak rig/rig.mcap --backend hsv --cameras --out runs/peak-rig
     """
     from replaybench.app.peak import peak_config, run_peak
     from replaybench.app.signals import stop_on_signals
@@ -58,8 +71,9 @@ def peak(
 
     def show(trial: Any) -> None:
         verdict = 'pass' if trial.ok else 'fail'
+        what = f'{trial.rate_hz:g} Hz' if trial.copies is None else f'{trial.copies} x rig'
         typer.echo(
-            f'{trial.rate_hz:g} Hz: dropped {trial.dropped}/{trial.frames}, '
+            f'{what}: dropped {trial.dropped}/{trial.frames}, '
             f'p99 {fmt(trial.p99_ms)} ms, {verdict}',
             err=True,
         )
@@ -78,6 +92,8 @@ def peak(
             refine_steps=refine_steps,
             force=force,
             command=['replaybench', *sys.argv[1:]],
+            cameras=cameras,
+            max_copies=max_copies,
             **options,
         )
         with stop_on_signals(token):
@@ -86,6 +102,20 @@ def peak(
         raise fail(err) from None
     folder = settings.out
     assert folder is not None  # the command line always writes a folder
+    if settings.cameras:
+        _show_cameras(backend, result)
+    else:
+        _show_rates(backend, result)
+    for warning in result.warnings:
+        echo(f'replaybench: warning: {warning}', err=True)
+    echo(f'Peak folder: {folder}')
+    if (folder / 'peak.html').exists():
+        echo(f'Report: {folder / "peak.html"}')
+    if result.status == 'interrupted':
+        raise typer.Exit(EXIT_INTERRUPTED)
+
+
+def _show_rates(backend: str, result: Any) -> None:
     typer.echo(f'{"rate Hz":>10}  {"frames":>6}  {"dropped":>7}  {"p99 ms":>8}  verdict')
     for t in result.trials:
         verdict = 'pass' if t.ok else 'fail'
@@ -96,10 +126,29 @@ def peak(
         typer.echo(f'{backend}: no rate tried met the limits')
     else:
         typer.echo(f'{backend}: peak sustainable rate {result.peak_hz:.3f} Hz')
-    for warning in result.warnings:
-        echo(f'replaybench: warning: {warning}', err=True)
-    echo(f'Peak folder: {folder}')
-    if (folder / 'peak.html').exists():
-        echo(f'Report: {folder / "peak.html"}')
-    if result.status == 'interrupted':
-        raise typer.Exit(EXIT_INTERRUPTED)
+
+
+def _show_cameras(backend: str, result: Any) -> None:
+    rig = result.record.cameras
+    typer.echo(
+        f'{"copies":>6}  {"cameras":>7}  {"frames":>6}  {"dropped":>7}  {"p99 ms":>8}  verdict'
+    )
+    for t in result.trials:
+        verdict = 'pass' if t.ok else 'fail'
+        typer.echo(
+            f'{t.copies:>6}  {t.copies * len(rig.cameras):>7}  {t.frames:>6}  {t.dropped:>7}  '
+            f'{fmt(t.p99_ms):>8}  {verdict}'
+        )
+    what = (
+        f'{len(rig.cameras)} camera{"s" if len(rig.cameras) != 1 else ""} at {rig.recorded_hz:g} Hz'
+    )
+    typer.echo(f'{backend}: sustains {rig.copies or 0} x this rig ({what})')
+    if result.record.limit_reached:
+        typer.echo(f'{backend}: every count up to --max-copies passed: it may sustain more')
+    if rig.predicted_copies is not None:
+        typer.echo(
+            f"{backend}: predicted at most {rig.predicted_copies} x from one camera's service "
+            f'time {rig.service_ms:.2f} ms on {rig.cores} core{"s" if rig.cores != 1 else ""}: '
+            f'floor({rig.cores} / ({len(rig.cameras)} x {rig.recorded_hz:g} Hz x '
+            f'{rig.service_ms:.2f} ms))'
+        )

@@ -34,6 +34,9 @@ class Trial(NamedTuple):
     ok: bool
     run_dir: str
     attempt: int = 1
+    #: ``peak --cameras``: the copies of the bag's camera set the trial replayed (None for a
+    #: trial of the rate search)
+    copies: int | None = None
 
 
 def trial_verdict(
@@ -65,19 +68,22 @@ def trial_verdict(
     return frames, dropped, p99, ok
 
 
-def peak_rule(trials: Sequence[Trial], confirm_trials: int) -> tuple[float | None, bool]:
+def peak_rule(
+    trials: Sequence[Trial], confirm_trials: int, *, by: str = 'rate_hz'
+) -> tuple[float | None, bool]:
     """The peak the trials support, and whether it is confirmed.
 
     The peak is the highest rate that passed every one of its trials and lies below every rate
     that failed a trial; it is confirmed when it passed at least ``confirm_trials`` trials.
-    ``(None, False)`` when no rate qualifies.
+    ``(None, False)`` when no rate qualifies. ``by='copies'``: the same rule over the copies of
+    a camera set (``peak --cameras``) instead of the rate.
     """
-    failed = [t.rate_hz for t in trials if not t.ok]
+    failed = [getattr(t, by) for t in trials if not t.ok]
     lowest_failed = min(failed, default=None)
     passed: dict[float, int] = {}
     for t in trials:
         if t.ok:
-            passed[t.rate_hz] = passed.get(t.rate_hz, 0) + 1
+            passed[getattr(t, by)] = passed.get(getattr(t, by), 0) + 1
     candidates = [
         rate
         for rate in passed

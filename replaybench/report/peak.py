@@ -34,13 +34,48 @@ def load_peak(out_dir: str | Path) -> PeakResult:
     return read_peak_result(path)
 
 
-def _peak_verdict(peak: PeakResult) -> str:
+def _rule(peak: PeakResult) -> str:
     settings = peak.settings
     max_drop = finite_number(settings.max_drop)
     bound = finite_number(settings.p99_bound_ms)
     rule = f'at most {100 * (max_drop or 0):g} % of the frames dropped'
     if bound is not None:
         rule += f' and p99 latency at most {bound:g} ms'
+    return rule
+
+
+def _cameras_verdict(peak: PeakResult) -> str:
+    """``peak --cameras``: the copies sustained, beside the copies predicted."""
+    rig = peak.cameras
+    assert rig is not None
+    count = len(rig.cameras)
+    what = f'{count} camera{"s" if count != 1 else ""} at {fmt_hz(rig.recorded_hz)}'
+    text = (
+        f'<p><strong>Sustains {escaped(rig.copies or 0)} × this rig</strong> '
+        f'({escaped(what)}) — the most copies of the camera set, each camera of each copy in a '
+        f'pipeline of its own, replayed at the recorded rate with {escaped(_rule(peak))}.'
+    )
+    if rig.first_failing_copies is not None:
+        text += f' The fewest copies that failed a trial: {escaped(rig.first_failing_copies)}.'
+    if peak.limit_reached:
+        text += ' Every count up to the search limit passed: the backend may sustain more.'
+    service = finite_number(rig.service_ms)
+    if rig.predicted_copies is not None and service is not None:
+        text += (
+            f"</p><p>Predicted at most {escaped(rig.predicted_copies)} × from one camera's "
+            f'service time {service:.2f} ms on {escaped(rig.cores)} core(s): '
+            f'floor({escaped(rig.cores)} / ({count} × {fmt_hz(rig.recorded_hz)} × '
+            f'{service:.2f} ms)), an upper bound: copies sharing a core pay for their '
+            'contention.'
+        )
+    return text + '</p>'
+
+
+def _peak_verdict(peak: PeakResult) -> str:
+    if peak.cameras is not None:
+        return _cameras_verdict(peak)
+    settings = peak.settings
+    rule = _rule(peak)
     best = finite_number(peak.peak_hz)
     failing = finite_number(peak.first_failing_hz)
     if best is None:
@@ -68,9 +103,13 @@ def _peak_trials(peak: PeakResult) -> str:
         ok = trial.ok
         rate = finite_number(trial.rate_hz)
         marker = ' class="peak"' if best is not None and rate == best else ''
+        if peak.cameras is not None:
+            best_copies = peak.cameras.copies
+            marker = ' class="peak"' if trial.copies == best_copies is not None else ''
         verdict = f'<span style="color:{_OK if ok else _FAIL}">{"pass" if ok else "fail"}</span>'
+        copies = f'<td class="n">{escaped(fmt_value(trial.copies))}</td>' if peak.cameras else ''
         body.append(
-            f'<tr{marker}><td class="n">{number}</td>'
+            f'<tr{marker}><td class="n">{number}</td>{copies}'
             f'<td class="n">{escaped(fmt_hz(rate))}</td>'
             f'<td class="n">{escaped(fmt_value(trial.frames))}</td>'
             f'<td class="n">{escaped(fmt_value(trial.dropped))}</td>'
@@ -79,7 +118,9 @@ def _peak_trials(peak: PeakResult) -> str:
             f'<td>{verdict}</td><td><code>{escaped(trial.run_dir)}</code></td></tr>',
         )
     return (
-        '<div class="table-wrap"><table><thead><tr><th class="n">#</th><th class="n">rate</th>'
+        '<div class="table-wrap"><table><thead><tr><th class="n">#</th>'
+        + ('<th class="n">copies</th>' if peak.cameras else '')
+        + '<th class="n">rate</th>'
         '<th class="n">frames</th><th class="n">dropped</th><th class="n">dropped %</th>'
         '<th class="n">p99 ms</th><th>verdict</th><th>run folder</th></tr></thead>'
         f'<tbody>{"".join(body)}</tbody></table></div>'
@@ -89,22 +130,31 @@ def _peak_trials(peak: PeakResult) -> str:
 
 
 def _peak_charts(peak: PeakResult) -> str:
+    # a rate search plots against the rate, a --cameras one against the copies
+    axis = 'rate_hz' if peak.cameras is None else 'copies'
     trials = sorted(
-        (t for t in peak.trial_rows if finite_number(t.rate_hz)), key=lambda t: t.rate_hz
+        (t for t in peak.trial_rows if finite_number(getattr(t, axis))),
+        key=lambda t: float(getattr(t, axis)),
     )
     if not trials:
         return ''
     settings = peak.settings
-    best = finite_number(peak.peak_hz)
-    rules_x = [Rule('x', best, f'peak {best:g} Hz', _OK)] if best is not None else []
+    if peak.cameras is None:
+        best = finite_number(peak.peak_hz)
+        rules_x = [Rule('x', best, f'peak {best:g} Hz', _OK)] if best is not None else []
+        x_label, versus = 'input rate per topic (Hz)', 'rate'
+    else:
+        best = finite_number(peak.cameras.copies)
+        rules_x = [Rule('x', best, f'sustains {best:g} x', _OK)] if best is not None else []
+        x_label, versus = 'copies of the camera set', 'copies'
     charts = []
     for key, title, y_label, limit, scale in (
-        ('drop_fraction', 'Dropped frames vs rate', 'dropped (%)', settings.max_drop, 100.0),
-        ('p99_ms', 'p99 latency vs rate', 'p99 latency (ms)', settings.p99_bound_ms, 1.0),
+        ('drop_fraction', f'Dropped frames vs {versus}', 'dropped (%)', settings.max_drop, 100.0),
+        ('p99_ms', f'p99 latency vs {versus}', 'p99 latency (ms)', settings.p99_bound_ms, 1.0),
     ):
         points: list[tuple[float, float, bool]] = []
         for t in trials:
-            x, y = finite_number(t.rate_hz), finite_number(getattr(t, key))
+            x, y = finite_number(getattr(t, axis)), finite_number(getattr(t, key))
             if x is not None and y is not None:
                 points.append((x, y * scale, t.ok))
         if not points:
@@ -124,7 +174,7 @@ def _peak_charts(peak: PeakResult) -> str:
             line_chart(
                 series,
                 title=title,
-                x_label='input rate per topic (Hz)',
+                x_label=x_label,
                 y_label=y_label,
                 x_range=(0.0, max(p[0] for p in points) * 1.05),
                 rules=rules,
@@ -153,6 +203,17 @@ def render_peak_html(peak: PeakResult) -> str:
         ('max-rate probe', f'{fmt(start.probe_fps)} frames/s per topic'),
         ('recorded rate', fmt_hz(start.recorded_hz)),
     ]
+    if peak.cameras is not None:
+        rig = peak.cameras
+        items = [
+            *items[:2],
+            ('camera set', ', '.join(rig.cameras)),
+            ('recorded rate', fmt_hz(rig.recorded_hz)),
+            ("one camera's service time", f'{fmt_ms(rig.service_ms)} ms ({rig.service_run_dir})'),
+            ('cores', rig.cores),
+            ('predicted copies', rig.predicted_copies),
+            ('most copies tried', rig.max_copies),
+        ]
     items += list(to_json(peak.settings).items())
     banner = ''
     if status == 'interrupted':

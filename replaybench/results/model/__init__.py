@@ -55,6 +55,7 @@ from replaybench.results.model.comparison import (
 from replaybench.results.model.detections import Accuracy, AgreementRow
 from replaybench.results.model.peak import (
     PEAK_SCHEMA_VERSION,
+    PeakCameras,
     PeakResult,
     PeakSettings,
     PeakStart,
@@ -107,6 +108,7 @@ __all__ = [
     'OpenCvInfo',
     'OsInfo',
     'Packages',
+    'PeakCameras',
     'PeakResult',
     'PeakSettings',
     'PeakStart',

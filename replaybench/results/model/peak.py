@@ -3,12 +3,19 @@
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from replaybench.results.model.common import Environment, InputInfo, Tool
+from replaybench.results.model.common import OMIT_NONE, Environment, InputInfo, Tool
 
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ['PEAK_SCHEMA_VERSION', 'PeakResult', 'PeakSettings', 'PeakStart', 'PeakTrial']
+__all__ = [
+    'PEAK_SCHEMA_VERSION',
+    'PeakCameras',
+    'PeakResult',
+    'PeakSettings',
+    'PeakStart',
+    'PeakTrial',
+]
 
 #: Version of the peak.json layout.
 PEAK_SCHEMA_VERSION = 1
@@ -54,6 +61,31 @@ class PeakTrial:
     ok: bool = False
     run_dir: str = ''
     attempt: int = 1
+    #: ``peak --cameras``: copies of the camera set replayed (absent in a rate search's trial)
+    copies: int | None = field(default=None, metadata=OMIT_NONE)
+
+
+@dataclass(frozen=True, slots=True)
+class PeakCameras:
+    """``peak --cameras``: how many copies of the bag's camera set the backend sustains at the
+    recorded rate, beside the copies one camera's service time predicts on the machine's cores."""
+
+    #: the camera set: the bag's image topics replayed (copy 0's names)
+    cameras: tuple[str, ...] = ()
+    #: the rate the cameras are replayed at: the lowest recorded rate among them
+    recorded_hz: float | None = None
+    #: one camera's service time: the mean time to decode and detect a frame of the first
+    #: camera at the max rate, alone (the run ``service_run_dir``)
+    service_ms: float | None = None
+    service_run_dir: str | None = None
+    #: the cores the process may run on
+    cores: int | None = None
+    #: floor(cores / (cameras x recorded_hz x service time)): an upper bound
+    predicted_copies: int | None = None
+    #: the most copies that passed every one of their trials, below every failing count
+    copies: int | None = None
+    first_failing_copies: int | None = None
+    max_copies: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -80,6 +112,8 @@ class PeakResult:
     warnings: tuple[str, ...] = ()
     trial_rows: tuple[PeakTrial, ...] = field(default=(), metadata={'json': 'trials'})
     environment: Environment = Environment()
+    #: ``peak --cameras``: the copies of the camera set sustained (absent for a rate search)
+    cameras: PeakCameras | None = field(default=None, metadata=OMIT_NONE)
 
     @property
     def trials(self) -> 'pd.DataFrame':

@@ -10,6 +10,7 @@ import csv
 import json
 from typing import TYPE_CHECKING, Any, ClassVar
 
+import numpy as np
 import pytest
 from bagtools import image_msg, write_mcap
 from mcap.reader import make_reader
@@ -30,8 +31,6 @@ from replaybench.types import BackendResult, Detection, FrameSet, StageTimes
 if TYPE_CHECKING:
     from pathlib import Path
 
-    import numpy as np
-
     from replaybench.backends.base import BackendOptions
 
 FRAMES = 30
@@ -41,6 +40,12 @@ INFOS = [info for _, info, _ in rig_topics(4)]
 PERIOD_S = 1 / 30
 MS = 1_000_000
 runner = CliRunner()
+IMAGE = 'sensor_msgs/msg/Image'
+DETECTIONS = msgs.DETECTION2DARRAY
+
+
+def _pixels() -> np.ndarray:
+    return np.full((12, 16, 3), 90, dtype=np.uint8)
 
 
 class StampSpread:
@@ -204,6 +209,9 @@ def test_a_set_is_released_at_its_last_members_log_time_and_its_latency_runs_fro
     (backend,) = made['stamp-spread']
     assert [s.topics for s in backend.seen] == [('/l/image_raw', '/r/image_raw')] * 10
     assert [s.latest_log_time_ns - s.log_time_ns for s in backend.seen] == [7 * MS] * 10
+    # the members' stamps as recorded: the right one 1 ms early, then 2 ms late
+    spreads = [s.frames[1].stamp_ns - s.stamp_ns for s in backend.seen]
+    assert spreads == [2 * MS if k % 2 else -MS for k in range(10)]
     rows = outcome.records
     # the clock starts at the first message (the first left image); each set is due when
     # its right image is logged, 7 ms later
@@ -212,16 +220,6 @@ def test_a_set_is_released_at_its_last_members_log_time_and_its_latency_runs_fro
     assert all(r.latency_ms == pytest.approx(4.0) for r in rows)
     stamps = [r.stamp_ns for r in rows]
     assert stamps == left  # keyed by the reference (left) frame's stamp
-
-
-IMAGE = 'sensor_msgs/msg/Image'
-DETECTIONS = msgs.DETECTION2DARRAY
-
-
-def _pixels() -> np.ndarray:
-    import numpy as np
-
-    return np.full((12, 16, 3), 90, dtype=np.uint8)
 
 
 def test_sets_that_come_faster_than_the_backend_wait_in_one_queue_the_newest_kept(
@@ -282,7 +280,7 @@ def test_results_are_written_under_the_reference_frames_key_in_outputs_mcap(
     _outcome, _ = _run(rig, out=out, backends=('stamp-spread', 'single'))
     store = msgs.typestore()
     with (out / 'outputs.mcap').open('rb') as f:
-        written = [
+        written: list[tuple[str, int, Any]] = [
             (channel.topic, message.log_time, store.deserialize_cdr(message.data, DETECTIONS))
             for _, channel, message in make_reader(f).iter_messages()
             if channel.topic.startswith('/replaybench/stamp_spread/')
@@ -356,3 +354,32 @@ def test_a_set_backend_without_sync_is_refused_in_one_line_before_anything_is_re
     )
     assert result.exit_code == 0, result.stderr
     assert 'unpaired frames' in result.stderr
+
+
+def test_a_member_that_does_not_decode_skips_its_set_in_the_reference_frames_row(
+    tmp_path: Path,
+) -> None:
+    stamps = [1_700_000_000 * 10**9 + k * 33 * MS for k in range(12)]
+    messages = []
+    for k, stamp in enumerate(stamps):
+        right = (
+            image_msg(stamp, _pixels(), data=b'\x00' * 7) if k == 4 else image_msg(stamp, _pixels())
+        )
+        messages.append(('/l/image_raw', stamp, image_msg(stamp, _pixels()), IMAGE))
+        messages.append(('/r/image_raw', stamp + MS, right, IMAGE))
+    bag = tmp_path / 'broken.mcap'
+    write_mcap(bag, messages)
+    outcome, made = _run(bag, warmup=0)
+    rows = outcome.records
+    assert [(r.topic, r.seq, r.status) for r in rows] == [
+        ('/l/image_raw', k, 'skipped' if k == 4 else 'ok') for k in range(12)
+    ]
+    assert rows[4].note != ''
+    (backend,) = made['stamp-spread']
+    assert [s.seq for s in backend.seen] == [k for k in range(12) if k != 4]
+
+
+def test_repeated_passes_give_every_set_again_with_its_pass_number(rig: Path) -> None:
+    outcome, made = _run(rig, repeat=2, warmup=0)
+    assert [r.repeat for r in outcome.records] == [0] * SETS + [1] * SETS
+    assert len(made['stamp-spread'][0].seen) == 2 * SETS

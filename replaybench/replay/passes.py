@@ -11,13 +11,7 @@ decoding cost enough to overlap) and ``run_timed`` (recorded, scaled or fixed-Hz
 through per-topic queues, ``replaybench.replay.scheduler``). With ``--pipelines per-topic``
 (``run_lanes``) each camera topic has a backend instance of its own, served in a worker thread
 of its own at the same rates (``replay_lanes``).
-
-A backend that takes frame sets (``Backend.takes_frame_sets``, with ``--sync``) is given each
-synchronised set as one ``FrameSet`` (``run_sets``): a set is released when the replay reads
-its last member (a live ``message_filters`` synchronizer fires on the last member's arrival),
-into one queue of ``--queue-depth`` sets for the input's set stream (newest kept); its members
-are all decoded before the backend's call, their read + decode times summed; the frames in no
-set are read past and never given to it.
+A backend that takes frame sets has a pass of its own, ``replaybench.replay.setpass``.
 """
 
 from __future__ import annotations
@@ -25,7 +19,7 @@ from __future__ import annotations
 import math
 import threading
 from itertools import islice
-from typing import TYPE_CHECKING, Any, NamedTuple, cast
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from replaybench.backends.base import DEFAULT_TASK, backend_traits
 from replaybench.errors import DecodeError, one_line
@@ -33,21 +27,16 @@ from replaybench.replay.config import default_warmup
 from replaybench.replay.inputs import decoder, replayed
 from replaybench.replay.prefetch import Prefetched, Prefetcher
 from replaybench.replay.scheduler import Lane, replay_lanes, replay_timed
-from replaybench.types import FrameSet
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Mapping
 
-    from replaybench.backends.base import Backend, FrameSetBackend
+    from replaybench.backends.base import Backend
     from replaybench.replay.clock import Clock
     from replaybench.replay.config import PassOptions
     from replaybench.replay.inputs import OpenedInput
-    from replaybench.replay.pairing import InputPairing
     from replaybench.replay.rate import Rate
-    from replaybench.types import BackendResult, Frame, RawMessage
-
-    #: a synchronised set's member messages, in its topics' order (the reference first)
-    Members = tuple[RawMessage, ...]
+    from replaybench.types import BackendResult, RawMessage
 
 __all__ = [
     'PROGRESS_EVERY',
@@ -207,9 +196,8 @@ class Pass:
     on this input (``replaybench.backends.base.backend_task``, read once after ``open()``).
     ``pipelines``: one opened instance of the backend per camera topic (``--pipelines
     per-topic``; ``backend`` is one of them); where the input holds more than one of those
-    topics, each is replayed by its own (``run_lanes``). ``sets``: the input's synchronised
-    sets (``--sync``) for a backend that takes frame sets, given each as one ``FrameSet``
-    (``run_sets``); None: single frames."""
+    topics, each is replayed by its own (``run_lanes``). A backend that takes frame sets has
+    a pass of its own (``replaybench.replay.setpass.SetPass``)."""
 
     def __init__(
         self,
@@ -220,7 +208,6 @@ class Pass:
         repeat: int = 0,
         task: str = DEFAULT_TASK,
         pipelines: Mapping[str, Backend] | None = None,
-        sets: InputPairing | None = None,
     ) -> None:
         self.replay = replay
         self.task = task
@@ -238,27 +225,20 @@ class Pass:
         names = [t.name for t in inp.topics]
         self.pipelines: dict[str, Backend] = (
             {name: pipelines[name] for name in names}
-            if pipelines is not None and len(names) > 1 and sets is None
+            if pipelines is not None and len(names) > 1
             else {}
         )
-        self.sets = sets
-        self.set_warmup = 0 if sets is None else _set_warmup(replay, len(sets.grouping.sets))
-        # per set stream: the log time of the pass's first message (the replay clock's start)
-        self._first_log: int | None = None
 
     def warmup_frames(self, topic: str) -> int:
-        """The warm-up frames of ``topic`` in this pass (of a set pass: its warm-up sets)."""
-        return self.set_warmup if self.sets is not None else self.replay.warmups(topic)
+        """The warm-up frames of ``topic`` in this pass."""
+        return self.replay.warmups(topic)
 
     def run(self) -> None:
         """The pass at the run's rate, after warming up the topics too short for warm-up
         frames."""
         self.replay.check_stop()
-        rate = self.replay.options.rate
-        if self.sets is not None:
-            self.run_sets(rate)
-            return
         self.warm_short_topics()
+        rate = self.replay.options.rate
         if self.pipelines:
             self.run_lanes(rate)
         elif rate.timed:
@@ -522,145 +502,6 @@ class Pass:
             )
             self.log.extend(entry for _, entry in joined)
 
-    # -- frame sets: one ``FrameSet`` per synchronised set -------------------------------------
-
-    def run_sets(self, rate: Rate) -> None:
-        """Each synchronised set of the input as one ``FrameSet``, after a warm-up set where
-        the sets are too few for warm-up sets: at a timed rate released when its last member
-        is due (``replay_timed``, one queue for the input's set stream, keyed by the reference
-        topic), at ``max`` back to back, each released when the previous one is done."""
-        self._warm_first_set()
-        clock = self.replay.clock
-        self.t0 = clock.now()
-        if rate.timed:
-            replay_timed(
-                self._set_releases(rate),
-                clock=clock,
-                queue_depth=self.replay.options.queue_depth,
-                process=self.process_set,
-                drop=self.drop_set,
-            )
-            return
-        now = clock.now
-        release = now()
-        for members in self._completed_sets():
-            self.replay.check_stop()
-            # released when the previous set is done: reading its messages is its read time
-            self.process_set(members, release, release)
-            release = now()
-
-    def _completed_sets(self, *, counted: bool = True) -> Iterator[Members]:
-        """Each set's member messages (in its topics' order) as the replay completes it, on
-        reading its last member; frames in no set are read past (``counted``: as replayed, for
-        the progress)."""
-        assert self.sets is not None
-        members = self.sets.members()
-        width = len(self.sets.grouping.topics)
-        pending: dict[int, list[RawMessage | None]] = {}
-        missing: dict[int, int] = {}
-        for raw in self.messages():
-            if self._first_log is None:
-                self._first_log = raw.log_time_ns
-            found = members.get((raw.topic, raw.seq))
-            if found is None:
-                if counted:
-                    self.replay.advance(1)  # no partner: never given to this backend
-                continue
-            number, place = found
-            slots = pending.get(number)
-            if slots is None:
-                slots = pending[number] = [None] * width
-                missing[number] = width
-            slots[place] = raw
-            missing[number] -= 1
-            if not missing[number]:
-                del pending[number], missing[number]
-                yield tuple(m for m in slots if m is not None)
-
-    def _set_releases(self, rate: Rate) -> Iterator[tuple[float, str, Members]]:
-        """Each set's release offset (s from the pass's start): its last member's log time
-        (scaled), or the k-th set at k / Hz, never before the previous one."""
-        last = 0.0
-        for k, members in enumerate(self._completed_sets()):
-            self.replay.check_stop()
-            if rate.mode == 'fixed':
-                offset = max(last, k / rate.hz)
-            else:
-                latest = max(m.log_time_ns for m in members)
-                first = self._first_log if self._first_log is not None else latest
-                offset = max(last, (latest - first) / _NS / rate.scale)
-            last = offset
-            yield offset, members[0].topic, members
-
-    def _decode_set(self, members: Members) -> FrameSet:
-        frames: list[Frame] = [self.decode(raw) for raw in members]
-        return FrameSet(tuple(frames))
-
-    def process_set(self, members: Members, release: float, start: float) -> None:
-        """Decode every member and detect the set now: queued from ``release`` to ``start``;
-        its read + decode time runs from ``start`` (at ``max``, the release: the reading of
-        its messages included) to the backend's call. A member that does not decode skips the
-        set, its row the reference frame's."""
-        now = self.replay.clock.now
-        detect = cast('FrameSetBackend', self.backend).detect
-        try:
-            frame_set = self._decode_set(members)
-        except DecodeError as err:
-            done = now()
-            self.log.append(
-                LogEntry.undecoded(
-                    members[0], err, release, start, done, done - start, start - release
-                )
-            )
-        else:
-            t_detect = now()
-            try:
-                result = detect(frame_set)
-            except Exception as err:
-                raise self._detect_failed(frame_set.topic, frame_set.seq, err) from err
-            done = now()
-            self.log.append(
-                LogEntry(
-                    frame_set.reference[:5],
-                    result,
-                    release,
-                    start,
-                    t_detect - start,
-                    t_detect,
-                    done,
-                    start - release,
-                )
-            )
-        self.replay.advance(len(members))
-
-    def drop_set(self, members: Members, release: float) -> None:
-        """A set pushed out of its queue before the backend took it: its reference's row."""
-        self.log.append(LogEntry.dropped(members[0], release))
-        self.replay.advance(len(members))
-
-    def _warm_first_set(self) -> None:
-        """One detect on the first set that decodes, not timed, recorded or counted, where the
-        sets are too few for warm-up sets (as ``warm_short_topics`` does for frames)."""
-        if self.replay.options.warmup is not None or not self.measures_latency:
-            return
-        if self.set_warmup > 0:
-            return
-        detect = cast('FrameSetBackend', self.backend).detect
-        for members in self._completed_sets(counted=False):
-            try:
-                frame_set = self._decode_set(members)
-            except DecodeError:
-                continue
-            try:
-                detect(frame_set)
-            except Exception as err:
-                raise self._detect_failed(frame_set.topic, frame_set.seq, err) from err
-            break
-        self._first_log = None
-        forget = getattr(self.backend, 'forget_warmup', None)
-        if callable(forget):
-            forget()
-
 
 class _PipelineLane:
     """One camera's pipeline in a per-topic pass: its backend instance, decoder and log of
@@ -701,12 +542,3 @@ class _PipelineLane:
         index, raw = item
         self.log.append((index, LogEntry.dropped(raw, release)))
         self.advance()
-
-
-def _set_warmup(replay: Replay, sets: int) -> int:
-    """Warm-up sets of a set stream of ``sets`` sets: as a topic of that many frames has
-    (``default_warmup``), or --warmup, at most ``sets - 1`` so that one set is measured."""
-    wanted = replay.options.warmup
-    if wanted is None:
-        return default_warmup(sets)
-    return max(0, min(wanted, sets - 1))

@@ -28,6 +28,7 @@ from replaybench.errors import BackendError, ReplaybenchError, one_line
 from replaybench.replay.config import backend_label
 from replaybench.replay.passes import DetectFailed, Pass
 from replaybench.replay.resources import ResourceSampler
+from replaybench.replay.setpass import SetPass
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -347,15 +348,21 @@ class _BackendPasses:
         ``error`` and ends the passes."""
         try:
             for inp in inputs:
-                p = Pass(
-                    replay,
-                    label,
-                    entry.backend,
-                    inp,
-                    repeat,
-                    entry.task(inp.number),
-                    pipelines=entry.pipelines or None,
-                    sets=entry.frame_sets.get(inp.number),
+                sets = entry.frame_sets.get(inp.number)
+                p = (
+                    Pass(
+                        replay,
+                        label,
+                        entry.backend,
+                        inp,
+                        repeat,
+                        entry.task(inp.number),
+                        pipelines=entry.pipelines or None,
+                    )
+                    if sets is None
+                    else SetPass(
+                        replay, label, entry.backend, inp, sets, repeat, entry.task(inp.number)
+                    )
                 )
                 self.passes.append(p)
                 try:

@@ -383,3 +383,14 @@ def test_repeated_passes_give_every_set_again_with_its_pass_number(rig: Path) ->
     outcome, made = _run(rig, repeat=2, warmup=0)
     assert [r.repeat for r in outcome.records] == [0] * SETS + [1] * SETS
     assert len(made['stamp-spread'][0].seen) == 2 * SETS
+
+
+def test_at_a_fixed_rate_the_kth_set_is_released_at_k_over_hz(rig: Path) -> None:
+    outcome, _ = _run(rig, rate=Rate('fixed', hz=10.0), clock=VirtualClock(), service_s=0.001)
+    assert [r.release_s for r in outcome.records] == pytest.approx([k / 10 for k in range(SETS)])
+    assert not any(r.dropped for r in outcome.records)
+
+
+def test_a_frame_set_holds_at_least_one_frame() -> None:
+    with pytest.raises(ValueError, match='at least one frame'):
+        FrameSet(())

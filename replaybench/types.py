@@ -18,6 +18,7 @@ __all__ = [
     'CameraInfo',
     'Detection',
     'Frame',
+    'FrameSet',
     'LabelMask',
     'RawMessage',
     'Serialization',
@@ -130,6 +131,63 @@ class Frame(NamedTuple):
     @property
     def height(self) -> int:
         return int(self.image.shape[0])
+
+
+@dataclass(frozen=True, slots=True)
+class FrameSet:
+    """A synchronised set of frames (``--sync``) as a backend that takes sets receives it
+    (``Backend.takes_frame_sets``): one decoded ``Frame`` per synchronised topic, in the order
+    of the topics paired (the run's replayed topics, or its ``--topic`` options' order).
+
+    The first frame is the set's reference (a stereo pair's left image): the set's ``topic``,
+    ``seq``, ``log_time_ns``, ``stamp_ns`` and ``frame_id`` are its, and its result is recorded
+    under its key (frames.csv, outputs.mcap). Each member carries its own ``camera_info``, as a
+    single frame does. ``latest_log_time_ns``: the log time of the member logged last, when a
+    live synchronizer would have completed the set.
+    """
+
+    frames: tuple[Frame, ...]
+
+    def __post_init__(self) -> None:
+        if not self.frames:
+            msg = 'a frame set holds at least one frame'
+            raise ValueError(msg)
+
+    @property
+    def reference(self) -> Frame:
+        return self.frames[0]
+
+    @property
+    def topics(self) -> tuple[str, ...]:
+        return tuple(f.topic for f in self.frames)
+
+    @property
+    def topic(self) -> str:
+        return self.frames[0].topic
+
+    @property
+    def seq(self) -> int:
+        return self.frames[0].seq
+
+    @property
+    def log_time_ns(self) -> int:
+        return self.frames[0].log_time_ns
+
+    @property
+    def stamp_ns(self) -> int:
+        return self.frames[0].stamp_ns
+
+    @property
+    def frame_id(self) -> str:
+        return self.frames[0].frame_id
+
+    @property
+    def input_index(self) -> int:
+        return self.frames[0].input_index
+
+    @property
+    def latest_log_time_ns(self) -> int:
+        return max(f.log_time_ns for f in self.frames)
 
 
 class Detection(NamedTuple):

@@ -12,7 +12,7 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from replaybench.decode.recorded import OutputReader, RecordedOutput
-    from replaybench.types import BackendResult, Frame
+    from replaybench.types import BackendResult, Frame, FrameSet
 
 __all__ = [
     'DEFAULT_TASK',
@@ -21,6 +21,7 @@ __all__ = [
     'Backend',
     'BackendOptions',
     'BackendTraits',
+    'FrameSetBackend',
     'RecordedDetections',
     'backend_task',
     'backend_traits',
@@ -112,9 +113,10 @@ class Backend(Protocol):
       input after ``open()`` (``backend_task``) and refuses a task that is not registered.
     * ``takes_frame_sets``: False (default): ``detect`` gets single frames, also with
       ``--sync``, which then pairs the topics' frames and reports the sets without changing
-      what the backend gets; True: it takes the synchronised sets of ``--sync`` as one input.
-      No backend of this version does, and a run refuses one that declares it (nothing here
-      hands a backend a set yet).
+      what the backend gets; True: ``detect`` gets each synchronised set of ``--sync`` as one
+      ``FrameSet`` (``FrameSetBackend``: its frames in the synced topics' order, the first the
+      reference, whose key the result is recorded under); frames that found no partner are
+      never given to it. A run without ``--sync`` refuses such a backend in one line.
 
     Optional methods: ``prepare(recorded)`` (above); ``forget_warmup()``: the runner calls it
     after detects that are neither timed nor recorded (the warm-up detect of a topic too short
@@ -137,6 +139,14 @@ class Backend(Protocol):
         ...
 
     def close(self) -> None: ...
+
+
+class FrameSetBackend(Protocol):
+    """What a backend with ``takes_frame_sets`` is called with: ``detect`` takes one
+    synchronised ``FrameSet`` (``replaybench.types``) and returns one ``BackendResult`` for it,
+    timing its stages as ``Backend.detect`` does. Its other methods are ``Backend``'s."""
+
+    def detect(self, frame_set: FrameSet, /) -> BackendResult: ...
 
 
 class BackendTraits(NamedTuple):

@@ -38,12 +38,26 @@ _NS = 1_000_000_000
 
 
 class InputPairing(NamedTuple):
-    """One input's sets, and its messages whose header stamp could not be read."""
+    """One input's sets, its messages whose header stamp could not be read, and per topic
+    (in ``grouping.topics``' order) the ``seq`` of each frame whose stamp was read, in the
+    order of ``group_frames``' indices."""
 
     input: int
     path: Path
     grouping: Grouping
     unreadable: int = 0
+    seqs: tuple[tuple[int, ...], ...] = ()
+
+    def members(self) -> dict[tuple[str, int], tuple[int, int]]:
+        """Each frame in a set, by (topic, seq): (the set's index in ``grouping.sets``, the
+        frame's place in the set, its topic's in ``grouping.topics``). A frame absent here
+        found no partner."""
+        topics = self.grouping.topics
+        return {
+            (topics[place], self.seqs[place][index]): (number, place)
+            for number, found in enumerate(self.grouping.sets)
+            for place, index in enumerate(found.indices)
+        }
 
 
 class Pairing(NamedTuple):
@@ -59,15 +73,25 @@ class Pairing(NamedTuple):
 def read_stamps(inp: OpenedInput) -> tuple[list[list[int]], int]:
     """Per replayed topic (in ``inp.topics``' order), the header stamps of its frames in replay
     order; and how many messages had no readable header stamp."""
+    stamps, _, unreadable = _read_stamps(inp)
+    return stamps, unreadable
+
+
+def _read_stamps(inp: OpenedInput) -> tuple[list[list[int]], list[list[int]], int]:
+    """``read_stamps``' stamps, with the ``seq`` of each frame beside its stamp."""
     names = [t.name for t in inp.topics]
-    found: dict[str, list[int]] = {name: [] for name in names}
+    found: dict[str, tuple[list[int], list[int]]] = {name: ([], []) for name in names}
     unreadable = 0
     for raw in replayed(inp):
         try:
-            found[raw.topic].append(image_stamp(raw))
+            stamp = image_stamp(raw)
         except DecodeError:
             unreadable += 1
-    return [found[name] for name in names], unreadable
+            continue
+        stamps, seqs = found[raw.topic]
+        stamps.append(stamp)
+        seqs.append(raw.seq)
+    return [found[n][0] for n in names], [found[n][1] for n in names], unreadable
 
 
 def _check_topics(inp: OpenedInput, wanted: Sequence[str] | None) -> None:
@@ -110,14 +134,16 @@ def pair_inputs(
     paired: list[InputPairing] = []
     single: list[str] = []
     for inp in inputs:
-        stamps, unreadable = read_stamps(inp)
+        stamps, seqs, unreadable = _read_stamps(inp)
         names = [t.name for t in inp.topics]
         grouping = group_frames(names, stamps, spec)
         if len(names) == 1:
             single.append(names[0])
         elif not grouping.sets:
             raise UsageError(_no_common_stamp(inp, spec, stamps))
-        paired.append(InputPairing(inp.number, inp.path, grouping, unreadable))
+        paired.append(
+            InputPairing(inp.number, inp.path, grouping, unreadable, tuple(tuple(s) for s in seqs))
+        )
     warnings: tuple[str, ...] = ()
     if single:
         topics = ', '.join(dict.fromkeys(single))

@@ -11,6 +11,7 @@ decoding cost enough to overlap) and ``run_timed`` (recorded, scaled or fixed-Hz
 through per-topic queues, ``replaybench.replay.scheduler``). With ``--pipelines per-topic``
 (``run_lanes``) each camera topic has a backend instance of its own, served in a worker thread
 of its own at the same rates (``replay_lanes``).
+A backend that takes frame sets has a pass of its own, ``replaybench.replay.setpass``.
 """
 
 from __future__ import annotations
@@ -195,7 +196,8 @@ class Pass:
     on this input (``replaybench.backends.base.backend_task``, read once after ``open()``).
     ``pipelines``: one opened instance of the backend per camera topic (``--pipelines
     per-topic``; ``backend`` is one of them); where the input holds more than one of those
-    topics, each is replayed by its own (``run_lanes``)."""
+    topics, each is replayed by its own (``run_lanes``). A backend that takes frame sets has
+    a pass of its own (``replaybench.replay.setpass.SetPass``)."""
 
     def __init__(
         self,
@@ -231,6 +233,10 @@ class Pass:
         # alone is pipeline 0
         order = list(pipelines or ())
         self.pipeline_of: dict[str, int] = {name: order.index(name) for name in self.pipelines}
+
+    def warmup_frames(self, topic: str) -> int:
+        """The warm-up frames of ``topic`` in this pass."""
+        return self.replay.warmups(topic)
 
     def run(self) -> None:
         """The pass at the run's rate, after warming up the topics too short for warm-up

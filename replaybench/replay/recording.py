@@ -281,7 +281,7 @@ class Recorder:
                 stamp_ns=stamp_ns,
                 status='ok',
                 note='' if timed else recorded_note(recorded, done.inp.recorded_reader),
-                warmup=timed and n_done < self.warmups(topic),
+                warmup=timed and n_done < done.warmup_frames(topic),
                 dropped=False,
                 release_s=entry.release - t0,
                 start_s=entry.start - t0,

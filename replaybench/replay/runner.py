@@ -72,6 +72,7 @@ from replaybench.replay.pairing import pair_inputs, sync_report
 from replaybench.replay.passes import Replay, Stopped, Warmups
 from replaybench.replay.recording import Recorder
 from replaybench.replay.sessions import (
+    hand_frame_sets,
     make_backend,
     make_backends,
     open_backends,
@@ -183,7 +184,7 @@ def run_benchmark(
     try:
         with folder if folder is not None else contextlib.nullcontext():
             made = make_backends(config.backends, _with_bag_sizes(config), factory)
-            _refuse_frame_sets(made)
+            _check_frame_sets(made, config)
             recorded = any(backend_traits(b).uses_recorded_detections for _, b in made)
             for index, path in enumerate(config.inputs):
                 inp = open_input(
@@ -196,6 +197,8 @@ def run_benchmark(
                 pair_inputs(inputs, config.sync, config.topics) if config.sync is not None else None
             )
             opened = open_backends(made, inputs, notice)
+            if pairing is not None:
+                hand_frame_sets(opened, pairing)
             topics = _camera_topics(inputs)
             if config.pipelines == 'per-topic' and len(topics) > 1:
                 options = _with_bag_sizes(config)
@@ -262,9 +265,16 @@ def _pipelines(
     settings = Pipelines(
         pipelines=count, threads_per_pipeline=config.threads, cores=max(1, cores or 1)
     )
+    topics = _camera_topics(inputs)
+    sets = [backend_label(e.name) for e in opened if e.frame_sets]
+    if sets:
+        # a set stream groups every camera topic's frames: one pipeline (sessions.open_pipelines)
+        return settings, (
+            f'--pipelines per-topic: {", ".join(sets)} take(s) frame sets of --sync: each '
+            f"input's set stream ({', '.join(topics)}) is one pipeline"
+        )
     if count > 1:
         return settings, None
-    topics = _camera_topics(inputs)
     return settings, (
         f'--pipelines per-topic: the inputs hold one camera topic ({", ".join(topics)}): '
         'replayed as --pipelines shared'
@@ -316,7 +326,8 @@ def _execute(
 ) -> RunOutcome:
     """Replay into the (temporary) folder ``out``, then record; run.json is its last file.
     ``out`` None: in memory, nothing is written. ``pairing``: the frame sets of --sync, put
-    in run.json's ``sync`` section (the backends get their frames as without it).
+    in run.json's ``sync`` section (a backend that takes frame sets gets them, the others
+    their frames as without it).
 
     Raises ``BackendFailedError`` when every backend raised, and a ``ReplaybenchError`` saying
     why when no frame was measured (``_nothing_measured``).
@@ -467,17 +478,18 @@ def _execute(
     return RunOutcome(out, status, summary, record, tuple(recorder.records))
 
 
-def _refuse_frame_sets(made: Sequence[tuple[str, Backend]]) -> None:
-    """A backend that takes frame sets (``BackendTraits.takes_frame_sets``) cannot run yet:
-    the passes hand every backend single frames."""
+def _check_frame_sets(made: Sequence[tuple[str, Backend]], config: RunConfig) -> None:
+    """A backend that takes frame sets (``BackendTraits.takes_frame_sets``) needs ``--sync``,
+    which makes them: ``UsageError`` in one line without it, before any input opens."""
+    if config.sync is not None:
+        return
     for name, backend in made:
         if backend_traits(backend).takes_frame_sets:
             msg = (
-                f'backend {name!r} takes synchronised frame sets (takes_frame_sets), which '
-                'this version of replaybench does not hand to a backend: the passes give '
-                'single frames'
+                f'backend {name!r} takes synchronised frame sets, which only --sync makes: add '
+                '--sync exact (equal header stamps) or --sync approx:SLOP_MS'
             )
-            raise BackendUnavailableError(msg)
+            raise UsageError(msg)
 
 
 def _gpu_index(backend: Backend, options: BackendOptions) -> int | None:

@@ -28,12 +28,14 @@ from replaybench.errors import BackendError, ReplaybenchError, one_line
 from replaybench.replay.config import backend_label
 from replaybench.replay.passes import DetectFailed, Pass
 from replaybench.replay.resources import ResourceSampler
+from replaybench.replay.setpass import SetPass
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Mapping, Sequence
 
     from replaybench.backends.base import Backend, BackendOptions
     from replaybench.replay.inputs import OpenedInput
+    from replaybench.replay.pairing import InputPairing, Pairing
     from replaybench.replay.passes import Replay
     from replaybench.replay.recording import Recorder
     from replaybench.results.model import BackendFailure, BackendRun, Resources, ResourceSummary
@@ -41,6 +43,7 @@ if TYPE_CHECKING:
 __all__ = [
     'SLOW_OPEN_S',
     'OpenBackend',
+    'hand_frame_sets',
     'make_backend',
     'make_backends',
     'open_backends',
@@ -57,13 +60,16 @@ class OpenBackend:
     """A backend made and opened before the replay; closed once, after its pass. ``tasks``:
     the task of its results by input number, as it declared it once opened. ``pipelines``
     (``--pipelines per-topic``): an opened instance per camera topic, ``backend`` the first
-    topic's; empty for one shared instance."""
+    topic's; empty for one shared instance. ``frame_sets`` (a backend that takes frame sets,
+    with ``--sync``): each input's synchronised sets by input number (``hand_frame_sets``),
+    each handed to it as one ``FrameSet``; empty: single frames."""
 
     def __init__(self, name: str, backend: Backend, tasks: Mapping[int, str] | None = None) -> None:
         self.name = name
         self.backend = backend
         self.tasks: Mapping[int, str] = tasks if tasks is not None else {}
         self.pipelines: dict[str, Backend] = {}
+        self.frame_sets: Mapping[int, InputPairing] = {}
         self.closed = False
 
     def task(self, input_number: int) -> str:
@@ -212,8 +218,12 @@ def open_pipelines(
 ) -> None:
     """``--pipelines per-topic``: each opened backend gets an instance per camera topic in
     ``topics`` (its own for the first topic, the others made with ``factory`` and opened as
-    ``open_backends`` opens one). What fails is raised in one line; the caller closes them."""
+    ``open_backends`` opens one). A backend that takes frame sets keeps its one instance: the
+    input's set stream, every camera topic's frames grouped, is one pipeline. What fails is
+    raised in one line; the caller closes them."""
     for entry in opened:
+        if backend_traits(entry.backend).takes_frame_sets:
+            continue
         entry.pipelines = {topics[0]: entry.backend}
         for topic in topics[1:]:
             try:
@@ -233,6 +243,17 @@ def open_pipelines(
                 raise _could_not_open(entry.name, err) from err
             finally:
                 entry.pipelines[topic] = backend  # closed with the others, opened or not
+
+
+def hand_frame_sets(opened: Sequence[OpenBackend], pairing: Pairing) -> list[str]:
+    """Each opened backend that takes frame sets gets every input's sets (``--sync``); the
+    names of those that do."""
+    taking: list[str] = []
+    for entry in opened:
+        if backend_traits(entry.backend).takes_frame_sets:
+            entry.frame_sets = {p.input: p for p in pairing.inputs}
+            taking.append(entry.name)
+    return taking
 
 
 def run_backend(
@@ -327,14 +348,21 @@ class _BackendPasses:
         ``error`` and ends the passes."""
         try:
             for inp in inputs:
-                p = Pass(
-                    replay,
-                    label,
-                    entry.backend,
-                    inp,
-                    repeat,
-                    entry.task(inp.number),
-                    pipelines=entry.pipelines or None,
+                sets = entry.frame_sets.get(inp.number)
+                p = (
+                    Pass(
+                        replay,
+                        label,
+                        entry.backend,
+                        inp,
+                        repeat,
+                        entry.task(inp.number),
+                        pipelines=entry.pipelines or None,
+                    )
+                    if sets is None
+                    else SetPass(
+                        replay, label, entry.backend, inp, sets, repeat, entry.task(inp.number)
+                    )
                 )
                 self.passes.append(p)
                 try:

@@ -45,7 +45,7 @@ from replaybench.errors import UsageError
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ['AGE_PENALTY', 'FrameSet', 'Grouping', 'SyncSpec', 'group_frames', 'parse_sync']
+__all__ = ['AGE_PENALTY', 'Grouping', 'StampSet', 'SyncSpec', 'group_frames', 'parse_sync']
 
 #: ``message_filters`` ApproximateTime's default age penalty (ROS 1 and ROS 2, C++).
 AGE_PENALTY = 0.1
@@ -104,7 +104,7 @@ def parse_sync(text: object) -> SyncSpec:
 
 
 @dataclass(frozen=True, slots=True)
-class FrameSet:
+class StampSet:
     """One set: per topic (in ``Grouping.topics``' order) the frame's index in that topic's
     stamps as given to ``group_frames``, and its stamp."""
 
@@ -122,7 +122,7 @@ class Grouping:
     """The sets of ``topics``' frames, in stamp order, and how many frames each topic has."""
 
     topics: tuple[str, ...]
-    sets: tuple[FrameSet, ...]
+    sets: tuple[StampSet, ...]
     frames: tuple[int, ...]
 
     @property
@@ -160,11 +160,11 @@ def group_frames(
     return Grouping(tuple(topics), tuple(sets), tuple(len(s) for s in stamps))
 
 
-def _frame_set(members: Sequence[tuple[int, int]]) -> FrameSet:
-    return FrameSet(tuple(i for _, i in members), tuple(s for s, _ in members))
+def _frame_set(members: Sequence[tuple[int, int]]) -> StampSet:
+    return StampSet(tuple(i for _, i in members), tuple(s for s, _ in members))
 
 
-def _exact(ordered: list[list[tuple[int, int]]]) -> list[FrameSet]:
+def _exact(ordered: list[list[tuple[int, int]]]) -> list[StampSet]:
     """The frames that share a stamp; repeats of a stamp paired in order."""
     by_stamp: list[dict[int, list[tuple[int, int]]]] = []
     for frames in ordered:
@@ -173,7 +173,7 @@ def _exact(ordered: list[list[tuple[int, int]]]) -> list[FrameSet]:
             table.setdefault(item[0], []).append(item)
         by_stamp.append(table)
     common = set(by_stamp[0]).intersection(*by_stamp[1:])
-    sets: list[FrameSet] = []
+    sets: list[StampSet] = []
     for stamp in sorted(common):
         runs = [table[stamp] for table in by_stamp]
         sets.extend(
@@ -195,7 +195,7 @@ class _Approximate:
         self.candidate: list[tuple[int, int]] = []
         self.candidate_start = 0
         self.candidate_end = 0
-        self.sets: list[FrameSet] = []
+        self.sets: list[StampSet] = []
 
     def _boundary(self, end: bool) -> tuple[int, int]:
         """(index, stamp) of the queue whose front is the earliest (``end``: the latest);
@@ -223,7 +223,7 @@ class _Approximate:
             past.clear()
             queue.popleft()  # the candidate's frame of this topic
 
-    def run(self) -> list[FrameSet]:
+    def run(self) -> list[StampSet]:
         while True:
             if not all(self.queues):
                 if self.pivot is None:
@@ -251,5 +251,5 @@ class _Approximate:
 
 def _approximate(
     ordered: list[list[tuple[int, int]]], slop_ns: int, penalty: float
-) -> list[FrameSet]:
+) -> list[StampSet]:
     return _Approximate(ordered, slop_ns, penalty).run()

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 from replaybench.backends.base import BackendTraits, backend_traits
 from replaybench.backends.null import NullBackend
 from replaybench.cli import app
-from replaybench.errors import BackendUnavailableError
+from replaybench.errors import UsageError
 from replaybench.replay.runner import RunConfig, run_benchmark
 from replaybench.replay.sync import parse_sync
 from replaybench.results.io import read_run_result, to_json
@@ -214,13 +214,13 @@ class _SetsBackend(NullBackend):
     takes_frame_sets = True
 
 
-def test_a_backend_that_declares_it_takes_frame_sets_is_refused_before_any_frame(
+def test_a_backend_that_declares_it_takes_frame_sets_is_refused_without_sync_before_any_frame(
     rig: Path,
 ) -> None:
     assert backend_traits(_SetsBackend).takes_frame_sets
     assert BackendTraits().takes_frame_sets is False
-    with pytest.raises(BackendUnavailableError, match='takes synchronised frame sets'):
+    with pytest.raises(UsageError, match='takes synchronised frame sets, which only --sync'):
         run_benchmark(
-            RunConfig(inputs=[rig], backends=['null'], out_dir=None, sync=parse_sync('exact')),
+            RunConfig(inputs=[rig], backends=['null'], out_dir=None),
             backend_factory=lambda _name, options: _SetsBackend(options),
         )

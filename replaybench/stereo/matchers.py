@@ -151,11 +151,11 @@ class Matcher:
         self.params = p
         matcher: Any
         if kind == 'bm':
-            matcher = cv2.StereoBM_create(p.disparity_range, p.correlation_window_size)
+            matcher = cv2.StereoBM.create(p.disparity_range, p.correlation_window_size)
             matcher.setPreFilterSize(p.prefilter_size)
             matcher.setTextureThreshold(p.texture_threshold)
         else:
-            matcher = cv2.StereoSGBM_create(
+            matcher = cv2.StereoSGBM.create(
                 minDisparity=p.min_disparity,
                 numDisparities=p.disparity_range,
                 blockSize=p.correlation_window_size,

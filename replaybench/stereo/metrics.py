@@ -102,7 +102,8 @@ class DisparityCounts:
 def known_truth(truth: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.bool_]:
     """The pixels with truth: finite and not 0."""
     t = np.asarray(truth)
-    return np.isfinite(t) & (t != 0)
+    known: npt.NDArray[np.bool_] = np.isfinite(t) & (t != 0)
+    return known
 
 
 def score_disparity(

@@ -51,7 +51,7 @@ def disparity_picture(
     if top > 0:
         scaled[ok] = np.clip(np.rint(d[ok] * (255.0 / top)), 0, 255).astype(np.uint8)
     bgr = cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO)
-    rgb = np.ascontiguousarray(bgr[..., ::-1])
+    rgb: npt.NDArray[np.uint8] = np.ascontiguousarray(bgr[..., ::-1], dtype=np.uint8)
     rgb[~ok] = 0
     return rgb
 

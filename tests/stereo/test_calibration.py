@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 import pytest
+from stereodata import euroc_camera_infos, euroc_pair
 
 from replaybench.errors import StereoError
 from replaybench.fixtures.stereo import (
@@ -17,7 +19,9 @@ from replaybench.fixtures.stereo import (
 )
 from replaybench.stereo import Matcher, score_disparity, stereo_pair
 from replaybench.stereo.calibration import _maps
-from tests.stereo.realdata import euroc_camera_infos, euroc_pair
+
+if TYPE_CHECKING:
+    from replaybench.types import CameraInfo
 
 SIZE = (160, 120)
 
@@ -65,19 +69,20 @@ def test_depth_is_f_times_b_over_the_disparity_less_the_principal_point_offset()
     ],
 )
 def test_a_pair_that_cannot_be_used_is_one_line_with_exit_status_2(change, message):
-    left, right = rectified_camera_infos(SIZE, 0)
+    left, right_info = rectified_camera_infos(SIZE, 0)
+    right: CameraInfo | None = right_info
     if change == 'missing':
         right = None
     elif change == 'size':
-        right = replace(right, width=320)
+        right = replace(right_info, width=320)
     elif change == 'no_baseline':
-        right = replace(right, p=left.p)
+        right = replace(right_info, p=left.p)
     elif change == 'swapped':
-        p = list(right.p)
+        p = list(right_info.p)
         p[3] = -p[3]
-        right = replace(right, p=tuple(p))
+        right = replace(right_info, p=tuple(p))
     else:
-        right = replace(right, p=(0.0,) * 12)
+        right = replace(right_info, p=(0.0,) * 12)
     with pytest.raises(StereoError) as err:
         stereo_pair(left, right)
     assert message in str(err.value)
@@ -133,7 +138,7 @@ def test_euroc_pairs_rectified_from_their_real_calibration_have_matching_rows():
     assert not pair.rectified
     assert pair.baseline == pytest.approx(0.110, abs=0.002)  # the VI-Sensor's 11 cm
     rectifier = pair.rectifier()
-    orb = cv2.ORB_create(1500)
+    orb = cv2.ORB.create(1500)
     matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
 
     def dy(left, right):

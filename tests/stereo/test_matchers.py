@@ -5,11 +5,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from stereodata import motorcycle
 
 from replaybench.errors import UsageError
 from replaybench.fixtures.stereo import render_stereo
 from replaybench.stereo import Matcher, StereoParams, score_disparity, to_mono8
-from tests.stereo.realdata import motorcycle
 
 
 def test_the_defaults_are_those_of_stereo_image_procs_disparity_node():
@@ -92,7 +92,7 @@ def test_sgbm_on_middlebury_motorcycle_is_opencvs_stereosgbm_at_the_same_paramet
     left, right, truth = motorcycle()
     grey_left, grey_right = to_mono8(left, 'bgr8'), to_mono8(right, 'bgr8')
     ours = Matcher('sgbm').compute(grey_left, grey_right)
-    direct = cv2.StereoSGBM_create(
+    direct = cv2.StereoSGBM.create(
         minDisparity=0,
         numDisparities=64,
         blockSize=15,

@@ -10,7 +10,7 @@ import pytest
 
 from replaybench.types import CameraInfo
 
-REAL = Path(__file__).resolve().parents[2].parent / 'shared' / 'real'
+REAL = Path(__file__).resolve().parents[1].parent / 'shared' / 'real'
 MOTORCYCLE = REAL / 'stereo' / 'motorcycle'
 EUROC = REAL / 'euroc_micro'
 
@@ -32,10 +32,10 @@ def motorcycle() -> tuple[Any, Any, Any]:
 
 
 def _sensor(name: str) -> dict[str, Any]:
-    import yaml
+    from ruamel.yaml import YAML
 
     text = (EUROC / name / 'sensor.yaml').read_text().split('\n', 1)[1]  # drop %YAML:1.0
-    loaded: dict[str, Any] = yaml.safe_load(text)
+    loaded: dict[str, Any] = YAML(typ='safe').load(text)
     return loaded
 
 

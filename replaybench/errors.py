@@ -17,6 +17,7 @@ __all__ = [
     'ReplaybenchError',
     'RunAborted',
     'SourceError',
+    'StereoError',
     'TaskUnavailableError',
     'UsageError',
     'one_line',
@@ -35,6 +36,11 @@ class UsageError(ReplaybenchError):
 
 class SourceError(ReplaybenchError):
     """A container that cannot be opened or read at all."""
+
+
+class StereoError(ReplaybenchError):
+    """A stereo pair that cannot be used: images of different sizes, a missing CameraInfo,
+    a projection without a baseline, a ``--stereo`` that names no pair."""
 
 
 class DecodeError(ReplaybenchError):

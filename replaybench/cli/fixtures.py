@@ -46,6 +46,15 @@ def fixtures(
             "live_tags.mcap: a tag node's outputs recorded live).",
         ),
     ] = False,
+    stereo: Annotated[
+        bool,
+        typer.Option(
+            '--stereo',
+            help='Write only the stereo bags: stereo.mcap (rectified, image_rect) and '
+            'stereo_raw.mcap (distorted, rotated, image_raw), 10 Hz mono8 pairs with CameraInfo '
+            'and exact ground-truth disparity on /ground_truth/disparity.',
+        ),
+    ] = False,
     rig: Annotated[
         int | None,
         typer.Option(
@@ -68,8 +77,8 @@ def fixtures(
 
         typer.echo(str(write_ci_fixture(out)))
         return
-    if rig is not None and tags:
-        raise fail(UsageError('--rig and --tags write different bags: give one of them'))
+    if sum((rig is not None, tags, stereo)) > 1:
+        raise fail(UsageError('--rig, --tags and --stereo write different bags: give one of them'))
     if size is None:
         size = '640x480' if tags else '320x240'
     try:
@@ -79,6 +88,8 @@ def fixtures(
             raise UsageError(msg)
         if rig is not None:
             paths = [_write_rig(out, rig, frames, (int(w), int(h)))]
+        elif stereo:
+            paths = _write_stereo(out, frames, (int(w), int(h)))
         elif tags:
             from replaybench.fixtures.live_tasks import write_live_tag_fixture
             from replaybench.fixtures.tags import generate_tag_fixtures
@@ -126,3 +137,21 @@ def _write_rig(out: Path, cameras: int, frames: int, size: tuple[int, int]) -> P
         progress(RIG_FIXTURE, done, frames)
 
     return write_rig_mcap(target, frames, size, cameras, progress=report)
+
+
+def _write_stereo(out: Path, frames: int, size: tuple[int, int]) -> list[Path]:
+    """``stereo.mcap`` and ``stereo_raw.mcap`` in ``out`` (replacing them)."""
+    from replaybench.fixtures.stereo import STEREO_FIXTURE, STEREO_RAW_FIXTURE, write_stereo_mcap
+
+    out.mkdir(parents=True, exist_ok=True)
+    progress = FixtureProgress(sys.stderr)
+    paths = []
+    for name, raw in ((STEREO_FIXTURE, False), (STEREO_RAW_FIXTURE, True)):
+        target = out / name
+        target.unlink(missing_ok=True)
+
+        def report(done: int, name: str = name) -> None:
+            progress(name, done, frames)
+
+        paths.append(write_stereo_mcap(target, frames, size, raw=raw, progress=report))
+    return paths

@@ -1,0 +1,150 @@
+"""The stereo library: rectification time of raw 752x480 pairs, SGBM's accuracy.
+
+    python -m benchmarks.bench_stereo [--pairs 300] [--out PATH]
+
+* **rectification**: ``Rectifier.rectify`` (``replaybench.stereo``) on raw 752x480 grey
+  pairs, its maps built once beforehand (the build is timed apart), against a bare loop of the
+  two ``cv2.remap`` calls with the same maps on the same pairs, in one run: per pair the median
+  over ``--pairs`` (the pairs cycled), and the ratio of the two. The pairs and calibration are
+  EuRoC's (``../shared/real/euroc_micro``: cam0/cam1, K, D, and R, P from ``cv2.stereoRectify``
+  of ``T_BS``) where present, else the raw stereo fixture rendered at 752x480.
+* **sgbm accuracy**: ``Matcher('sgbm')`` at stereo_image_proc's defaults on the rectified stereo
+  fixture (16 pairs of 320x240, the figures pooled over all pixels) and on Middlebury's
+  Motorcycle (``../shared/real/stereo/motorcycle``, where present): EPE, bad-2, D1-all, density.
+
+The machine is shared: the 1-minute load average is written beside the times. Writes
+benchmarks/results/stereo.json and prints the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / 'benchmarks' / 'results' / 'stereo.json'
+SHARED = REPO.parent / 'shared' / 'real'
+SIZE = (752, 480)
+
+
+def _pairs_and_infos(count: int) -> tuple[list[tuple[Any, Any]], tuple[Any, Any], str]:
+    euroc = SHARED / 'euroc_micro'
+    if euroc.is_dir():
+        sys.path.insert(0, str(REPO / 'tests'))
+        from stereodata import euroc_camera_infos, euroc_pair
+
+        return [euroc_pair(i) for i in range(min(count, 95))], euroc_camera_infos(), 'euroc_micro'
+    from replaybench.fixtures.stereo import raw_camera_infos, render_raw
+
+    views = [render_raw(SIZE, i) for i in range(min(count, 8))]
+    return [(v.left, v.right) for v in views], raw_camera_infos(SIZE, 0), 'stereo fixture'
+
+
+def rectification(pairs_wanted: int) -> dict[str, Any]:
+    import cv2
+
+    from replaybench.stereo import stereo_pair
+
+    pairs, infos, source = _pairs_and_infos(pairs_wanted)
+    pair = stereo_pair(*infos)
+    start = time.perf_counter_ns()
+    rectifier = pair.rectifier()
+    build_ms = (time.perf_counter_ns() - start) / 1e6
+    maps_left, maps_right = rectifier._left, rectifier._right
+    assert maps_left is not None
+    assert maps_right is not None
+
+    def ours(left: Any, right: Any) -> None:
+        rectifier.rectify(left, right)
+
+    def bare(left: Any, right: Any) -> None:
+        cv2.remap(left, *maps_left, cv2.INTER_LINEAR)
+        cv2.remap(right, *maps_right, cv2.INTER_LINEAR)
+
+    times: dict[str, list[float]] = {'ours': [], 'bare': []}
+    for _ in range(20):  # warm-up
+        ours(*pairs[0])
+        bare(*pairs[0])
+    for i in range(pairs_wanted):
+        left, right = pairs[i % len(pairs)]
+        for name, fn in (
+            (('ours', ours), ('bare', bare)) if i % 2 else (('bare', bare), ('ours', ours))
+        ):
+            t0 = time.perf_counter_ns()
+            fn(left, right)
+            times[name].append((time.perf_counter_ns() - t0) / 1e6)
+    med = {name: statistics.median(values) for name, values in times.items()}
+    return {
+        'source': source,
+        'size': list(SIZE),
+        'pairs': pairs_wanted,
+        'maps_build_ms': round(build_ms, 2),
+        'rectify_ms_median': round(med['ours'], 3),
+        'bare_remap_ms_median': round(med['bare'], 3),
+        'rectify_ms_min': round(min(times['ours']), 3),
+        'bare_remap_ms_min': round(min(times['bare']), 3),
+        'ratio': round(med['ours'] / med['bare'], 3),
+        'opencv_threads': cv2.getNumThreads(),
+    }
+
+
+def _figures(counts: Any) -> dict[str, Any]:
+    f = counts.figures()
+    return {k: round(getattr(f, k), 4) for k in ('epe', 'bad2', 'd1_all', 'density')}
+
+
+def accuracy() -> dict[str, Any]:
+    import cv2
+    import numpy as np
+
+    from replaybench.fixtures.stereo import render_stereo
+    from replaybench.stereo import DisparityCounts, Matcher, score_disparity, to_mono8
+
+    sgbm = Matcher('sgbm')
+    total = DisparityCounts()
+    for i in range(16):
+        view = render_stereo((320, 240), i)
+        total = total + score_disparity(sgbm.compute(view.left, view.right), view.disparity)
+    out: dict[str, Any] = {'fixture_320x240_16_pairs': _figures(total)}
+    moto = SHARED / 'stereo' / 'motorcycle'
+    if moto.is_dir():
+        left = to_mono8(np.asarray(cv2.imread(str(moto / 'motorcycle_left.png'))), 'bgr8')
+        right = to_mono8(np.asarray(cv2.imread(str(moto / 'motorcycle_right.png'))), 'bgr8')
+        truth = np.load(moto / 'motorcycle_disp.npz')['arr_0']
+        t0 = time.perf_counter()
+        disparity = sgbm.compute(left, right)
+        out['motorcycle_741x500'] = {
+            **_figures(score_disparity(disparity, truth)),
+            'sgbm_ms': round((time.perf_counter() - t0) * 1000, 1),
+        }
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--pairs', type=int, default=300)
+    parser.add_argument('--out', type=Path, default=OUT)
+    args = parser.parse_args(argv)
+    result = {
+        'when': dt.datetime.now(dt.UTC).isoformat(timespec='seconds'),
+        'load_average_1min_before': round(os.getloadavg()[0], 2),
+        'cpus': os.cpu_count(),
+        'rectification': rectification(args.pairs),
+        'sgbm': accuracy(),
+        'load_average_1min_after': round(os.getloadavg()[0], 2),
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2) + '\n')
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

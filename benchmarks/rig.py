@@ -18,6 +18,10 @@ one 2 frames late), written here into a temporary folder:
 * **GIL**: ``HsvBackend.detect`` on decoded frames in one thread and in two at once (no
   replay): two threads' throughput over one thread's, the share of ``detect`` that runs
   outside the GIL.
+* **processes**: the same ``detect`` in two worker processes at once, each reading the decoded
+  frames from one ``multiprocessing.shared_memory`` block (no copy, no pickling of frames): two
+  processes' throughput over one thread's, the other way of giving each camera a core, beside
+  the two threads.
 
 Writes benchmarks/results/rig.json and prints the figures. Not part of ``python -m
 benchmarks``: it writes its own bag.
@@ -166,6 +170,89 @@ def _gil_share(bag: Path, seconds: float = 2.0) -> dict[str, float]:
     }
 
 
+def _process_share(bag: Path, seconds: float = 2.0) -> dict[str, float]:
+    """hsv's ``detect`` in two worker processes at once, the decoded frames in one shared
+    memory block: frames a second over a window both start together."""
+    import numpy as np
+
+    from replaybench.decode import decode_image
+    from replaybench.sources import open_source
+
+    with open_source(bag) as source:
+        topic = '/rig/cam0/image_raw/compressed'
+        images = [
+            np.ascontiguousarray(decode_image(raw).image)
+            for _, raw in zip(range(8), source.messages(topics=[topic]), strict=False)
+        ]
+    return _aligned_processes(np.stack(images), seconds)
+
+
+def _aligned_processes(block_frames: Any, seconds: float) -> dict[str, float]:
+    """Two worker processes (spawned: nothing of this process inherited) that wait for one
+    common start, then spin ``seconds`` each."""
+    import multiprocessing as mp
+    from multiprocessing import shared_memory
+
+    import numpy as np
+
+    block = shared_memory.SharedMemory(create=True, size=block_frames.nbytes)
+    try:
+        np.ndarray(block_frames.shape, dtype=np.uint8, buffer=block.buf)[:] = block_frames
+        context = mp.get_context('spawn')
+        results = context.Queue()
+        ready = context.Barrier(3)
+        workers = [
+            context.Process(
+                target=_aligned_worker,
+                args=(block.name, block_frames.shape, seconds, ready, results),
+            )
+            for _ in range(2)
+        ]
+        for w in workers:
+            w.start()
+        ready.wait(timeout=120)  # both imported and opened: the window starts now
+        counts = [results.get(timeout=120) for _ in workers]
+        for w in workers:
+            w.join()
+    finally:
+        block.close()
+        block.unlink()
+    return {'two_processes_fps': sum(counts) / seconds}
+
+
+def _aligned_worker(
+    name: str, shape: tuple[int, ...], seconds: float, ready: Any, out: Any
+) -> None:
+    """One worker: ``HsvBackend.detect`` (OpenCV on one thread) on views of the shared block,
+    counted from the common start."""
+    from multiprocessing import shared_memory
+
+    import cv2
+    import numpy as np
+
+    from replaybench.backends.hsv import HsvBackend
+    from replaybench.types import Frame
+
+    cv2.setNumThreads(1)
+    block = shared_memory.SharedMemory(name=name)
+    try:
+        images = np.ndarray(shape, dtype=np.uint8, buffer=block.buf)
+        frames = [Frame('/cam', i, i, i, 'cam', images[i], 'bgr8', 'bgr8') for i in range(shape[0])]
+        backend = HsvBackend()
+        backend.open()
+        backend.detect(frames[0])
+        ready.wait(timeout=120)
+        until = time.perf_counter() + seconds
+        n = 0
+        while time.perf_counter() < until:
+            backend.detect(frames[n % len(frames)])
+            n += 1
+        out.put(n)
+        del frames, images
+    finally:
+        block.close()
+
+
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog='python -m benchmarks.rig', description=__doc__)
     parser.add_argument('--repeats', type=int, default=3)
@@ -191,6 +278,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             per_topic = _throughput(_run(large, 'hsv', 'per-topic', 'max', 1))
             pairs.append({'shared_fps': shared, 'per_topic_fps': per_topic})
         gil = _gil_share(large)
+        processes = _process_share(large)
     ratios = [p['per_topic_fps'] / p['shared_fps'] for p in pairs]
     document = {
         'measured_at': dt.datetime.now(dt.UTC).isoformat(timespec='seconds'),
@@ -209,6 +297,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             'target': 1.7,
         },
         'hsv_detect_two_threads_over_one': gil,
+        'hsv_detect_two_processes_shared_memory': {
+            **processes,
+            'ratio_over_one_thread': processes['two_processes_fps'] / gil['one_thread_fps'],
+        },
     }
     args.out.write_text(json.dumps(document, indent=1) + '\n', encoding='utf-8')
     print(
@@ -220,6 +312,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         f'{statistics.median(ratios):.2f}x (pairs: {", ".join(f"{r:.2f}" for r in ratios)})'
     )
     print(f'hsv detect, two threads over one: {gil["ratio"]:.2f}x')
+    print(
+        'hsv detect, two processes (frames in shared memory) over one thread: '
+        f'{processes["two_processes_fps"] / gil["one_thread_fps"]:.2f}x'
+    )
     print(f'load average before {load_before[0]:.2f}, after {os.getloadavg()[0]:.2f}')
     return 0
 

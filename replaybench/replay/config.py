@@ -190,3 +190,6 @@ class OutputOptions:
     copy_images: bool = False
     detections_format: str = 'mcap'
     report: bool = True
+    #: frames.csv's columns after the known ones: the frame columns of the run's backends'
+    #: tasks that have no fields of their own (``Task.frame_columns``)
+    task_columns: tuple[str, ...] = ()

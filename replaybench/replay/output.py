@@ -127,7 +127,7 @@ def writers(options: OutputOptions) -> Iterator[tuple[FrameSink, DetectionsSink]
 
     try:
         with (
-            FramesCsvWriter(out / 'frames.csv') as frames_csv,
+            FramesCsvWriter(out / 'frames.csv', task_columns=options.task_columns) as frames_csv,
             DetectionsWriter(
                 out / OUTPUTS_MCAP,
                 annotations=options.annotations,

@@ -46,6 +46,15 @@ FrameKey = tuple[str, int, int, int, str]
 
 _NOT_TIMED = StageTimes()
 _NO_COLUMNS: Mapping[str, Any] = {}
+_RECORD_FIELDS = frozenset(FrameRecord._fields)
+
+
+def _as_fields(columns: Mapping[str, Any]) -> dict[str, Any]:
+    """A task's frame columns as ``FrameRecord`` fields: a built-in task's are fields, any
+    other task's go into ``task_values`` (frames.csv's columns after the known ones)."""
+    fields = {k: v for k, v in columns.items() if k in _RECORD_FIELDS}
+    fields['task_values'] = {k: v for k, v in columns.items() if k not in _RECORD_FIELDS}
+    return fields
 
 
 def _boxes(inp: OpenedInput) -> tuple[DetectionTable, ExternalGroundTruth | None]:
@@ -261,6 +270,8 @@ class Recorder:
         task_columns = (
             self.task_outputs(done, entry, result, recording) if done.repeat == 0 else _NO_COLUMNS
         )
+        if task_columns and not task_columns.keys() <= _RECORD_FIELDS:
+            task_columns = _as_fields(task_columns)
         t0 = done.t0
         timed = done.measures_latency
         stages = result.stages if timed else _NOT_TIMED

@@ -231,6 +231,14 @@ def run_benchmark(
     return outcome._replace(run_dir=config.out_dir)
 
 
+def _task_columns(opened: Sequence[OpenBackend], inputs: Sequence[OpenedInput]) -> tuple[str, ...]:
+    """The frame columns of the tasks the run's backends declared (``tasks.frame_columns``),
+    in the tasks' registry order: frames.csv's columns after the known ones."""
+    from replaybench.tasks import frame_columns
+
+    return frame_columns({entry.task(inp.number) for entry in opened for inp in inputs})
+
+
 def _with_bag_sizes(config: RunConfig) -> BackendOptions:
     """The backend options with what each task reads of the inputs for its backends
     (``replaybench.tasks.backend_options``: the tag sizes the bags record)."""
@@ -350,7 +358,7 @@ def _execute(
     # the load average before the replay describes the machine, not us; the rest of the
     # machine is described after the passes, so that it does not delay the first frame
     load = load_snapshot()
-    output = config.output_options(out)
+    output = replace(config.output_options(out), task_columns=_task_columns(opened, inputs))
     warnings = list(warmups.warnings)
     if pairing is not None:
         warnings.extend(pairing.warnings)

@@ -7,6 +7,7 @@ import csv
 import io
 import math
 import os
+from collections.abc import Mapping  # noqa: TC003 - FrameRecord's hints are read at run time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, NamedTuple, get_args
 
@@ -93,9 +94,15 @@ class FrameRecord(NamedTuple):
     #: serves every camera topic); with ``--pipelines per-topic`` the index of the camera
     #: topic's instance, in the order of the run's camera topics (run.json's ``rig`` section)
     pipeline: int = 0
+    #: the frame's values of a task that has no fields of its own here (a task from an entry
+    #: point, ``Task.frame_columns``), by column name; None for the built-in tasks. frames.csv
+    #: writes them after ``pipeline``, in the columns its writer was given.
+    task_values: Mapping[str, float | None] | None = None
 
 
-FRAMES_CSV_COLUMNS: tuple[str, ...] = FrameRecord._fields
+#: frames.csv's columns, in order (a task without fields here adds its ``frame_columns`` after
+#: them: ``FramesCsvWriter(task_columns=...)``)
+FRAMES_CSV_COLUMNS: tuple[str, ...] = FrameRecord._fields[:-1]
 
 _TAG_INT_FIELDS = frozenset({'tags', 'tag_truth', 'tag_matched', 'tag_wrong_ids', 'tag_phantoms'})
 _TAG_FIELDS = _TAG_INT_FIELDS | {'tag_corner_rmse_px', 'tag_trans_err_m', 'tag_rot_err_deg'}
@@ -211,8 +218,20 @@ _CELLS: tuple[Callable[[object], str], ...] = tuple(map(_cell_formatter, FRAMES_
 
 def _row(record: FrameRecord) -> list[str]:
     return [
-        '' if value is None else cell(value) for cell, value in zip(_CELLS, record, strict=True)
+        '' if value is None else cell(value)
+        for cell, value in zip(_CELLS, record[: len(_CELLS)], strict=True)
     ]
+
+
+_TASK_CELL = _float_cell('.4f')
+
+
+def _task_cells(record: FrameRecord, columns: Sequence[str]) -> str:
+    """The cells of a task's columns (``FrameRecord.task_values``), each after its comma."""
+    values = record.task_values or {}
+    return ''.join(
+        ',' if (v := values.get(name)) is None else ',' + _TASK_CELL(v) for name in columns
+    )
 
 
 #: The cells from release_s to d2h_ms (with latency_ms) of a row whose times are all present.
@@ -238,7 +257,7 @@ def _quote(text: str) -> str:
     return cell
 
 
-def _scores(values: list[float | None]) -> str:
+def _scores(values: Sequence[object]) -> str:
     """The segmentation cells (``miou``, ``pixel_accuracy``) of a frames.csv line."""
     return ','.join(
         '' if v is None else cell(v) for cell, v in zip(_SCORE_CELLS, values, strict=True)
@@ -289,7 +308,7 @@ def _line(record: FrameRecord) -> str:
         *rest,
     ) = record
     device, repeat, scores, recorded = rest[:5], rest[5], rest[6:8], rest[8:11]
-    tagged, pipeline = rest[11:19], rest[19]
+    tagged, pipeline = rest[11:19], rest[19]  # rest[20]: task_values, not a cell of its own
     stages = [preprocess_ms, infer_ms, postprocess_ms, h2d_ms, d2h_ms]
     if (
         latency_ms is not None
@@ -337,13 +356,19 @@ def _line(record: FrameRecord) -> str:
 
 def as_written(record: FrameRecord) -> FrameRecord:
     """``record`` as frames.csv holds it: times rounded to the file's decimals (6 for ``*_s``,
-    4 for ``*_ms``), non-finite ones None; what ``read_frames_csv`` reads back."""
+    4 for ``*_ms`` and a task's values), non-finite ones None; what ``read_frames_csv`` reads
+    back."""
     values = list(record)
     for index, cell in _ROUNDED:
         value = values[index]
         if value is not None:
             text = cell(value)
             values[index] = float(text) if text else None
+    if record.task_values:
+        values[-1] = {
+            name: None if v is None or not (text := _TASK_CELL(v)) else float(text)
+            for name, v in record.task_values.items()
+        }
     return FrameRecord(*values)  # type: ignore[arg-type]
 
 
@@ -387,13 +412,18 @@ _PARSERS: tuple[tuple[str, Callable[[str], object]], ...] = tuple(
 )
 
 
-def _parse_row(cells: list[str]) -> FrameRecord:
+def _parse_row(cells: list[str], task_columns: Sequence[str] = ()) -> FrameRecord:
     values: list[object] = []
-    for (name, parse), text in zip(_PARSERS, cells, strict=True):
+    for (name, parse), text in zip(_PARSERS, cells[: len(_PARSERS)], strict=True):
         if text == '' and name in _OPTIONAL_FIELDS:
             values.append(None)
         else:
             values.append(parse(text))
+    if task_columns:
+        texts = cells[len(_PARSERS) :]
+        values.append(
+            {name: float(t) if t else None for name, t in zip(task_columns, texts, strict=True)}
+        )
     record = FrameRecord(*values)  # type: ignore[arg-type]
     if record.status not in _STATUSES:
         msg = f'unknown status {record.status!r}'
@@ -421,8 +451,14 @@ class FramesCsvWriter:
     failed write raises ``OSError`` naming ``path``.
     """
 
-    def __init__(self, path: str | Path, *, flush_every: int = 100) -> None:
+    def __init__(
+        self, path: str | Path, *, flush_every: int = 100, task_columns: Sequence[str] = ()
+    ) -> None:
         self.path = Path(path)
+        #: the columns after ``FRAMES_CSV_COLUMNS``: the frame values of the run's tasks that
+        #: have no fields of their own (``FrameRecord.task_values``)
+        self.task_columns = tuple(task_columns)
+        _check_task_columns(self.task_columns, self.path)
         self.part_path = self.path.with_name(self.path.name + '.part')
         self._flush_every = max(1, flush_every)
         # a buffer larger than flush_every rows: rows reach the file when flushed, not before
@@ -430,7 +466,7 @@ class FramesCsvWriter:
             'w', newline='', encoding='utf-8', buffering=1 << 20
         )
         self._csv = csv_writer(self._file)
-        self._csv.writerow(FRAMES_CSV_COLUMNS)
+        self._csv.writerow((*FRAMES_CSV_COLUMNS, *self.task_columns))
         self._pending = 0
         self.rows = 0
 
@@ -445,7 +481,12 @@ class FramesCsvWriter:
             msg = f'{self.path}: writer is closed'
             raise ValueError(msg)
         try:
-            self._file.write(_line(record))
+            if self.task_columns:
+                self._file.write(
+                    _line(record)[:-2] + _task_cells(record, self.task_columns) + '\r\n'
+                )
+            else:
+                self._file.write(_line(record))
             self.rows += 1
             self._pending += 1
             if self._pending >= self._flush_every:
@@ -499,6 +540,13 @@ class FramesCsvWriter:
             self.close()
 
 
+def _check_task_columns(columns: Sequence[str], path: Path) -> None:
+    """``ValueError`` for task columns that repeat or take a known column's name."""
+    if len(set(columns)) != len(columns) or set(columns) & set(FRAMES_CSV_COLUMNS):
+        msg = f'{path}: task columns {list(columns)} repeat or take a frames.csv column name'
+        raise ValueError(msg)
+
+
 def read_frames_csv(path: str | Path) -> list[FrameRecord]:
     """Read a frames.csv written by ``FramesCsvWriter``; SourceError when it is not one.
 
@@ -512,6 +560,12 @@ def read_frames_csv(path: str | Path) -> list[FrameRecord]:
             reader = csv.reader(file)
             header = next(reader, None)
             columns = tuple(header) if header is not None else ()
+            # after the known columns: a task's without fields of its own
+            task_columns: tuple[str, ...] = ()
+            if columns[: len(FRAMES_CSV_COLUMNS)] == FRAMES_CSV_COLUMNS:
+                columns, task_columns = FRAMES_CSV_COLUMNS, columns[len(FRAMES_CSV_COLUMNS) :]
+                if len(set(task_columns)) != len(task_columns) or '' in task_columns:
+                    columns = ()
             if columns not in _KNOWN_HEADERS:
                 msg = f'{path}: not a frames.csv (header does not match the expected columns)'
                 raise SourceError(msg) from None
@@ -526,10 +580,12 @@ def read_frames_csv(path: str | Path) -> list[FrameRecord]:
                 if not cells:
                     continue
                 try:
-                    if len(cells) != len(columns):
-                        msg = f'{len(cells)} cells, the header has {len(columns)}'
+                    width = len(columns) + len(task_columns)
+                    if len(cells) != width:
+                        msg = f'{len(cells)} cells, the header has {width}'
                         raise ValueError(msg)
-                    records.append(_parse_row(cells + missing))
+                    known, extra = cells[: len(columns)], cells[len(columns) :]
+                    records.append(_parse_row(known + missing + extra, task_columns))
                 except ValueError as err:
                     msg = f'{path}:{reader.line_num}: bad row: {err}'
                     raise SourceError(msg) from err

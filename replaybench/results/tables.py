@@ -107,7 +107,13 @@ def frames_table(records: Iterable[FrameRecord]) -> pd.DataFrame:
     """frames.csv as a DataFrame: one row per record, rounded as the file rounds."""
     rows = [as_written(r) for r in records]
     columns = {name: [r[i] for r in rows] for i, name in enumerate(FRAMES_CSV_COLUMNS)}
-    return _frame(columns, FRAMES_DTYPES)
+    # after them: the frame values of tasks without fields of their own, in first-seen order
+    extra: dict[str, None] = {}
+    for r in rows:
+        extra.update(dict.fromkeys(r.task_values or {}))
+    for name in extra:
+        columns[name] = [(r.task_values or {}).get(name) for r in rows]
+    return _frame(columns, {**FRAMES_DTYPES, **dict.fromkeys(extra, 'float64')})
 
 
 def summary_table(rows: Sequence[object]) -> pd.DataFrame:

@@ -38,7 +38,7 @@ from replaybench.tasks.base import (
 from replaybench.tasks.common import COMMON_METRICS
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Collection, Sequence
     from importlib.metadata import EntryPoint
     from pathlib import Path
 
@@ -56,6 +56,7 @@ __all__ = [
     'TruthInput',
     'all_metrics',
     'backend_options',
+    'frame_columns',
     'get_task',
     'load_view',
     'require_task',
@@ -271,3 +272,25 @@ def backend_options(options: Any, inputs: Sequence[Path]) -> Any:
         if adjust is not None:
             options = adjust(options, inputs)
     return options
+
+
+def frame_columns(tasks: Collection[str]) -> tuple[str, ...]:
+    """The frames.csv columns of ``tasks`` (task names), each task's ``frame_columns`` (the
+    names its recording's ``frame`` returns that are no ``FrameRecord`` fields; none for a task
+    without them, the built-in ones), in ``task_names`` order. ``TaskUnavailableError`` when
+    ``frame_columns`` is no tuple of names, or two tasks declare the same name."""
+    found: list[str] = []
+    for name in task_names():
+        if name not in tasks:
+            continue
+        task = get_task(name)
+        columns = getattr(task, 'frame_columns', ())
+        if not isinstance(columns, tuple) or not all(isinstance(c, str) and c for c in columns):
+            msg = f'task {name!r}: frame_columns must be a tuple of column names'
+            raise TaskUnavailableError(msg)
+        for column in columns:
+            if column in found:
+                msg = f'task {name!r}: frame column {column!r} is declared by another task'
+                raise TaskUnavailableError(msg)
+            found.append(column)
+    return tuple(found)

@@ -139,6 +139,25 @@ def test_run_json_and_load_run_give_the_tasks_metric_per_row(run_dir: Path) -> N
     assert table['brightness_error'].iloc[1] == 4.0
 
 
+def test_frames_csv_holds_the_tasks_frame_column_after_the_known_ones(run_dir: Path) -> None:
+    import replaybench as rb
+    from replaybench.results.records import FRAMES_CSV_COLUMNS, read_frames_csv
+
+    with (run_dir / 'frames.csv').open(newline='', encoding='utf-8') as file:
+        rows = list(csv.reader(file))
+    assert tuple(rows[0]) == (*FRAMES_CSV_COLUMNS, 'brightness_abs_error')
+    cells = {(row[1], row[3]): row[-1] for row in rows[1:]}
+    assert {cells[('brightness', str(i))] for i in range(FRAMES)} == {'0.0000'}
+    assert {cells[('brightness_biased', str(i))] for i in range(FRAMES)} == {'4.0000'}
+    assert {cells[('hsv', str(i))] for i in range(FRAMES)} == {''}
+    records = read_frames_csv(run_dir / 'frames.csv')
+    assert records[0].task_values == {'brightness_abs_error': 0.0}
+    errors = rb.load_run(run_dir).frames.groupby('backend')['brightness_abs_error']
+    assert errors.max()['brightness'] == 0.0
+    assert errors.max()['brightness_biased'] == 4.0
+    assert errors.count()['hsv'] == 0
+
+
 def test_outputs_mcap_holds_each_frames_output_on_the_tasks_channel(run_dir: Path) -> None:
     from mcap.reader import make_reader
 

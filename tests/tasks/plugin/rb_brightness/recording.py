@@ -58,9 +58,11 @@ class BrightnessRecording(TaskRecordingBase):
             writer.add_message(output_topic(label, topic), MSGTYPE, log_time_ns, data)
         truth = inp.truth.get('brightness')
         expected = None if truth is None else truth.get((frame_id, stamp_ns))
-        if expected is not None:
-            self.errors.setdefault((label, topic), []).append(abs(level - expected))
-        return {}
+        if expected is None:
+            return {}
+        error = abs(level - expected)
+        self.errors.setdefault((label, topic), []).append(error)
+        return {'brightness_abs_error': error}
 
     def summary(self, backend: str, topic: str) -> Mapping[str, Any] | None:
         errors = self.errors.get((backend, topic))

@@ -35,6 +35,8 @@ class BrightnessTask:
             main=True,
         ),
     )
+    #: frames.csv's column of it (after the known ones): each frame's absolute error
+    frame_columns: ClassVar[tuple[str, ...]] = ('brightness_abs_error',)
     #: the recorded backend reads no output of this task
     recorded_readers: ClassVar[Mapping[str, OutputReader]] = {}
     #: the part of recording a frame (``replaybench.tasks.TaskRecording``)

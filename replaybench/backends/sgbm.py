@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 
     from replaybench.stereo import Matcher, Rectifier
     from replaybench.stereo.matchers import MatcherKind
-    from replaybench.types import Frame, FrameSet
+    from replaybench.types import CameraInfo, Frame, FrameSet
 
 __all__ = ['SgbmBackend', 'StereoMatcherBackend', 'matcher_parameters']
 
@@ -76,6 +76,8 @@ class StereoMatcherBackend:
     task: ClassVar[str] = 'stereo'
     takes_frame_sets: ClassVar[bool] = True
     reads_camera_info: ClassVar[bool] = True
+    #: without --sync, a pair's images are paired by equal stamps (``--sync exact``)
+    default_sync: ClassVar[str] = 'exact'
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         from replaybench.stereo import Matcher
@@ -93,6 +95,25 @@ class StereoMatcherBackend:
     def open(self) -> None:
         """Nothing to load: the matcher is built with the backend, the maps on a pair's first
         set."""
+
+    def check_frame_set(
+        self, topics: tuple[str, ...], infos: tuple[CameraInfo | None, ...]
+    ) -> None:
+        """Before the replay: a left and a right topic, with CameraInfo of one size and a
+        baseline (``StereoError``, one line, exit status 2, otherwise)."""
+        from replaybench.stereo import stereo_pair
+
+        if len(topics) != 2:
+            msg = (
+                f'{self.name} takes a left and a right image topic, not {len(topics)} '
+                f'({", ".join(topics)}): give --topic LEFT --topic RIGHT'
+            )
+            raise StereoError(msg)
+        try:
+            stereo_pair(*infos)
+        except StereoError as err:
+            msg = f'{self.name}: {topics[0]}, {topics[1]}: {err}'
+            raise StereoError(msg) from None
 
     def rectifier(self, left: Frame, right: Frame) -> Rectifier:
         """The pair's rectifier, built on its first set (``StereoError``: no CameraInfo,
@@ -113,7 +134,7 @@ class StereoMatcherBackend:
         if len(frame_set.frames) != 2:
             msg = (
                 f'{self.name} takes a left and a right image, not {len(frame_set.frames)} '
-                f'({", ".join(frame_set.topics)}): give --stereo LEFT,RIGHT'
+                f'({", ".join(frame_set.topics)}): give --topic LEFT --topic RIGHT'
             )
             raise StereoError(msg)
         left, right = frame_set.frames

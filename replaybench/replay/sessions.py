@@ -260,7 +260,9 @@ def hand_frame_sets(
             entry.frame_sets = {p.input: p for p in pairing.inputs}
             taking.append(entry.name)
             check = getattr(entry.backend, 'check_frame_set', None)
-            for p in pairing.inputs if callable(check) else ():
+            if not callable(check):
+                continue
+            for p in pairing.inputs:
                 inp = by_number.get(p.input)
                 if inp is None or not p.grouping.sets:
                     continue

@@ -184,7 +184,7 @@ def run_benchmark(
     try:
         with folder if folder is not None else contextlib.nullcontext():
             made = make_backends(config.backends, _with_bag_sizes(config), factory)
-            _check_frame_sets(made, config)
+            config = _frame_set_sync(made, config, notice)
             recorded = any(backend_traits(b).uses_recorded_detections for _, b in made)
             for index, path in enumerate(config.inputs):
                 inp = open_input(
@@ -198,7 +198,7 @@ def run_benchmark(
             )
             opened = open_backends(made, inputs, notice)
             if pairing is not None:
-                hand_frame_sets(opened, pairing)
+                hand_frame_sets(opened, pairing, inputs)
             topics = _camera_topics(inputs)
             if config.pipelines == 'per-topic' and len(topics) > 1:
                 options = _with_bag_sizes(config)
@@ -486,18 +486,35 @@ def _execute(
     return RunOutcome(out, status, summary, record, tuple(recorder.records))
 
 
-def _check_frame_sets(made: Sequence[tuple[str, Backend]], config: RunConfig) -> None:
+def _frame_set_sync(
+    made: Sequence[tuple[str, Backend]],
+    config: RunConfig,
+    notice: Callable[[str], None] | None,
+) -> RunConfig:
     """A backend that takes frame sets (``BackendTraits.takes_frame_sets``) needs ``--sync``,
-    which makes them: ``UsageError`` in one line without it, before any input opens."""
+    which makes them. Without it: where every such backend declares the same ``default_sync``
+    (a stereo matcher: ``exact``, a pair's two images share their stamp), the run is made with
+    it and ``notice`` told in one line; otherwise ``UsageError`` in one line, before any input
+    opens."""
     if config.sync is not None:
-        return
-    for name, backend in made:
-        if backend_traits(backend).takes_frame_sets:
-            msg = (
-                f'backend {name!r} takes synchronised frame sets, which only --sync makes: add '
-                '--sync exact (equal header stamps) or --sync approx:SLOP_MS'
-            )
-            raise UsageError(msg)
+        return config
+    taking = [(n, b) for n, b in made if backend_traits(b).takes_frame_sets]
+    implied = {getattr(b, 'default_sync', None) for _, b in taking}
+    if taking and len(implied) == 1 and None not in implied:
+        (sync,) = implied
+        if notice is not None:
+            names = ', '.join(n for n, _ in taking)
+            notice(f'replaybench: --sync {sync} for {names} (no --sync given)')
+        from replaybench.replay.sync import parse_sync
+
+        return replace(config, sync=parse_sync(str(sync)))
+    if taking:
+        msg = (
+            f'backend {taking[0][0]!r} takes synchronised frame sets, which only --sync makes: '
+            'add --sync exact (equal header stamps) or --sync approx:SLOP_MS'
+        )
+        raise UsageError(msg)
+    return config
 
 
 def _gpu_index(backend: Backend, options: BackendOptions) -> int | None:

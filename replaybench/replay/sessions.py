@@ -245,14 +245,33 @@ def open_pipelines(
                 entry.pipelines[topic] = backend  # closed with the others, opened or not
 
 
-def hand_frame_sets(opened: Sequence[OpenBackend], pairing: Pairing) -> list[str]:
+def hand_frame_sets(
+    opened: Sequence[OpenBackend], pairing: Pairing, inputs: Sequence[OpenedInput] = ()
+) -> list[str]:
     """Each opened backend that takes frame sets gets every input's sets (``--sync``); the
-    names of those that do."""
+    names of those that do. A backend with a ``check_frame_set(topics, camera_infos)`` method
+    is shown each input's topics with the CameraInfo of its first set's frames (None for a
+    topic without one) before any frame is replayed, and refuses what it cannot take with a
+    ``ReplaybenchError`` (a stereo pair without a baseline: one line, exit status 2)."""
     taking: list[str] = []
+    by_number = {inp.number: inp for inp in inputs}
     for entry in opened:
         if backend_traits(entry.backend).takes_frame_sets:
             entry.frame_sets = {p.input: p for p in pairing.inputs}
             taking.append(entry.name)
+            check = getattr(entry.backend, 'check_frame_set', None)
+            if not callable(check):
+                continue
+            for p in pairing.inputs:
+                inp = by_number.get(p.input)
+                if inp is None or not p.grouping.sets:
+                    continue
+                first = p.grouping.sets[0]
+                infos = tuple(
+                    inp.camera_infos.lookup(topic, stamp)
+                    for topic, stamp in zip(p.grouping.topics, first.stamps, strict=True)
+                )
+                check(p.grouping.topics, infos)
     return taking
 
 

@@ -314,7 +314,8 @@ def test_a_recorded_topic_of_a_type_without_a_reader_is_refused(tmp_path):
         match=r'is a sensor_msgs/msg/CameraInfo topic; the recorded backend reads '
         r'vision_msgs/msg/Detection2DArray \(detections\), '
         r'isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray \(tags\), '
-        r'sensor_msgs/msg/Image \(masks, named with --recorded-topic\)$',
+        r'sensor_msgs/msg/Image \(masks, named with --recorded-topic\), '
+        r'stereo_msgs/msg/DisparityImage \(disparity images\)$',
     ):
         run_benchmark(
             RunConfig(
@@ -410,6 +411,7 @@ def test_without_a_recorded_topic_to_pick_alone_the_error_names_what_it_reads(tm
         match=r'needs --recorded-topic TOPIC \(topics it can pick alone '
         r'besides the ground truth: none; it reads vision_msgs/msg/Detection2DArray '
         r'\(detections\), isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray \(tags\), '
-        r'sensor_msgs/msg/Image \(masks, named with --recorded-topic\)\)$',
+        r'sensor_msgs/msg/Image \(masks, named with --recorded-topic\), '
+        r'stereo_msgs/msg/DisparityImage \(disparity images\)\)$',
     ):
         run_benchmark(RunConfig(inputs=[bag], backends=['recorded'], out_dir=None, report=False))

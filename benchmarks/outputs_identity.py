@@ -145,6 +145,8 @@ ADDED_COLUMNS: tuple[str, ...] = (
     'tag_trans_err_pct',
     # frames.csv's pipeline that served the frame: 0 where one instance serves every topic
     'pipeline',
+    # a task's frame values without fields of their own: None for the built-in tasks
+    'task_values',
 )
 #: what an added column holds in outputs that stand for an older one's absence
 _OLDER_VALUES: dict[str, tuple[Any, ...]] = {'repeat': (0, '0'), 'pipeline': (0, '0')}
@@ -339,14 +341,18 @@ def _csv(path: Path) -> list[dict[str, str]]:
 def _frames_records(document: dict[str, Any]) -> list[Any]:
     from replaybench.results.records import FRAMES_CSV_COLUMNS
 
+    # a record's task values (FrameRecord.task_values, after the columns) are a mapping of the
+    # frame values of a task without fields, None for the built-in tasks: compared as a column
     rows = document.pop('frame_records')
+    with_tasks = (*FRAMES_CSV_COLUMNS, 'task_values')
     before = tuple(
         c for c in FRAMES_CSV_COLUMNS if c not in ADDED_COLUMNS and c not in RECORDED_ADDED
     )
     # a record of this engine, of one before the pipeline column, or of one before the added
     # columns, told apart by its length
     layouts = {
-        len(columns): columns for columns in (before, FRAMES_CSV_COLUMNS[:-1], FRAMES_CSV_COLUMNS)
+        len(columns): columns
+        for columns in (before, FRAMES_CSV_COLUMNS[:-1], FRAMES_CSV_COLUMNS, with_tasks)
     }
     return [
         {

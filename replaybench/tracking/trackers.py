@@ -131,18 +131,6 @@ class IouTracker:
 # ---------------------------------------------------------------- SORT
 
 
-def _to_z(box: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    w, h = box[2] - box[0], box[3] - box[1]
-    return np.array([box[0] + w / 2, box[1] + h / 2, w * h, w / max(h, 1e-9)])
-
-
-def _from_x(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    area, ratio = max(float(x[2]), 1e-9), max(float(x[3]), 1e-9)
-    w = np.sqrt(area * ratio)
-    h = area / w
-    return np.array([x[0] - w / 2, x[1] - h / 2, x[0] + w / 2, x[1] + h / 2])
-
-
 _SORT_F = np.eye(7)
 _SORT_F[0, 4] = _SORT_F[1, 5] = _SORT_F[2, 6] = 1.0
 _SORT_H = np.eye(4, 7)
@@ -151,37 +139,56 @@ _SORT_Q = np.diag([1.0, 1.0, 1.0, 1.0, 0.01, 0.01, 0.0001])
 _SORT_P0 = np.diag([10.0, 10.0, 10.0, 10.0, 1e4, 1e4, 1e4])
 
 
-class _SortTrack:
-    def __init__(self, box: npt.NDArray[np.float64], ident: int) -> None:
-        self.x = np.zeros(7)
-        self.x[:4] = _to_z(box)
-        self.p = _SORT_P0.copy()
-        self.id = ident
-        self.hits = 1
-        self.hit_streak = 1
-        self.age = 0
-        self.time_since_update = 0
+class _Bank:
+    """The Kalman filters of a tracker's tracks, as one array each: means ``x`` (N x n),
+    covariances ``p`` (N x n x n), predicted and updated for every track in one operation."""
 
-    def predict(self) -> npt.NDArray[np.float64]:
-        if self.x[6] + self.x[2] <= 0:
-            self.x[6] = 0.0
-        self.x = _SORT_F @ self.x
-        self.p = _SORT_F @ self.p @ _SORT_F.T + _SORT_Q
-        self.age += 1
-        if self.time_since_update > 0:
-            self.hit_streak = 0
-        self.time_since_update += 1
-        return _from_x(self.x)
+    def __init__(self, f: npt.NDArray[np.float64], h: npt.NDArray[np.float64]) -> None:
+        self.f = f
+        self.h = h
+        n = f.shape[0]
+        self.x = np.zeros((0, n))
+        self.p = np.zeros((0, n, n))
 
-    def update(self, box: npt.NDArray[np.float64]) -> None:
-        self.time_since_update = 0
-        self.hits += 1
-        self.hit_streak += 1
-        y = _to_z(box) - _SORT_H @ self.x
-        s = _SORT_H @ self.p @ _SORT_H.T + _SORT_R
-        k = self.p @ _SORT_H.T @ np.linalg.inv(s)
-        self.x = self.x + k @ y
-        self.p = (np.eye(7) - k @ _SORT_H) @ self.p
+    def add(self, x: npt.NDArray[np.float64], p: npt.NDArray[np.float64]) -> None:
+        self.x = np.concatenate([self.x, x.reshape(1, -1)])
+        self.p = np.concatenate([self.p, p.reshape(1, *p.shape)])
+
+    def keep(self, mask: npt.NDArray[np.bool_]) -> None:
+        self.x, self.p = self.x[mask], self.p[mask]
+
+    def predict(self, q: npt.NDArray[np.float64]) -> None:
+        """``q``: the process noise, n x n or N x n x n."""
+        if len(self.x):
+            self.x = self.x @ self.f.T
+            self.p = self.f @ self.p @ self.f.T + q
+
+    def update(
+        self, rows: npt.NDArray[np.intp], z: npt.NDArray[np.float64], r: npt.NDArray[np.float64]
+    ) -> None:
+        """Tracks ``rows`` measured ``z`` (len(rows) x m), with noise ``r`` (m x m or per row)."""
+        if not len(rows):
+            return
+        x, p, h = self.x[rows], self.p[rows], self.h
+        s = h @ p @ h.T + r
+        k = np.linalg.solve(s, h @ p).transpose(0, 2, 1)  # P H^T S^-1, S symmetric
+        y = z - x @ h.T
+        self.x[rows] = x + np.einsum('nij,nj->ni', k, y)
+        self.p[rows] = p - k @ s @ k.transpose(0, 2, 1)
+
+
+def _to_z_all(boxes: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    w, h = boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]
+    return np.stack(
+        [boxes[:, 0] + w / 2, boxes[:, 1] + h / 2, w * h, w / np.maximum(h, 1e-9)], axis=1
+    )
+
+
+def _from_x_all(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    area, ratio = np.maximum(x[:, 2], 1e-9), np.maximum(x[:, 3], 1e-9)
+    w = np.sqrt(area * ratio)
+    h = area / w
+    return np.stack([x[:, 0] - w / 2, x[:, 1] - h / 2, x[:, 0] + w / 2, x[:, 1] + h / 2], axis=1)
 
 
 class SortTracker:
@@ -200,7 +207,10 @@ class SortTracker:
         self.max_age = max_age
         self.min_hits = min_hits
         self.det_thresh = det_thresh
-        self.tracks: list[_SortTrack] = []
+        self.bank = _Bank(_SORT_F, _SORT_H)
+        self.ids = np.zeros(0, np.int64)
+        self.streak = np.zeros(0, np.int64)
+        self.since = np.zeros(0, np.int64)  # frames since the last match
         self.frame_count = 0
         self._next = 1
 
@@ -212,27 +222,56 @@ class SortTracker:
         scores = np.asarray(scores, dtype=np.float64).reshape(-1)
         keep = np.flatnonzero(scores >= self.det_thresh)
         dets = boxes[keep]
-        predicted = [t.predict() for t in self.tracks]
-        alive = [i for i, p in enumerate(predicted) if np.all(np.isfinite(p))]
-        self.tracks = [self.tracks[i] for i in alive]
-        pred = np.array([predicted[i] for i in alive]).reshape(-1, 4)
+        bank = self.bank
+        if len(bank.x):  # an area that would go negative stops shrinking
+            bank.x[bank.x[:, 6] + bank.x[:, 2] <= 0, 6] = 0.0
+        bank.predict(_SORT_Q)
+        self.streak[self.since > 0] = 0
+        self.since += 1
+        pred = _from_x_all(bank.x)
+        alive = np.all(np.isfinite(pred), axis=1)
+        if not alive.all():
+            bank.keep(alive)
+            self.ids, self.streak, self.since = (
+                self.ids[alive],
+                self.streak[alive],
+                self.since[alive],
+            )
+            pred = pred[alive]
         pairs, new, _ = _match(box_iou_xyxy(dets, pred), self.iou_threshold)
         matched: dict[int, int] = {}
-        for d, t in pairs:
-            self.tracks[t].update(dets[d])
-            matched[t] = int(keep[d])
+        if pairs:
+            d_rows = np.array([d for d, _ in pairs])
+            t_rows = np.array([t for _, t in pairs])
+            bank.update(t_rows, _to_z_all(dets[d_rows]), _SORT_R)
+            self.since[t_rows] = 0
+            self.streak[t_rows] += 1
+            matched = {int(t): int(keep[d]) for d, t in pairs}
         for d in new:
-            track = _SortTrack(dets[d], self._next)
+            x = np.zeros(7)
+            x[:4] = _to_z_all(dets[d : d + 1])[0]
+            bank.add(x, _SORT_P0)
+            matched[len(self.ids)] = int(keep[d])
+            self.ids = np.append(self.ids, self._next)
+            self.streak = np.append(self.streak, 1)
+            self.since = np.append(self.since, 0)
             self._next += 1
-            matched[len(self.tracks)] = int(keep[d])
-            self.tracks.append(track)
-        out: list[Track] = []
-        for i, track in enumerate(self.tracks):
-            if track.time_since_update < 1 and (
-                track.hit_streak >= self.min_hits or self.frame_count <= self.min_hits
-            ):
-                out.append(Track(track.id, _box(_from_x(track.x)), matched.get(i)))
-        self.tracks = [t for t in self.tracks if t.time_since_update <= self.max_age]
+        shown = (self.since < 1) & (
+            (self.streak >= self.min_hits) | (self.frame_count <= self.min_hits)
+        )
+        now = _from_x_all(bank.x)
+        out = [
+            Track(int(self.ids[i]), _box(now[i]), matched.get(int(i)))
+            for i in np.flatnonzero(shown)
+        ]
+        alive = self.since <= self.max_age
+        if not alive.all():
+            bank.keep(alive)
+            self.ids, self.streak, self.since = (
+                self.ids[alive],
+                self.streak[alive],
+                self.since[alive],
+            )
         return sorted(out, key=lambda t: t.id)
 
 
@@ -242,14 +281,16 @@ _STD_POS = 1.0 / 20
 _STD_VEL = 1.0 / 160
 
 
-def _xyah(box: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    w, h = box[2] - box[0], box[3] - box[1]
-    return np.array([box[0] + w / 2, box[1] + h / 2, w / max(h, 1e-9), h])
+def _xyah_all(boxes: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    w, h = boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]
+    return np.stack([boxes[:, 0] + w / 2, boxes[:, 1] + h / 2, w / np.maximum(h, 1e-9), h], axis=1)
 
 
-def _xyxy(m: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    w = m[2] * m[3]
-    return np.array([m[0] - w / 2, m[1] - m[3] / 2, m[0] + w / 2, m[1] + m[3] / 2])
+def _xyxy_all(m: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    w = m[:, 2] * m[:, 3]
+    return np.stack(
+        [m[:, 0] - w / 2, m[:, 1] - m[:, 3] / 2, m[:, 0] + w / 2, m[:, 1] + m[:, 3] / 2], axis=1
+    )
 
 
 _BT_F = np.eye(8)
@@ -258,44 +299,12 @@ for _i in range(4):
 _BT_H = np.eye(4, 8)
 
 
-class _ByteTrack:
-    def __init__(self, box: npt.NDArray[np.float64], score: float, ident: int, frame: int) -> None:
-        z = _xyah(box)
-        self.mean = np.r_[z, np.zeros(4)]
-        h = z[3]
-        std = [2 * _STD_POS * h, 2 * _STD_POS * h, 1e-2, 2 * _STD_POS * h]
-        std += [10 * _STD_VEL * h, 10 * _STD_VEL * h, 1e-5, 10 * _STD_VEL * h]
-        self.cov = np.diag(np.square(std))
-        self.score = score
-        self.id = ident
-        self.confirmed = frame == 1
-        self.lost = False
-        self.last_frame = frame
-
-    def predict(self) -> None:
-        h = self.mean[3]
-        std = [_STD_POS * h, _STD_POS * h, 1e-2, _STD_POS * h]
-        std += [_STD_VEL * h, _STD_VEL * h, 1e-5, _STD_VEL * h]
-        if self.lost:
-            self.mean[7] = 0.0
-        self.mean = _BT_F @ self.mean
-        self.cov = _BT_F @ self.cov @ _BT_F.T + np.diag(np.square(std))
-
-    def update(self, box: npt.NDArray[np.float64], score: float, frame: int) -> None:
-        h = self.mean[3]
-        r = np.diag(np.square([_STD_POS * h, _STD_POS * h, 1e-1, _STD_POS * h]))
-        s = _BT_H @ self.cov @ _BT_H.T + r
-        k = self.cov @ _BT_H.T @ np.linalg.inv(s)
-        self.mean = self.mean + k @ (_xyah(box) - _BT_H @ self.mean)
-        self.cov = self.cov - k @ s @ k.T
-        self.score = score
-        self.confirmed = True
-        self.lost = False
-        self.last_frame = frame
-
-    @property
-    def box(self) -> npt.NDArray[np.float64]:
-        return _xyxy(self.mean)
+def _diag(std: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """N x k standard deviations as N x k x k diagonal covariances."""
+    n, k = std.shape
+    out = np.zeros((n, k, k))
+    out[:, np.arange(k), np.arange(k)] = std * std
+    return out
 
 
 class ByteTrackTracker:
@@ -314,9 +323,25 @@ class ByteTrackTracker:
         self.low_thresh = low_thresh
         self.match_thresh = match_thresh
         self.track_buffer = track_buffer
-        self.tracks: list[_ByteTrack] = []
+        self.bank = _Bank(_BT_F, _BT_H)
+        self.ids = np.zeros(0, np.int64)
+        self.confirmed = np.zeros(0, bool)
+        self.lost = np.zeros(0, bool)
+        self.last = np.zeros(0, np.int64)  # the frame of the last match
         self.frame = 0
         self._next = 1
+
+    def _update(self, rows: list[int], boxes: npt.NDArray[np.float64]) -> None:
+        if not rows:
+            return
+        index = np.array(rows)
+        h = self.bank.x[index, 3]
+        pos = _STD_POS * h
+        r = _diag(np.stack([pos, pos, np.full_like(h, 1e-1), pos], axis=1))
+        self.bank.update(index, _xyah_all(boxes), r)
+        self.confirmed[index] = True
+        self.lost[index] = False
+        self.last[index] = self.frame
 
     def update(
         self, boxes: npt.NDArray[np.float64], scores: npt.NDArray[np.float64]
@@ -326,58 +351,66 @@ class ByteTrackTracker:
         scores = np.asarray(scores, dtype=np.float64).reshape(-1)
         high = np.flatnonzero(scores >= self.track_thresh)
         low = np.flatnonzero((scores >= self.low_thresh) & (scores < self.track_thresh))
-        for track in self.tracks:
-            track.predict()
-        confirmed = [t for t in self.tracks if t.confirmed]
-        unconfirmed = [t for t in self.tracks if not t.confirmed]
-        used: dict[int, int] = {}  # track id -> input box
-
-        def boxes_of(tracks: list[_ByteTrack]) -> npt.NDArray[np.float64]:
-            return np.array([t.box for t in tracks]).reshape(-1, 4)
-
+        bank = self.bank
+        if len(bank.x):
+            bank.x[self.lost, 7] = 0.0
+            h = bank.x[:, 3]
+            pos, vel = _STD_POS * h, _STD_VEL * h
+            small = np.full_like(h, 1e-2)
+            tiny = np.full_like(h, 1e-5)
+            bank.predict(_diag(np.stack([pos, pos, small, pos, vel, vel, tiny, vel], axis=1)))
+        current = _xyxy_all(bank.x)
+        used: dict[int, int] = {}  # track row -> input box
+        confirmed = np.flatnonzero(self.confirmed)
+        unconfirmed = np.flatnonzero(~self.confirmed)
         # 1: the high boxes against every confirmed track, active or lost
         pairs, left_tracks, left_high = _match(
-            box_iou_xyxy(boxes_of(confirmed), boxes[high]), 1.0 - self.match_thresh
+            box_iou_xyxy(current[confirmed], boxes[high]), 1.0 - self.match_thresh
         )
-        for t, d in pairs:
-            confirmed[t].update(boxes[high[d]], float(scores[high[d]]), self.frame)
-            used[confirmed[t].id] = int(high[d])
+        self._update([int(confirmed[t]) for t, _ in pairs], boxes[[high[d] for _, d in pairs]])
+        used.update({int(confirmed[t]): int(high[d]) for t, d in pairs})
         # 2: the low boxes against the active tracks still unmatched
-        remaining = [confirmed[t] for t in left_tracks if not confirmed[t].lost]
-        pairs, left2, _ = _match(box_iou_xyxy(boxes_of(remaining), boxes[low]), 0.5)
-        for t, d in pairs:
-            remaining[t].update(boxes[low[d]], float(scores[low[d]]), self.frame)
-            used[remaining[t].id] = int(low[d])
+        remaining = [int(confirmed[t]) for t in left_tracks if not self.lost[confirmed[t]]]
+        pairs, left2, _ = _match(box_iou_xyxy(current[remaining], boxes[low]), 0.5)
+        self._update([remaining[t] for t, _ in pairs], boxes[[low[d] for _, d in pairs]])
+        used.update({remaining[t]: int(low[d]) for t, d in pairs})
         for t in left2:
-            remaining[t].lost = True
+            self.lost[remaining[t]] = True
         # 3: unconfirmed tracks against the high boxes left (IoU >= 0.3)
         rest = high[left_high]
-        pairs, dead, left_new = _match(box_iou_xyxy(boxes_of(unconfirmed), boxes[rest]), 0.3)
-        for t, d in pairs:
-            unconfirmed[t].update(boxes[rest[d]], float(scores[rest[d]]), self.frame)
-            used[unconfirmed[t].id] = int(rest[d])
-        removed = {unconfirmed[t].id for t in dead}
+        pairs, dead, left_new = _match(box_iou_xyxy(current[unconfirmed], boxes[rest]), 0.3)
+        self._update([int(unconfirmed[t]) for t, _ in pairs], boxes[[rest[d] for _, d in pairs]])
+        used.update({int(unconfirmed[t]): int(rest[d]) for t, d in pairs})
+        removed = np.zeros(len(self.ids), bool)
+        removed[[int(unconfirmed[t]) for t in dead]] = True
         # 4: new tracks from the high boxes no track took
         for d in left_new:
             index = int(rest[d])
-            if scores[index] >= self.track_thresh + 0.1:
-                track = _ByteTrack(boxes[index], float(scores[index]), self._next, self.frame)
-                self._next += 1
-                self.tracks.append(track)
-                used[track.id] = index
-        self.tracks = [
-            t
-            for t in self.tracks
-            if t.id not in removed and self.frame - t.last_frame <= self.track_buffer
+            if scores[index] < self.track_thresh + 0.1:
+                continue
+            z = _xyah_all(boxes[index : index + 1])[0]
+            hz = z[3]
+            std = [2 * _STD_POS * hz, 2 * _STD_POS * hz, 1e-2, 2 * _STD_POS * hz]
+            std += [10 * _STD_VEL * hz, 10 * _STD_VEL * hz, 1e-5, 10 * _STD_VEL * hz]
+            bank.add(np.r_[z, np.zeros(4)], np.diag(np.square(std)))
+            used[len(self.ids)] = index
+            self.ids = np.append(self.ids, self._next)
+            self.confirmed = np.append(self.confirmed, self.frame == 1)
+            self.lost = np.append(self.lost, False)
+            self.last = np.append(self.last, self.frame)
+            removed = np.append(removed, False)
+            self._next += 1
+        now = _xyxy_all(bank.x)
+        shown = self.confirmed & ~self.lost & (self.last == self.frame) & ~removed
+        out = [
+            Track(int(self.ids[i]), _box(now[i]), used.get(int(i))) for i in np.flatnonzero(shown)
         ]
-        return sorted(
-            (
-                Track(t.id, _box(t.box), used.get(t.id))
-                for t in self.tracks
-                if t.confirmed and not t.lost and t.last_frame == self.frame
-            ),
-            key=lambda t: t.id,
-        )
+        alive = ~removed & (self.frame - self.last <= self.track_buffer)
+        if not alive.all():
+            bank.keep(alive)
+            self.ids, self.confirmed = self.ids[alive], self.confirmed[alive]
+            self.lost, self.last = self.lost[alive], self.last[alive]
+        return sorted(out, key=lambda t: t.id)
 
 
 _TRACKERS = {'iou': IouTracker, 'sort': SortTracker, 'bytetrack': ByteTrackTracker}

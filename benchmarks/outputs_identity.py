@@ -121,7 +121,8 @@ _TIMING = re.compile(
 )
 #: subtrees compared by their keys only (what the machine did meanwhile: a resource figure is
 #: null when the pass ended before the sampler's first timed sample)
-_SHAPE_ONLY = {'resources', 'environment'}
+#: (the worst camera by p99 is whichever camera's p99 was highest: a timing)
+_SHAPE_ONLY = {'resources', 'environment', 'worst_p99'}
 #: keys whose value is a detection count or accuracy, never timing, though the pattern matches
 _NOT_TIMING = {'detections_per_frame'}
 

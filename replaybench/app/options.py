@@ -235,6 +235,13 @@ class RunOptions:
         '<stamp_ns>.png (default: /ground_truth/labels when present).',
         metavar='TOPIC|DIR',
     )
+    stereo: str | None = _opt(
+        None,
+        '--stereo',
+        'The stereo pair to replay, LEFT,RIGHT image topics (docs/stereo.md): the run replays '
+        'those two, paired by header stamp for the stereo backends.',
+        metavar='LEFT,RIGHT',
+    )
     sync: str | None = _opt(
         None,
         '--sync',

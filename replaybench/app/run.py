@@ -92,6 +92,21 @@ def run_config(
     )
 
 
+def _topics(options: RunOptions) -> list[str] | None:
+    """The topics to replay: ``--topic``'s, or the ``--stereo`` pair's (left, then right: the
+    order of a frame set). ``StereoError`` for a malformed ``--stereo``, ``UsageError`` for
+    ``--stereo`` with ``--topic``."""
+    if options.stereo is None:
+        return list(options.topics) or None
+    if options.topics:
+        msg = '--stereo names the topics to replay: give it without --topic'
+        raise UsageError(msg)
+    from replaybench.stereo.topics import parse_stereo
+
+    pair = parse_stereo(options.stereo)
+    return [pair.left, pair.right]
+
+
 def config_of(
     options: RunOptions,
     inputs: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
@@ -128,7 +143,7 @@ def config_of(
         max_frames=options.max_frames,
         start_s=options.start,
         duration_s=options.duration,
-        topics=list(options.topics) or None,
+        topics=_topics(options),
         ground_truth_topic=options.ground_truth or DEFAULT_GROUND_TRUTH_TOPIC,
         ground_truth_explicit=options.ground_truth is not None,
         options=options.backend_options(),

@@ -53,6 +53,7 @@ CHANGED: dict[str, Any] = {
     'pipelines': 'per-topic',
     'ground_truth_masks': '/labels',
     'sync': 'approx:5',
+    'stereo': '/cam/left/image_rect,/cam/right/image_rect',
     'tag_family': 'tag25h9',
     'tag_size': 0.16,
     'tag_sizes': '14=0.2,3=0.1',
@@ -102,18 +103,34 @@ def test_the_command_parameters_are_the_fields_or_their_negation() -> None:
         assert cli_name(name, spec) in parameters
 
 
-def test_a_sweep_cell_runs_with_every_option_as_run_config_builds_it(tmp_path: Path) -> None:
+@pytest.mark.parametrize('left_out', ['stereo', 'topics'])
+def test_a_sweep_cell_runs_with_every_option_as_run_config_builds_it(
+    tmp_path: Path, left_out: str
+) -> None:
     from replaybench.app.run import run_config
     from replaybench.app.sweep import cell_run_config, input_identity, plan_cells, sweep_config
 
-    config = sweep_config([BAG], backends=['hsv'], out=tmp_path / 'sw', **CHANGED)
-    assert config.options == run_options(**CHANGED)
+    changed = {k: v for k, v in CHANGED.items() if k != left_out}  # --stereo names the topics
+    config = sweep_config([BAG], backends=['hsv'], out=tmp_path / 'sw', **changed)
+    assert config.options == run_options(**changed)
     (cell,) = plan_cells([input_identity(BAG, digest=False)], ['hsv'], (), config.options)
     made = cell_run_config(cell, config.options, tmp_path / 'cell', ['replaybench', 'sweep'])
     expected = run_config(
-        [BAG], backends=['hsv'], out=tmp_path / 'cell', command=['replaybench', 'sweep'], **CHANGED
+        [BAG], backends=['hsv'], out=tmp_path / 'cell', command=['replaybench', 'sweep'], **changed
     )
     assert made == expected
+
+
+def test_stereo_names_the_two_topics_and_refuses_topic_beside_it() -> None:
+    from replaybench.app.run import run_config
+    from replaybench.errors import StereoError, UsageError
+
+    config = run_config([BAG], stereo='/a/left/image_raw, /a/right/image_raw')
+    assert config.topics == ['/a/left/image_raw', '/a/right/image_raw']
+    with pytest.raises(UsageError, match='without --topic'):
+        run_config([BAG], stereo='/l,/r', topics=('/x',))
+    with pytest.raises(StereoError, match='two image topics'):
+        run_config([BAG], stereo='/only-one')
 
 
 def test_a_keyword_that_is_no_run_option_is_refused_by_run_and_sweep(tmp_path: Path) -> None:

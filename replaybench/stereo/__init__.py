@@ -6,7 +6,8 @@ rectification maps from its two CameraInfo; ``topics``: stereo_image_proc's topi
 ``--stereo LEFT,RIGHT``; ``matchers``: OpenCV's StereoSGBM / StereoBM with
 stereo_image_proc's defaults; ``metrics``: EPE, bad-1/2/3, D1-all, density, AbsRel as sums
 over pixels; ``files``: Middlebury PFM and KITTI PNG; ``msgs``: stereo_msgs/DisparityImage;
-``thumbnail``: colour pictures of a disparity and its error.
+``thumbnail``: colour pictures of a disparity and its error; ``output``: ``Disparity``, what a
+backend of the stereo task returns in ``BackendResult.output``.
 """
 
 from __future__ import annotations
@@ -14,10 +15,12 @@ from __future__ import annotations
 from replaybench.stereo.calibration import Rectifier, StereoPair, stereo_pair
 from replaybench.stereo.matchers import DELTA_D, Matcher, StereoParams, to_mono8
 from replaybench.stereo.metrics import DisparityCounts, StereoFigures, score_disparity
+from replaybench.stereo.output import Disparity
 from replaybench.stereo.topics import StereoTopics, find_pairs, parse_stereo
 
 __all__ = [
     'DELTA_D',
+    'Disparity',
     'DisparityCounts',
     'Matcher',
     'Rectifier',

@@ -46,6 +46,8 @@ BUILTIN_BACKENDS: dict[str, str] = {
     'onnx-seg': 'replaybench.backends.onnx_seg:OnnxSegBackend',
     'apriltag': 'replaybench.backends.apriltag:AprilTagBackend',
     'aruco': 'replaybench.backends.aruco:ArucoBackend',
+    'sgbm': 'replaybench.backends.sgbm:SgbmBackend',
+    'bm': 'replaybench.backends.bm:BmBackend',
 }
 
 _REQUIRED_MEMBERS = ('name', 'description', 'available', 'open', 'detect', 'info', 'close')

@@ -49,11 +49,17 @@ def _task_columns(summaries: list[Summary]) -> tuple[list[MetricSpec], list[Metr
         shown = [specs[metric] for metric in views.terminal_metrics]
         if views.terminal == 'always':
             always += shown
-        elif views.summary_field is not None and any(
-            getattr(s, views.summary_field, None) is not None for s in summaries
-        ):
+        elif _has_task(views.summary_field, shown, summaries):
             scored += shown
     return always, scored
+
+
+def _has_task(field: str | None, shown: list[MetricSpec], summaries: list[Summary]) -> bool:
+    """Some row has the task's summary: its ``summary_field`` set, or for a task without
+    fields of its own (``summary_field`` None) one of its shown metrics in ``task_metrics``."""
+    if field is not None:
+        return any(getattr(s, field, None) is not None for s in summaries)
+    return any(s.metric(m.name) is not None for s in summaries for m in shown)
 
 
 def _print_summary(summaries: list[Summary]) -> None:
@@ -106,7 +112,7 @@ def _print_summary(summaries: list[Summary]) -> None:
                 fmt(s.detections_per_frame),
                 *(fmt(getattr(s, m.name), m.terminal_digits) for m in boxes),
                 fmt(private, 0),
-                *(fmt(getattr(s, m.name), m.terminal_digits) for m in masks),
+                *(fmt(s.metric(m.name), m.terminal_digits) for m in masks),
             )
         )
     widths = [max([len(h), *(len(r[i]) for r in rows)]) for i, h in enumerate(header)]

@@ -74,6 +74,7 @@ TASKS: dict[str, str] = {
     'detections': 'replaybench.tasks.detections.task:TASK',
     'tags': 'replaybench.tasks.tags.task:TASK',
     'segmentation': 'replaybench.tasks.segmentation.task:TASK',
+    'stereo': 'replaybench.tasks.stereo.task:TASK',
 }
 
 

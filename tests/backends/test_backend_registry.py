@@ -108,6 +108,8 @@ BUILTINS = [
     'onnx-seg',
     'apriltag',
     'aruco',
+    'sgbm',
+    'bm',
 ]
 
 
@@ -124,7 +126,7 @@ def test_unknown_backend_is_a_usage_error_listing_the_names(
 ) -> None:
     entry_points(monkeypatch, toy=f'{plugin_module}:ToyBackend')
     with pytest.raises(
-        UsageError, match=r"unknown backend 'yolo'; known backends: null, hsv, .*aruco, toy"
+        UsageError, match=r"unknown backend 'yolo'; known backends: null, hsv, .*aruco, sgbm, bm, toy"
     ):
         get_backend('yolo')
 

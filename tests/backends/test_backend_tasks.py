@@ -35,6 +35,8 @@ def test_each_built_in_backend_declares_the_task_of_its_results():
         'aruco': 'tags',
         'hsv-seg': 'segmentation',
         'onnx-seg': 'segmentation',
+        'sgbm': 'stereo',
+        'bm': 'stereo',
     }
     # cuda and tensorrt know theirs from the model they open: boxes until then
     assert declared['cuda'] == declared['tensorrt'] == 'detections'
@@ -119,7 +121,7 @@ def test_a_backend_that_learns_its_task_when_it_opens_is_recorded_as_that_task(t
 
 class _Declares(NullBackend):
     name: ClassVar[str] = 'declares'
-    task: ClassVar[str] = 'stereo'
+    task: ClassVar[str] = 'flow'
     detected = 0
     closed = 0
 
@@ -139,8 +141,8 @@ def test_a_backend_that_declares_an_unknown_task_is_refused_in_one_line_before_a
         _run(bag, _Declares(BackendOptions()))
     message = str(caught.value)
     assert message == (
-        "backend 'declares' declares task 'stereo': unknown task 'stereo'; "
-        'known tasks: detections, tags, segmentation'
+        "backend 'declares' declares task 'flow': unknown task 'flow'; "
+        'known tasks: detections, tags, segmentation, stereo'
     )
     assert caught.value.exit_code == 2
     assert (_Declares.detected, _Declares.closed) == (0, 1)  # closed again, never replayed

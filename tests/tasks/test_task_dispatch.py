@@ -37,6 +37,7 @@ def test_each_built_in_task_names_its_part_of_recording_a_frame():
         'detections': None,  # boxes only: the part every task has
         'tags': 'replaybench.tasks.tags.recording:recording',
         'segmentation': 'replaybench.tasks.segmentation.recording:recording',
+        'stereo': 'replaybench.tasks.stereo.recording:recording',
     }
 
 
@@ -69,8 +70,8 @@ def test_a_declared_task_is_checked_without_importing_a_built_in_one():
         timeout=60,
     )
     assert done.stdout.strip() == "['replaybench.tasks.base', 'replaybench.tasks.common']"
-    with pytest.raises(UsageError, match=r"^unknown task 'stereo'; known tasks: detections, "):
-        require_task('stereo')
+    with pytest.raises(UsageError, match=r"^unknown task 'flow'; known tasks: detections, "):
+        require_task('flow')
 
 
 def _dispatch(node: ast.AST, names: set[str], dispatching: bool) -> str:

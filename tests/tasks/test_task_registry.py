@@ -104,14 +104,14 @@ def test_built_in_tasks_are_module_strings_resolved_on_first_use() -> None:
     ).stdout
     before, names, listed, after, same = json.loads(found)
     assert before == []
-    assert names[:3] == ['detections', 'tags', 'segmentation']
+    assert names[:4] == ['detections', 'tags', 'segmentation', 'stereo']
     assert listed == []  # listing the names imports no task
     assert after == ['replaybench.tasks.tags.task']
     assert same is True
 
 
 def test_built_in_tasks_are_tasks_named_as_registered() -> None:
-    assert list(TASKS) == ['detections', 'tags', 'segmentation']
+    assert list(TASKS) == ['detections', 'tags', 'segmentation', 'stereo']
     for name in TASKS:
         task = get_task(name)
         assert isinstance(task, Task)
@@ -122,16 +122,17 @@ def test_built_in_tasks_are_tasks_named_as_registered() -> None:
 
 def test_an_unknown_task_is_a_usage_error_listing_the_known_ones() -> None:
     with pytest.raises(
-        UsageError, match=r"unknown task 'stereo'; known tasks: detections, tags, segmentation"
+        UsageError,
+        match=r"unknown task 'flow'; known tasks: detections, tags, segmentation, stereo",
     ):
-        get_task('stereo')
+        get_task('flow')
 
 
 def test_an_installed_distribution_registers_a_task_through_the_entry_point_group(
     tmp_path: Path, plugin_module: str
 ) -> None:
     distribution(tmp_path, toy=f'{plugin_module}:TASK')
-    assert task_names() == ['detections', 'tags', 'segmentation', 'toy']
+    assert task_names() == ['detections', 'tags', 'segmentation', 'stereo', 'toy']
     task = get_task('toy')
     assert type(task).__module__ == plugin_module
     assert [m.name for m in task.metrics] == ['toy_score']
@@ -154,7 +155,15 @@ def test_broken_entry_points_are_refused_with_one_line_naming_them(
         number=f'{plugin_module}:NOT_A_TASK',
         tags=f'{plugin_module}:TASK',
     )
-    assert task_names() == ['detections', 'tags', 'segmentation', 'gone', 'misnamed', 'number']
+    assert task_names() == [
+        'detections',
+        'tags',
+        'segmentation',
+        'stereo',
+        'gone',
+        'misnamed',
+        'number',
+    ]
     with pytest.raises(TaskUnavailableError, match=r"task 'gone': cannot load .*ModuleNotFound"):
         get_task('gone')
     with pytest.raises(TaskUnavailableError, match=r"declares name 'something-else'"):
@@ -206,15 +215,28 @@ def test_the_tag_task_declares_the_summary_csv_tag_columns_in_their_order() -> N
     assert tuple(m.name for m in get_task('tags').metrics) == TAG_SUMMARY_COLUMNS
 
 
-def test_every_accuracy_metric_is_a_summary_row_field() -> None:
+def test_every_accuracy_metric_is_a_summary_row_field_or_of_a_task_without_fields() -> None:
     fields = {f.name for f in dataclasses.fields(SummaryRow)}
-    assert {m.name for m in all_metrics() if m.accuracy} <= fields
+    # the stereo task keeps its metrics in SummaryRow.task_metrics (its frame_columns too)
+    own = {m.name for m in get_task('stereo').metrics}
+    assert not own & fields
+    assert get_task('stereo').frame_columns  # type: ignore[attr-defined]
+    assert {m.name for m in all_metrics() if m.accuracy} - own <= fields
 
 
 def test_the_sweep_shows_the_metrics_whose_spec_says_so() -> None:
     shown = {m.name for m in all_metrics() if m.sweep}
     assert set(SWEEP_METRICS) == shown
-    assert SWEEP_METRICS == ('map50', 'miou', 'tag_recall', 'tag_rot_err_deg')
+    assert SWEEP_METRICS == (
+        'map50',
+        'miou',
+        'tag_recall',
+        'tag_rot_err_deg',
+        'epe',
+        'bad2',
+        'd1_all',
+        'density',
+    )
     start = SWEEP_CSV_COLUMNS.index('p99_high') + 1
     assert SWEEP_CSV_COLUMNS[start : start + len(SWEEP_METRICS)] == SWEEP_METRICS
     # a cell holds them by name; ``metrics.map50`` still reads one, None where it has none

@@ -1,0 +1,163 @@
+"""OpenCV's StereoSGBM on a stereo pair (``replaybench.stereo.matchers``), the stereo task.
+
+A backend that takes frame sets (``--sync``): each set is a left and a right image, in that
+order (``--stereo LEFT,RIGHT`` or stereo_image_proc's naming, docs/stereo.md). The pair's
+geometry comes from the two frames' CameraInfo (``replaybench.stereo.stereo_pair``: the focal
+length and baseline from the right camera's P) and, for raw images, the rectification maps are
+built once per pair of topics (``Rectifier``); rectified pairs (``image_rect`` topics, or
+CameraInfo with R identity, D zero and P = K) are used as they are.
+
+Per pair: rectification and the conversion to mono8 (``preprocess``); the matcher
+(``infer``); OpenCV's fixed point to float pixels, NaN where there is no match
+(``postprocess``). The parameters are stereo_image_proc's defaults, changed by the backend
+config's ``[sgbm]`` table (or its top-level keys; ``--config FILE``) and then by the backend
+options (a sweep's ``--param sgbm.disparities=64,128``), by stereo_image_proc's names or
+OpenCV's (``replaybench.stereo.matchers.PARAMETER_NAMES``).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from replaybench.backends.base import Availability, BackendOptions
+from replaybench.errors import StereoError, UsageError
+from replaybench.types import BackendResult, StageTimes
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from replaybench.stereo import Matcher, Rectifier
+    from replaybench.stereo.matchers import MatcherKind
+    from replaybench.types import Frame, FrameSet
+
+__all__ = ['SgbmBackend', 'StereoMatcherBackend', 'matcher_parameters']
+
+
+def _option_value(key: str, text: str) -> object:
+    """A backend option's text as the matcher takes it: true/false, or a whole number."""
+    lowered = text.strip().lower()
+    if lowered in {'true', 'false'}:
+        return lowered == 'true'
+    try:
+        return int(lowered)
+    except ValueError:
+        msg = f'stereo parameter {key}={text!r} is not a whole number or true/false'
+        raise UsageError(msg) from None
+
+
+def matcher_parameters(kind: str, options: BackendOptions) -> dict[str, object]:
+    """The parameters of the config file's ``[kind]`` table (or its top-level keys), then the
+    backend options' (``extra``), by the names they were given."""
+    table: dict[str, object] = {}
+    if options.config is not None:
+        import tomllib
+
+        try:
+            data = tomllib.loads(options.config.read_text(encoding='utf-8'))
+        except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+            msg = f'{options.config}: cannot read the {kind} config: {err}'
+            raise UsageError(msg) from None
+        section = data.get(kind, data)
+        if not isinstance(section, dict):
+            msg = f'{options.config}: [{kind}] is not a table'
+            raise UsageError(msg)
+        table.update({k: v for k, v in section.items() if not isinstance(v, dict)})
+    table.update({k: _option_value(k, v) for k, v in options.extra.items()})
+    return table
+
+
+class StereoMatcherBackend:
+    """A stereo matcher of ``replaybench.stereo.matchers`` over synchronised pairs."""
+
+    name: ClassVar[str]
+    description: ClassVar[str]
+    kind: ClassVar[MatcherKind]
+    task: ClassVar[str] = 'stereo'
+    takes_frame_sets: ClassVar[bool] = True
+    reads_camera_info: ClassVar[bool] = True
+
+    def __init__(self, options: BackendOptions | None = None) -> None:
+        from replaybench.stereo import Matcher
+
+        self.options = options if options is not None else BackendOptions()
+        self.matcher: Matcher = Matcher.from_mapping(
+            self.kind, matcher_parameters(self.kind, self.options)
+        )
+        self._rectifiers: dict[tuple[int, str, str], Rectifier] = {}
+
+    @classmethod
+    def available(cls) -> Availability:
+        return Availability(ok=True)
+
+    def open(self) -> None:
+        """Nothing to load: the matcher is built with the backend, the maps on a pair's first
+        set."""
+
+    def rectifier(self, left: Frame, right: Frame) -> Rectifier:
+        """The pair's rectifier, built on its first set (``StereoError``: no CameraInfo,
+        sizes that differ, no baseline)."""
+        key = (left.input_index, left.topic, right.topic)
+        found = self._rectifiers.get(key)
+        if found is None:
+            from replaybench.stereo import parse_stereo, stereo_pair
+
+            named = parse_stereo(f'{left.topic},{right.topic}').rectified
+            pair = stereo_pair(left.camera_info, right.camera_info, rectified=named or None)
+            found = self._rectifiers[key] = pair.rectifier()
+        return found
+
+    def detect(self, frame_set: FrameSet) -> BackendResult:
+        from replaybench.stereo import Disparity, to_mono8
+
+        if len(frame_set.frames) != 2:
+            msg = (
+                f'{self.name} takes a left and a right image, not {len(frame_set.frames)} '
+                f'({", ".join(frame_set.topics)}): give --stereo LEFT,RIGHT'
+            )
+            raise StereoError(msg)
+        left, right = frame_set.frames
+        began = time.perf_counter_ns()
+        rectifier = self.rectifier(left, right)
+        rect_left, rect_right = rectifier.rectify(left.image, right.image)
+        grey_left = to_mono8(rect_left, left.encoding)
+        grey_right = to_mono8(rect_right, right.encoding)
+        t_infer = time.perf_counter_ns()
+        fixed = self.matcher.compute_fixed(grey_left, grey_right)
+        t_post = time.perf_counter_ns()
+        from replaybench.stereo.matchers import DELTA_D, fixed_to_float
+
+        params = self.matcher.params
+        disparity = fixed_to_float(fixed, params.min_disparity)
+        width, height = rectifier.pair.size
+        output = Disparity.of_pair(
+            disparity,
+            rectifier.pair,
+            min_disparity=params.min_disparity,
+            max_disparity=params.max_disparity,
+            delta_d=DELTA_D,
+            valid_window=params.valid_window(width, height),
+        )
+        done = time.perf_counter_ns()
+        stages = StageTimes(
+            preprocess_ns=t_infer - began, infer_ns=t_post - t_infer, postprocess_ns=done - t_post
+        )
+        return BackendResult((), stages=stages, output=output)
+
+    def info(self) -> dict[str, Any]:
+        from dataclasses import asdict
+
+        params: Mapping[str, Any] = asdict(self.matcher.params)
+        rectified = sorted({r.pair.rectified for r in self._rectifiers.values()})
+        return {'matcher': self.kind, 'parameters': dict(params), 'rectified': rectified}
+
+    def close(self) -> None:
+        self._rectifiers.clear()
+
+
+class SgbmBackend(StereoMatcherBackend):
+    """OpenCV StereoSGBM with stereo_image_proc's defaults (CPU)."""
+
+    name: ClassVar[str] = 'sgbm'
+    description: ClassVar[str] = 'OpenCV StereoSGBM disparity of stereo pairs (CPU, --sync)'
+    kind: ClassVar[MatcherKind] = 'sgbm'

@@ -1,0 +1,135 @@
+"""The stereo task's part of recording a run: each pair's disparity written and scored.
+
+A backend that declares the stereo task returns a ``Disparity`` (``replaybench.stereo.output``)
+in ``BackendResult.output`` for each stereo pair (a frame set of ``--sync``, recorded under
+its left image's key). ``StereoRecording.frame`` writes it into outputs.mcap
+(``replaybench.tasks.stereo.sink``) and, where the input has truth for the left image
+(``replaybench.tasks.stereo.truth``, by frame_id and stamp), scores it with
+``replaybench.stereo.metrics``: the pair's figures go into its frames.csv row, its pixel sums
+into the (backend, topic)'s, so that a row's figures are pooled over all its pixels. A pair
+without an output (a recorded topic without the pair's message) has no estimate: its truth
+pixels count as bad. Depth AbsRel is formed where the output has a focal length and a
+baseline.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any, Protocol, cast
+
+import numpy as np
+
+from replaybench.errors import BackendError
+from replaybench.stereo.metrics import DisparityCounts, score_disparity
+from replaybench.stereo.output import Disparity
+from replaybench.tasks.base import TaskRecordingBase
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    import numpy.typing as npt
+
+    from replaybench.sinks.writer import OutputWriter
+    from replaybench.stereo.metrics import StereoFigures
+    from replaybench.types import BackendResult
+
+__all__ = ['DisparityTruth', 'StereoRecording', 'figures_of', 'recording', 'score_output']
+
+
+class DisparityTruth(Protocol):
+    """An input's truth disparity (``replaybench.tasks.stereo.truth.DisparityTopic``)."""
+
+    def lookup(self, frame_id: str, stamp_ns: int) -> npt.NDArray[np.float32] | None: ...
+
+
+class _Input(Protocol):
+    @property
+    def truth(self) -> Mapping[str, object]: ...
+
+
+def figures_of(figures: StereoFigures) -> dict[str, float | None]:
+    """The figures by metric name (summary.csv's and frames.csv's columns)."""
+    return {
+        'epe': figures.epe,
+        'bad1': figures.bad1,
+        'bad2': figures.bad2,
+        'bad3': figures.bad3,
+        'd1_all': figures.d1_all,
+        'density': figures.density,
+        'abs_rel': figures.abs_rel,
+    }
+
+
+def score_output(output: Disparity | None, truth: npt.NDArray[np.float32]) -> DisparityCounts:
+    """The counts of one pair against its truth (no output: no estimate anywhere); depth
+    AbsRel from the output's f, t and cx_offset (``Disparity.depth``) where it has them."""
+    if output is None:
+        return score_disparity(np.full(truth.shape, np.nan, np.float32), truth)
+    counts = score_disparity(output.disparity, truth, min_disparity=output.min_disparity)
+    if not (output.f > 0 and output.t > 0):
+        return counts
+    gt = np.asarray(truth, dtype=np.float32)
+    with np.errstate(invalid='ignore'):
+        both = output.estimated() & np.isfinite(gt) & (gt != 0)
+    z_est = output.depth()
+    z_gt = replace(output, disparity=np.where(both, gt, np.nan).astype(np.float32)).depth()
+    usable = both & np.isfinite(z_est) & np.isfinite(z_gt) & (z_gt > 0)
+    zg, ze = z_gt[usable].astype(np.float64), z_est[usable].astype(np.float64)
+    return replace(
+        counts, depth_pixels=int(zg.size), abs_rel_sum=float(np.sum(np.abs(ze - zg) / zg))
+    )
+
+
+class StereoRecording(TaskRecordingBase):
+    """Each (backend label, topic)'s pixel sums over its pairs with truth."""
+
+    #: a stereo backend has no boxes to score
+    scores_boxes = False
+    writes_first = False
+
+    def __init__(self) -> None:
+        self.counts: dict[tuple[str, str], DisparityCounts] = {}
+
+    def frame(
+        self,
+        writer: OutputWriter,
+        label: str,
+        inp: _Input,
+        key: tuple[str, int, int, int, str],
+        result: BackendResult,
+    ) -> Mapping[str, Any]:
+        """One pair: its DisparityImage written and, against the left image's truth, scored;
+        its frames.csv columns. ``BackendError`` for an output that is no ``Disparity``."""
+        from replaybench.tasks.stereo.sink import write_disparity
+
+        topic, _, log_time_ns, stamp_ns, frame_id = key
+        output = result.output
+        if output is not None and not isinstance(output, Disparity):
+            msg = (
+                f'backend {label!r} declares task stereo but returned '
+                f'{type(output).__name__}, not a Disparity (replaybench.stereo.Disparity)'
+            )
+            raise BackendError(msg)
+        if output is not None:
+            write_disparity(writer, label, topic, log_time_ns, stamp_ns, frame_id, output)
+        table = cast('DisparityTruth | None', inp.truth.get('stereo'))
+        truth = None if table is None else table.lookup(frame_id, stamp_ns)
+        if truth is None:
+            return {}
+        counts = score_output(output, truth)
+        row = (label, topic)
+        self.counts[row] = self.counts.get(row, DisparityCounts()) + counts
+        return figures_of(counts.figures())
+
+    def summary(self, backend: str, topic: str) -> Mapping[str, Any] | None:
+        """The row's figures pooled over its pairs with truth; None where none was scored."""
+        counts = self.counts.get((backend, topic))
+        if counts is None:
+            return None
+        return figures_of(counts.figures())
+
+
+def recording(recorder: object) -> StereoRecording:
+    """The stereo task's ``TaskRecording`` for a run."""
+    del recorder
+    return StereoRecording()

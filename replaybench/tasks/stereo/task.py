@@ -1,0 +1,92 @@
+"""The stereo task: disparity against ground-truth disparity (``replaybench.stereo.metrics``)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from replaybench.tasks.base import LazyMapping, MetricSpec, TaskViews
+from replaybench.tasks.stereo import DISPARITY_TRUTH_TOPIC
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from replaybench.decode.recorded import OutputReader
+    from replaybench.tasks.base import TruthInput
+
+__all__ = ['FRAME_COLUMNS', 'TASK', 'StereoTask']
+
+#: frames.csv's columns of a stereo backend's row: the pair's own figures (after the known ones)
+FRAME_COLUMNS = ('epe', 'bad1', 'bad2', 'bad3', 'd1_all', 'density', 'abs_rel')
+
+
+class StereoTask:
+    """Disparity per stereo pair: EPE, bad-1/2/3, D1-all and density over the pixels with
+    truth, pooled over a (backend, topic)'s pairs, and depth AbsRel where depth can be formed."""
+
+    name: ClassVar[str] = 'stereo'
+    metrics: ClassVar[tuple[MetricSpec, ...]] = (
+        MetricSpec(
+            'epe', 'EPE (px)', 'EPE px', 'lower', fmt='.3f', sweep=True, terminal_label='EPE'
+        ),
+        MetricSpec('bad1', 'bad-1 (share > 1 px)', 'bad-1', 'lower'),
+        MetricSpec(
+            'bad2',
+            'bad-2 (share > 2 px)',
+            'bad-2',
+            'lower',
+            sweep=True,
+            main=True,
+            terminal_label='bad2',
+        ),
+        MetricSpec('bad3', 'bad-3 (share > 3 px)', 'bad-3', 'lower'),
+        MetricSpec('d1_all', 'D1-all (share > 3 px and > 5 %)', 'D1-all', 'lower', sweep=True),
+        MetricSpec(
+            'density',
+            'density (share of truth with an estimate)',
+            'density',
+            'higher',
+            sweep=True,
+            terminal_label='dens.',
+        ),
+        MetricSpec('abs_rel', 'depth AbsRel', 'AbsRel', 'lower'),
+    )
+    frame_columns: ClassVar[tuple[str, ...]] = FRAME_COLUMNS
+    #: ``replaybench run``'s table: EPE, bad-2 and density after the memory column, where a
+    #: row has them; the report shows bad-2 in its Summary and the others under More figures
+    views: ClassVar[TaskViews] = TaskViews(terminal_metrics=('epe', 'bad2', 'density'))
+
+    #: each pair's disparity written and scored (``replaybench.tasks.stereo.recording``)
+    recording: ClassVar[str] = 'replaybench.tasks.stereo.recording:recording'
+
+    #: a recorded stereo_msgs/DisparityImage (an ESS or disparity node's output)
+    recorded_readers: ClassVar[Mapping[str, OutputReader]] = LazyMapping(
+        'replaybench.tasks.stereo.recorded:READERS'
+    )
+
+    # the ground truth (``replaybench.tasks.stereo.truth``, imported for an input with some)
+
+    def truth_topics(self, options: Any) -> frozenset[str]:
+        """``/ground_truth/disparity``."""
+        del options
+        return frozenset((DISPARITY_TRUTH_TOPIC,))
+
+    def load_truth(self, config: Any) -> object | None:
+        """Nothing: the truth is read from each input."""
+        del config
+        return None
+
+    def open_truth(
+        self, inp: TruthInput, options: Any, loaded: object | None, notes: list[str]
+    ) -> object | None:
+        """The input's truth topic, indexed when its first pair is scored (after the pass);
+        None without it."""
+        del options, loaded
+        found = [t for t in inp.source.topics() if t.name == DISPARITY_TRUTH_TOPIC]
+        if not found:
+            return None
+        from replaybench.tasks.stereo.truth import DisparityTopic
+
+        return DisparityTopic(inp.source, DISPARITY_TRUTH_TOPIC, notes)
+
+
+TASK = StereoTask()

@@ -44,6 +44,7 @@ BUILTIN_BACKENDS: dict[str, str] = {
     'hsv-cuda': 'replaybench.backends.gpu.hsv_cuda:HsvCudaBackend',
     'hsv-seg': 'replaybench.backends.hsv_seg:HsvSegBackend',
     'onnx-seg': 'replaybench.backends.onnx_seg:OnnxSegBackend',
+    'onnx-stereo': 'replaybench.backends.onnx_stereo:OnnxStereoBackend',
     'apriltag': 'replaybench.backends.apriltag:AprilTagBackend',
     'aruco': 'replaybench.backends.aruco:ArucoBackend',
     'sgbm': 'replaybench.backends.sgbm:SgbmBackend',

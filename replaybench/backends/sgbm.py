@@ -106,7 +106,7 @@ class StereoMatcherBackend:
         if len(topics) != 2:
             msg = (
                 f'{self.name} takes a left and a right image topic, not {len(topics)} '
-                f'({", ".join(topics)}): give --topic LEFT --topic RIGHT'
+                f'({", ".join(topics)}): give --stereo LEFT,RIGHT'
             )
             raise StereoError(msg)
         try:
@@ -134,7 +134,7 @@ class StereoMatcherBackend:
         if len(frame_set.frames) != 2:
             msg = (
                 f'{self.name} takes a left and a right image, not {len(frame_set.frames)} '
-                f'({", ".join(frame_set.topics)}): give --topic LEFT --topic RIGHT'
+                f'({", ".join(frame_set.topics)}): give --stereo LEFT,RIGHT'
             )
             raise StereoError(msg)
         left, right = frame_set.frames

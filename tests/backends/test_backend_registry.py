@@ -106,6 +106,7 @@ BUILTINS = [
     'hsv-cuda',
     'hsv-seg',
     'onnx-seg',
+    'onnx-stereo',
     'apriltag',
     'aruco',
     'sgbm',

@@ -214,6 +214,11 @@ class SortTracker:
         self.frame_count = 0
         self._next = 1
 
+    def _keep(self, mask: npt.NDArray[np.bool_]) -> None:
+        """Only the tracks of ``mask``: their filters and their counters."""
+        self.bank.keep(mask)
+        self.ids, self.streak, self.since = self.ids[mask], self.streak[mask], self.since[mask]
+
     def update(
         self, boxes: npt.NDArray[np.float64], scores: npt.NDArray[np.float64]
     ) -> list[Track]:
@@ -231,12 +236,7 @@ class SortTracker:
         pred = _from_x_all(bank.x)
         alive = np.all(np.isfinite(pred), axis=1)
         if not alive.all():
-            bank.keep(alive)
-            self.ids, self.streak, self.since = (
-                self.ids[alive],
-                self.streak[alive],
-                self.since[alive],
-            )
+            self._keep(alive)
             pred = pred[alive]
         pairs, new, _ = _match(box_iou_xyxy(dets, pred), self.iou_threshold)
         matched: dict[int, int] = {}
@@ -266,12 +266,7 @@ class SortTracker:
         ]
         alive = self.since <= self.max_age
         if not alive.all():
-            bank.keep(alive)
-            self.ids, self.streak, self.since = (
-                self.ids[alive],
-                self.streak[alive],
-                self.since[alive],
-            )
+            self._keep(alive)
         return sorted(out, key=lambda t: t.id)
 
 

@@ -158,6 +158,9 @@ class InputOptions:
     input_sha256: tuple[str | None, ...] | None = None
     #: the ground-truth mask topic (not replayed) or folder (``RunConfig.ground_truth_masks``)
     ground_truth_masks: str | None = None
+    #: a backend of the run takes stereo pairs and no topic was named: each input replays the
+    #: stereo pair its topics' names make (``replaybench.stereo.find_pairs``), left first
+    stereo_pairs: bool = False
 
     @property
     def windowed(self) -> bool:

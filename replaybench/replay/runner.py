@@ -89,6 +89,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
     from replaybench.backends.base import Backend, BackendOptions
+    from replaybench.replay.config import InputOptions
     from replaybench.replay.hashing import InputHash
     from replaybench.replay.inputs import OpenedInput
     from replaybench.replay.pairing import Pairing
@@ -185,6 +186,7 @@ def run_benchmark(
         with folder if folder is not None else contextlib.nullcontext():
             made = make_backends(config.backends, _with_bag_sizes(config), factory)
             config = _frame_set_sync(made, config, notice)
+            input_options = _stereo_inputs(made, config, input_options)
             recorded = any(backend_traits(b).uses_recorded_detections for _, b in made)
             for index, path in enumerate(config.inputs):
                 inp = open_input(
@@ -484,6 +486,16 @@ def _execute(
         )
     finish_files(output, calls.render, record)
     return RunOutcome(out, status, summary, record, tuple(recorder.records))
+
+
+def _stereo_inputs(
+    made: Sequence[tuple[str, Backend]], config: RunConfig, options: InputOptions
+) -> InputOptions:
+    """``options`` with ``stereo_pairs`` where a backend of the run is of the stereo task and no
+    topic was named (``--topic``, ``--stereo``): each input replays its stereo pair by name."""
+    if config.topics or not any(getattr(b, 'task', None) == 'stereo' for _, b in made):
+        return options
+    return replace(options, stereo_pairs=True)
 
 
 def _frame_set_sync(

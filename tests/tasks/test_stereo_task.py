@@ -286,3 +286,61 @@ def test_sgbm_replayed_on_middlebury_motorcycle_scores_as_the_bare_library_call(
     )
     assert row.metric('epe') == pytest.approx(figures.epe)
     assert row.metric('bad2') == pytest.approx(figures.bad2)
+
+
+def _renamed(bag: Path, names: dict[str, str]) -> list[FixtureMessage]:
+    """The messages of ``bag``'s topics in ``names``, under their new names."""
+    from mcap.reader import make_reader
+
+    found = []
+    with bag.open('rb') as f:
+        for schema, channel, message in make_reader(f).iter_messages(topics=list(names)):
+            assert schema is not None
+            found.append(
+                FixtureMessage(message.log_time, names[channel.topic], schema.name, message.data)
+            )
+    return found
+
+
+def test_a_stereo_backend_replays_the_pair_its_names_make_among_other_cameras(
+    bags: dict[str, Path], both: Path, tmp_path: Path
+) -> None:
+    front = _renamed(bags['rect'], {'/stereo/left/image_rect': '/front/image_raw'})
+    bag = _copy(bags['rect'], tmp_path / 'three.mcap', extra=front)
+    out = tmp_path / 'run'
+    rb.run(bag, backends=['sgbm'], out=out, report=False)
+    document = json.loads((out / 'run.json').read_text())
+    (row,) = (r for r in document['summary'] if r['backend'] == 'sgbm')
+    (alone,) = (r for r in json.loads((both / 'run.json').read_text())['summary']
+                if r['backend'] == 'sgbm')  # fmt: skip
+    assert row['topic'] == '/stereo/left/image_rect'
+    assert row['frames'] == FRAMES
+    assert row['task_metrics'] == alone['task_metrics']
+    assert [t['name'] for t in document['inputs'][0]['topics']] == [
+        '/stereo/left/image_rect',
+        '/stereo/right/image_rect',
+    ]
+
+
+def test_of_two_pairs_by_name_the_first_is_replayed_and_the_other_named(
+    bags: dict[str, Path], tmp_path: Path
+) -> None:
+    wide = _renamed(
+        bags['rect'],
+        {
+            '/stereo/left/image_rect': '/wide/left/image_rect',
+            '/stereo/right/image_rect': '/wide/right/image_rect',
+            '/stereo/left/camera_info': '/wide/left/camera_info',
+            '/stereo/right/camera_info': '/wide/right/camera_info',
+        },
+    )
+    bag = _copy(bags['rect'], tmp_path / 'two.mcap', extra=wide)
+    out = tmp_path / 'run'
+    rb.run(bag, backends=['bm'], out=out, report=False)
+    document = json.loads((out / 'run.json').read_text())
+    replayed = [t['name'] for t in document['inputs'][0]['topics']]
+    assert len(replayed) == 2
+    other = next(ns for ns in ('/stereo', '/wide') if not replayed[0].startswith(ns))
+    note = next(w for w in document['inputs'][0]['warnings'] if 'stereo pairs by name' in w)
+    assert f'{other}/left/image_rect,{other}/right/image_rect' in note
+    assert replayed[1] == replayed[0].replace('/left/', '/right/')

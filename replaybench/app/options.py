@@ -235,6 +235,22 @@ class RunOptions:
         '<stamp_ns>.png (default: /ground_truth/labels when present).',
         metavar='TOPIC|DIR',
     )
+    ground_truth_disparity: str | None = _opt(
+        None,
+        '--ground-truth-disparity',
+        'Ground-truth disparity of the left image for stereo backends: a 32FC1 Image or '
+        'DisparityImage topic, or a folder of <stamp_ns>.pfm (Middlebury) / .png (KITTI) files '
+        '(default: /ground_truth/disparity when present; docs/stereo.md).',
+        metavar='TOPIC|DIR',
+    )
+    ground_truth_depth: str | None = _opt(
+        None,
+        '--ground-truth-depth',
+        'Ground-truth depth of the left rectified image for stereo backends, instead: a depth '
+        'Image topic (32FC1 metres or 16UC1 millimetres), converted to disparity with each '
+        "output's focal length and baseline.",
+        metavar='TOPIC',
+    )
     stereo: str | None = _opt(
         None,
         '--stereo',

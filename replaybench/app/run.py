@@ -165,6 +165,8 @@ def config_of(
             None if options.ground_truth_masks is None else str(options.ground_truth_masks)
         ),
         sync=parse_sync(options.sync) if options.sync is not None else None,
+        ground_truth_disparity=options.ground_truth_disparity,
+        ground_truth_depth=options.ground_truth_depth,
     )
 
 

@@ -56,6 +56,8 @@ _METAVARS = {
     'recorded_topic': 'TOPIC',
     'ground_truth_image_topic': 'TOPIC',
     'ground_truth_masks': 'TOPIC|DIR',
+    'ground_truth_disparity': 'TOPIC|DIR',
+    'ground_truth_depth': 'TOPIC',
     'ground_truth_match': 'stamp|seq',
     'model_family': 'FAMILY',
     'labels': 'coco|PATH',

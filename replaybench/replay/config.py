@@ -91,6 +91,10 @@ class RunConfig:
     #: ground-truth label masks of segmentation backends: a topic, or a folder of
     #: <stamp_ns>.png files; None: /ground_truth/labels when present (tasks/segmentation/)
     ground_truth_masks: str | None = None
+    #: the stereo task's truth: a disparity topic or folder of .pfm/.png files, or a depth
+    #: topic (tasks/stereo/); None: /ground_truth/disparity when present
+    ground_truth_disparity: str | None = None
+    ground_truth_depth: str | None = None
     #: --sync: the replayed topics' frames grouped into synchronised sets by header stamp
     #: (``replaybench.replay.sync``); None: no pairing
     sync: SyncSpec | None = None
@@ -111,6 +115,8 @@ class RunConfig:
             hash_inputs=self.hash_inputs,
             input_sha256=self.input_sha256,
             ground_truth_masks=self.ground_truth_masks,
+            ground_truth_disparity=self.ground_truth_disparity,
+            ground_truth_depth=self.ground_truth_depth,
         )
 
     def pass_options(self) -> PassOptions:
@@ -158,6 +164,9 @@ class InputOptions:
     input_sha256: tuple[str | None, ...] | None = None
     #: the ground-truth mask topic (not replayed) or folder (``RunConfig.ground_truth_masks``)
     ground_truth_masks: str | None = None
+    #: the stereo task's truth (``RunConfig.ground_truth_disparity``, ``ground_truth_depth``)
+    ground_truth_disparity: str | None = None
+    ground_truth_depth: str | None = None
     #: a backend of the run takes stereo pairs and no topic was named: each input replays the
     #: stereo pair its topics' names make (``replaybench.stereo.find_pairs``), left first
     stereo_pairs: bool = False

@@ -39,6 +39,9 @@ __all__ = ['DisparityTruth', 'StereoRecording', 'figures_of', 'recording', 'scor
 class DisparityTruth(Protocol):
     """An input's truth disparity (``replaybench.tasks.stereo.truth.DisparityTopic``)."""
 
+    #: the truth is depth in metres, converted with each output's f and baseline
+    depth: bool
+
     def lookup(self, frame_id: str, stamp_ns: int) -> npt.NDArray[np.float32] | None: ...
 
 
@@ -89,6 +92,7 @@ class StereoRecording(TaskRecordingBase):
 
     def __init__(self) -> None:
         self.counts: dict[tuple[str, str], DisparityCounts] = {}
+        self.unconverted: dict[str, int] = {}
 
     def frame(
         self,
@@ -116,10 +120,37 @@ class StereoRecording(TaskRecordingBase):
         truth = None if table is None else table.lookup(frame_id, stamp_ns)
         if truth is None:
             return {}
+        if getattr(table, 'depth', False):
+            truth = self._depth_truth(label, output, truth)
+            if truth is None:
+                return {}
         counts = score_output(output, truth)
         row = (label, topic)
         self.counts[row] = self.counts.get(row, DisparityCounts()) + counts
         return figures_of(counts.figures())
+
+    def _depth_truth(
+        self, label: str, output: Disparity | None, depth: npt.NDArray[np.float32]
+    ) -> npt.NDArray[np.float32] | None:
+        """Truth depth as disparity with the output's f and baseline; without an output, the
+        depth itself (only which pixels hold truth matters: they all count as bad); None,
+        counted, for an output without f or baseline."""
+        from replaybench.tasks.stereo.truth import depth_to_disparity
+
+        if output is None:
+            return depth
+        if not (output.f > 0 and output.t > 0):
+            self.unconverted[label] = self.unconverted.get(label, 0) + 1
+            return None
+        return depth_to_disparity(depth, output.f, output.t, output.cx_offset)
+
+    def warnings(self) -> list[str]:
+        """Pairs whose truth depth could not be made a disparity."""
+        return [
+            f'{label}: {n} pair(s) not scored: truth is depth and the output has no focal '
+            'length or baseline to convert it'
+            for label, n in sorted(self.unconverted.items())
+        ]
 
     def summary(self, backend: str, topic: str) -> Mapping[str, Any] | None:
         """The row's figures pooled over its pairs with truth; None where none was scored."""

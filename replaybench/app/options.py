@@ -181,6 +181,12 @@ class RunOptions:
         'Subtracted from image ids / frame numbers with --ground-truth-match seq (1 for COCO '
         'files whose ids start at 1).',
     )
+    depth: bool = _opt(
+        False,
+        '--depth',
+        "Also write each stereo backend's depth in metres as a 32FC1 Image into outputs.mcap "
+        '(docs/stereo.md).',
+    )
     annotations: bool = _opt(
         False,
         '--annotations',

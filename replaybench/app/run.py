@@ -155,6 +155,7 @@ def config_of(
         ground_truth_image_topic=options.ground_truth_image_topic,
         ground_truth_seq_offset=options.ground_truth_seq_offset,
         annotations=options.annotations,
+        depth=options.depth,
         copy_images=options.copy_images,
         detections_format=options.detections_format,
         hash_inputs=options.hash_inputs,

@@ -80,6 +80,8 @@ class RunConfig:
     ground_truth_image_topic: str | None = None
     ground_truth_seq_offset: int = 0
     annotations: bool = False
+    #: --depth: stereo outputs also as depth Images in metres
+    depth: bool = False
     copy_images: bool = False
     detections_format: str = 'mcap'  # 'rosbag2': also a metadata.yaml, the run folder is a bag
     #: False (--no-hash): the inputs' sha256 is not computed; run.json records null and says so
@@ -137,6 +139,7 @@ class RunConfig:
             out=out,
             backend_labels=tuple(backend_label(name) for name in self.backends),
             annotations=self.annotations,
+            depth=self.depth,
             copy_images=self.copy_images,
             detections_format=self.detections_format,
             report=self.report,
@@ -199,6 +202,8 @@ class OutputOptions:
     out: Path | None
     backend_labels: tuple[str, ...] = ()
     annotations: bool = False
+    #: --depth: stereo outputs also as depth Images in metres
+    depth: bool = False
     copy_images: bool = False
     detections_format: str = 'mcap'
     report: bool = True

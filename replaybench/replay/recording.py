@@ -98,6 +98,9 @@ class DetectionsSink(Protocol):
     @property
     def annotations(self) -> bool: ...
 
+    @property
+    def depth(self) -> bool: ...
+
     def colour(self, backend: str, /) -> str: ...
 
     def add_message(

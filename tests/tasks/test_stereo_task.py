@@ -344,3 +344,51 @@ def test_of_two_pairs_by_name_the_first_is_replayed_and_the_other_named(
     note = next(w for w in document['inputs'][0]['warnings'] if 'stereo pairs by name' in w)
     assert f'{other}/left/image_rect,{other}/right/image_rect' in note
     assert replayed[1] == replayed[0].replace('/left/', '/right/')
+
+
+def test_with_depth_each_pair_also_has_a_32fc1_depth_image_in_metres_of_its_disparity(
+    bags: dict[str, Path], tmp_path: Path
+) -> None:
+    from mcap.reader import make_reader
+
+    from replaybench.stereo.msgs import parse_disparity_image
+
+    out = tmp_path / 'depth'
+    rb.run(bags['rect'], backends=['sgbm'], out=out, report=False, depth=True)
+    store = typestore(False)
+    found: dict[str, dict[int, Any]] = {'disparity': {}, 'depth': {}}
+    with (out / 'outputs.mcap').open('rb') as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            kind = channel.topic.rsplit('/', 1)[-1]
+            if channel.topic.startswith('/replaybench/sgbm/') and kind in found:
+                assert schema is not None
+                found[kind][message.log_time] = (schema.name, message.data)
+    assert len(found['depth']) == FRAMES
+    assert found['depth'].keys() == found['disparity'].keys()
+    for log_time, (schema_name, data) in found['depth'].items():
+        assert schema_name == 'sensor_msgs/msg/Image'
+        image: Any = store.deserialize_cdr(data, 'sensor_msgs/msg/Image')
+        assert image.encoding == '32FC1'
+        depth = np.frombuffer(image.data, np.float32).reshape(image.height, image.width)
+        disparity = parse_disparity_image(found['disparity'][log_time][1])
+        estimated = disparity.disparity >= disparity.min_disparity
+        with np.errstate(divide='ignore', invalid='ignore'):
+            expected = np.where(
+                estimated & (disparity.disparity > 0),
+                disparity.f * disparity.t / disparity.disparity.astype(np.float64),
+                np.nan,
+            )
+        assert image.header.stamp.sec * 10**9 + image.header.stamp.nanosec == disparity.stamp_ns
+        np.testing.assert_allclose(depth, expected, rtol=1e-6, equal_nan=True)
+        assert 0.1 < np.nanmedian(depth) < 10.0  # metres: a 0.12 m baseline at 256 px focal
+
+
+def test_without_depth_no_depth_image_is_written(both: Path) -> None:
+    from mcap.reader import make_reader
+
+    with (both / 'outputs.mcap').open('rb') as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    topics = {c.topic for c in summary.channels.values()}
+    assert not any(t.endswith('/depth') for t in topics)
+    assert any(t.endswith('/disparity') for t in topics)

@@ -50,6 +50,8 @@ from replaybench.errors import BackendError, BackendUnavailableError, StereoErro
 from replaybench.types import BackendResult, StageTimes
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     import numpy.typing as npt
 
     from replaybench.stereo import Rectifier
@@ -244,6 +246,15 @@ class OnnxStereoBackend:
     reads_camera_info: ClassVar[bool] = True
     #: without --sync, a pair's images are paired by equal stamps (``--sync exact``)
     default_sync: ClassVar[str] = 'exact'
+
+    @staticmethod
+    def frame_set_topics(topics: Sequence[str]) -> tuple[tuple[str, ...], str | None]:
+        """Without --topic or --stereo: the stereo pair the names of an input's camera topics
+        make, left first (``replaybench.stereo.pair_by_name``)."""
+        from replaybench.stereo.topics import pair_by_name
+
+        return pair_by_name(topics)
+
     #: before the replay: a left and a right topic, CameraInfo of one size and a baseline
     check_frame_set = StereoMatcherBackend.check_frame_set
 

@@ -18,7 +18,7 @@ from replaybench.backends.base import BackendOptions
 from replaybench.replay.rate import Rate
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
 
     from replaybench.replay.sync import SyncSpec
 
@@ -170,9 +170,10 @@ class InputOptions:
     #: the stereo task's truth (``RunConfig.ground_truth_disparity``, ``ground_truth_depth``)
     ground_truth_disparity: str | None = None
     ground_truth_depth: str | None = None
-    #: a backend of the run takes stereo pairs and no topic was named: each input replays the
-    #: stereo pair its topics' names make (``replaybench.stereo.find_pairs``), left first
-    stereo_pairs: bool = False
+    #: no topic was named and a backend of the run chooses the topics of its frame sets
+    #: (``Backend.frame_set_topics``, a stereo pair by name): each input's camera topics ->
+    #: (those to replay, a note or None)
+    choose_topics: Callable[[Sequence[str]], tuple[Sequence[str], str | None]] | None = None
 
     @property
     def windowed(self) -> bool:

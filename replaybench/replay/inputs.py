@@ -132,24 +132,19 @@ def _select_topics(
     return colour
 
 
-def _stereo_pair(path: Path, topics: list[CameraTopic], notes: list[str]) -> list[CameraTopic]:
-    """The stereo pair among ``topics`` by stereo_image_proc's naming (``NS/left/NAME`` and
-    ``NS/right/NAME``), left first; the first pair where several are named (a note names the
-    others: ``--stereo`` chooses one); ``topics`` as they are where no pair is named."""
-    from replaybench.stereo.topics import find_pairs
-
+def _chosen(
+    path: Path,
+    topics: list[CameraTopic],
+    choose: Callable[[Sequence[str]], tuple[Sequence[str], str | None]],
+    notes: list[str],
+) -> list[CameraTopic]:
+    """The camera topics a backend's ``frame_set_topics`` chooses of ``topics`` (a stereo
+    pair by name, left first), its note among the input's warnings."""
     by_name = {t.name: t for t in topics}
-    pairs = find_pairs(by_name)
-    if not pairs:
-        return topics
-    pair = pairs[0]
-    if len(pairs) > 1:
-        others = '; '.join(f'{p.left},{p.right}' for p in pairs[1:])
-        notes.append(
-            f'{path.name}: {len(pairs)} stereo pairs by name; replayed {pair.left},{pair.right} '
-            f'(the first), not {others}: --stereo LEFT,RIGHT chooses'
-        )
-    return [by_name[pair.left], by_name[pair.right]]
+    chosen, note = choose(list(by_name))
+    if note is not None:
+        notes.append(f'{path.name}: {note}')
+    return [by_name[name] for name in chosen]
 
 
 def open_input(
@@ -176,8 +171,8 @@ def open_input(
         found = [t for t in images if t.name not in truth_topics]  # the truth is no camera
         topics = _select_topics(path, found, options.topics, unreadable_image_topics(source))
         notes: list[str] = []
-        if options.stereo_pairs and not options.topics:
-            topics = _stereo_pair(path, topics, notes)
+        if options.choose_topics is not None and not options.topics:
+            topics = _chosen(path, topics, options.choose_topics, notes)
         truth = _open_truths(
             truths,
             options,

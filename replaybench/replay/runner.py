@@ -186,7 +186,7 @@ def run_benchmark(
         with folder if folder is not None else contextlib.nullcontext():
             made = make_backends(config.backends, _with_bag_sizes(config), factory)
             config = _frame_set_sync(made, config, notice)
-            input_options = _stereo_inputs(made, config, input_options)
+            input_options = _chosen_topics(made, config, input_options)
             recorded = any(backend_traits(b).uses_recorded_detections for _, b in made)
             for index, path in enumerate(config.inputs):
                 inp = open_input(
@@ -488,14 +488,19 @@ def _execute(
     return RunOutcome(out, status, summary, record, tuple(recorder.records))
 
 
-def _stereo_inputs(
+def _chosen_topics(
     made: Sequence[tuple[str, Backend]], config: RunConfig, options: InputOptions
 ) -> InputOptions:
-    """``options`` with ``stereo_pairs`` where a backend of the run is of the stereo task and no
-    topic was named (``--topic``, ``--stereo``): each input replays its stereo pair by name."""
-    if config.topics or not any(getattr(b, 'task', None) == 'stereo' for _, b in made):
+    """``options`` with ``choose_topics`` where no topic was named (``--topic``, ``--stereo``)
+    and a backend of the run chooses the topics of its frame sets (``frame_set_topics``: a
+    stereo matcher, the pair the names make); the first such backend's."""
+    if config.topics:
         return options
-    return replace(options, stereo_pairs=True)
+    for _, backend in made:
+        choose = getattr(backend, 'frame_set_topics', None)
+        if backend_traits(backend).takes_frame_sets and callable(choose):
+            return replace(options, choose_topics=choose)
+    return options
 
 
 def _frame_set_sync(

@@ -93,6 +93,8 @@ class StereoRecording(TaskRecordingBase):
     def __init__(self) -> None:
         self.counts: dict[tuple[str, str], DisparityCounts] = {}
         self.unconverted: dict[str, int] = {}
+        #: the truth of the pair last recorded (``frame`` runs before ``sample``)
+        self._truth: npt.NDArray[np.float32] | None = None
 
     def frame(
         self,
@@ -118,16 +120,25 @@ class StereoRecording(TaskRecordingBase):
             write_disparity(writer, label, topic, log_time_ns, stamp_ns, frame_id, output)
         table = cast('DisparityTruth | None', inp.truth.get('stereo'))
         truth = None if table is None else table.lookup(frame_id, stamp_ns)
+        self._truth = truth
         if truth is None:
             return {}
         if getattr(table, 'depth', False):
-            truth = self._depth_truth(label, output, truth)
+            truth = self._truth = self._depth_truth(label, output, truth)
             if truth is None:
                 return {}
         counts = score_output(output, truth)
         row = (label, topic)
         self.counts[row] = self.counts.get(row, DisparityCounts()) + counts
         return figures_of(counts.figures())
+
+    def sample(self, result: BackendResult) -> tuple[Disparity, Any] | None:
+        """The sample pair's disparity and its truth (None without), for its thumbnail; None
+        without an output."""
+        output = result.output
+        if not isinstance(output, Disparity):
+            return None
+        return output, self._truth
 
     def _depth_truth(
         self, label: str, output: Disparity | None, depth: npt.NDArray[np.float32]

@@ -68,7 +68,12 @@ class StereoTask:
     frame_columns: ClassVar[tuple[str, ...]] = FRAME_COLUMNS
     #: ``replaybench run``'s table: EPE, bad-2 and density after the memory column, where a
     #: row has them; the report shows bad-2 in its Summary and the others under More figures
-    views: ClassVar[TaskViews] = TaskViews(terminal_metrics=('epe', 'bad2', 'density'))
+    #: report.html shows each backend's disparity of the sample pair and its error
+    views: ClassVar[TaskViews] = TaskViews(
+        terminal_metrics=('epe', 'bad2', 'density'),
+        sample_picture='replaybench.report.disparity:disparity_sample_picture',
+        sample_caption='replaybench.report.disparity:disparity_caption',
+    )
 
     #: each pair's disparity written and scored (``replaybench.tasks.stereo.recording``)
     recording: ClassVar[str] = 'replaybench.tasks.stereo.recording:recording'

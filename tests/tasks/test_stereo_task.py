@@ -392,3 +392,44 @@ def test_without_depth_no_depth_image_is_written(both: Path) -> None:
     topics = {c.topic for c in summary.channels.values()}
     assert not any(t.endswith('/depth') for t in topics)
     assert any(t.endswith('/disparity') for t in topics)
+
+
+def _written(run: Path, backend: str) -> list[npt.NDArray[np.float32]]:
+    """A backend's disparities as written in outputs.mcap, NaN where it has no estimate."""
+    found = []
+    for message in _disparity_messages(
+        run, f'/replaybench/{backend}/stereo/left/image_rect/disparity'
+    ):
+        image = message.image
+        d = np.frombuffer(bytes(image.data), '<f4').reshape(image.height, image.width)
+        found.append(np.where(d >= message.min_disparity, d, np.nan).astype(np.float32))
+    return found
+
+
+def test_two_stereo_backends_agreement_is_the_seconds_disparity_against_the_firsts(
+    both: Path, bags: dict[str, Path], tmp_path: Path
+) -> None:
+    document = json.loads((both / 'run.json').read_text())
+    (row,) = document['stereo_agreement']
+    assert (row['backend_a'], row['backend_b'], row['topic'], row['frames']) == (
+        'sgbm',
+        'bm',
+        '/stereo/left/image_rect',
+        FRAMES,
+    )
+    a, b = np.stack(_written(both, 'sgbm')), np.stack(_written(both, 'bm'))
+    known = np.isfinite(a) & (a != 0)
+    estimated = known & np.isfinite(b)
+    error = np.abs(b - a)
+    assert row['epe'] == pytest.approx(float(error[estimated].mean()), rel=1e-5)
+    for n in (1, 2, 3):
+        bad = known & ~(estimated & (error <= n))
+        assert row[f'bad{n}'] == pytest.approx(bad.sum() / known.sum(), rel=1e-6)
+    assert row['density'] == pytest.approx(estimated.sum() / known.sum(), rel=1e-6)
+    assert 0 < row['bad2'] < 1
+    loaded = rb.load_run(both)
+    assert loaded.stereo_agreement is not None
+    assert loaded.stereo_agreement[0].bad2 == row['bad2']
+    one = tmp_path / 'one'
+    rb.run(bags['rect'], backends=['sgbm'], out=one, report=False)
+    assert 'stereo_agreement' not in json.loads((one / 'run.json').read_text())

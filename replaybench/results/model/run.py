@@ -16,6 +16,7 @@ from replaybench.results.model.common import (
 from replaybench.results.model.detections import AgreementRow
 from replaybench.results.model.rig import RigReport
 from replaybench.results.model.segmentation import SegmentationAgreementRow
+from replaybench.results.model.stereo import StereoAgreementRow
 from replaybench.results.model.summary import RepeatStats, SummaryRow
 from replaybench.results.model.sync import SyncReport
 from replaybench.results.records import FrameRecord
@@ -247,6 +248,10 @@ class RunResult:
     agreement: tuple[AgreementRow, ...] = ()
     #: with two or more segmentation backends: their masks compared
     segmentation_agreement: tuple[SegmentationAgreementRow, ...] = ()
+    #: with two or more stereo backends: their disparities compared; absent otherwise
+    stereo_agreement: tuple[StereoAgreementRow, ...] | None = field(
+        default=None, metadata=OMIT_NONE
+    )
     counts: RunCounts | None = None
     skipped: Mapping[str, int] = field(default_factory=empty_mapping)
     warnings: tuple[str, ...] = ()

@@ -9,8 +9,7 @@ import json
 import subprocess
 import sys
 from dataclasses import replace
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
@@ -20,6 +19,9 @@ from replaybench.fixtures.writer import FixtureMessage, write_ros2_mcap
 from replaybench.msgs import CAMERA_INFO, IMAGE, serialize_camera_info, serialize_image, typestore
 from replaybench.stereo import Matcher, stereo_pair
 from replaybench.stereo.msgs import DISPARITY_IMAGE
+
+if TYPE_CHECKING:
+    from pathlib import Path
 
 PAIRS = 24
 LEFT, RIGHT = '/euroc/left/image_raw', '/euroc/right/image_raw'

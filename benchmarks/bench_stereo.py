@@ -149,6 +149,7 @@ def replay_against_bare(rounds: int) -> dict[str, Any]:
         def replay() -> float:
             result = rb.run(bag, backends=['sgbm'], out=None, warmup=warmup, report=False)
             (row,) = result.summary_rows
+            assert row.throughput_fps is not None
             return 1000.0 / row.throughput_fps
 
         for r in range(rounds):

@@ -433,3 +433,23 @@ def test_two_stereo_backends_agreement_is_the_seconds_disparity_against_the_firs
     one = tmp_path / 'one'
     rb.run(bags['rect'], backends=['sgbm'], out=one, report=False)
     assert 'stereo_agreement' not in json.loads((one / 'run.json').read_text())
+
+
+def test_peak_finds_a_stereo_backends_rate_over_pairs_each_trial_scored(tmp_path: Path) -> None:
+    bag = write_stereo_mcap(tmp_path / 'stereo.mcap', 8)
+    out = tmp_path / 'peak'
+    done = subprocess.run(
+        [sys.executable, '-m', 'replaybench', 'peak', str(bag), '--backend', 'bm', '--out',
+         str(out), '--max-hz', '400', '--refine-steps', '1', '--no-report'],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    document = json.loads((out / 'peak.json').read_text())
+    assert document['peak_hz'] > 0
+    assert document['trials']
+    for trial in document['trials']:
+        assert trial['frames'] == 8  # pairs: one row per frame set
+        run = json.loads((out / trial['run_dir'] / 'run.json').read_text())
+        (row,) = run['summary']
+        assert row['topic'] == '/stereo/left/image_rect'
+        assert row['task_metrics']['bad2'] is not None

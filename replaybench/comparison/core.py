@@ -43,6 +43,7 @@ if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
 
+    from replaybench.comparison.paired import Paired
     from replaybench.comparison.runs import RunInfo
     from replaybench.results.blocks import ChangeInterval
     from replaybench.results.folder import RunData
@@ -130,6 +131,9 @@ class Row:
     #: summary.csv's ``recorded_latency_note`` (why a recorded figure is not reported; '' when
     #: nothing is said); None for a row that replays
     recorded_note: str | None = None
+    #: a candidate row of boxes against its baseline row frame by frame (``comparison.paired``:
+    #: the paired mAP@0.5 change and interval, the agreement of the two); None for other rows
+    paired: Paired | None = None
 
     @property
     def name(self) -> str:
@@ -336,6 +340,7 @@ def compare_runs(
     seed: int = 0,
     n_boot: int = DEFAULT_RESAMPLES,
     confidence: float = CONFIDENCE,
+    paired_resamples: int | None = None,
 ) -> Comparison:
     """Compare every (run, backend, topic) of ``run_dirs`` with the baseline run.
 
@@ -343,6 +348,11 @@ def compare_runs(
     (default: the same backend; when the baseline run has no such backend but exactly one on
     that topic, that one). With a single run folder the baseline backend defaults to its first
     backend, so the backends of one run are compared with each other.
+
+    A candidate row of boxes over the same frames as its baseline row (the same run, or runs
+    of the same inputs) is also compared frame by frame (``comparison.paired``): its map50
+    change gets the paired bootstrap interval (``paired_resamples`` draws, default
+    ``PAIRED_RESAMPLES``) and the row the agreement of the two backends' boxes.
 
     Raises UsageError for bad arguments and SourceError for unreadable run folders.
     """
@@ -495,6 +505,12 @@ def compare_runs(
             extra = [f for f in flags if f not in flags_of_run[run.index]]
             if extra:
                 warnings.append(f'{row.name}: ' + '; '.join(extra))
+    rows = _with_paired(
+        rows, runs, baseline, seed=seed, confidence=confidence, resamples=paired_resamples
+    )
+    warnings.extend(
+        f'{row.name}: {flag}' for row in rows for flag in row.flags if flag.startswith('paired')
+    )
     candidates = [r for r in runs if r.index != baseline]
     matches = [inputs_match(r, base_run) for r in candidates]
     if any(m is False for m in matches):
@@ -526,6 +542,73 @@ def compare_runs(
             if (found := rec.figures.get('pipeline_ms')) is not None
         },
     )
+
+
+def _pairable(row: Row) -> bool:
+    """A candidate row of boxes over its baseline row's frames: both have mAP@0.5, and the
+    two are of one run or of runs of the same inputs."""
+    acc = row.metrics.get('map50')
+    return (
+        row.role == 'candidate'
+        and row.topic != RIG_TOPIC
+        and acc is not None
+        and acc.value is not None
+        and acc.baseline is not None
+        and row.inputs_match is True
+    )
+
+
+def _with_paired(
+    rows: list[Row],
+    runs: Sequence[RunInfo],
+    baseline: int,
+    *,
+    seed: int,
+    confidence: float,
+    resamples: int | None,
+) -> list[Row]:
+    """``rows`` with each pairable row's ``paired`` and its map50 ``diff_ci``."""
+    chosen = [i for i, row in enumerate(rows) if _pairable(row)]
+    if not chosen:
+        return rows
+    from replaybench.comparison.paired import PAIRED_RESAMPLES, paired_rows
+
+    found = paired_rows(
+        [
+            (
+                runs[baseline],
+                str(rows[i].baseline_backend),
+                runs[rows[i].run],
+                rows[i].backend,
+                rows[i].topic,
+            )
+            for i in chosen
+        ],
+        resamples=PAIRED_RESAMPLES if resamples is None else resamples,
+        confidence=confidence,
+        seed=seed,
+    )
+    out = list(rows)
+    for i, paired in zip(chosen, found, strict=True):
+        row = rows[i]
+        acc = row.metrics['map50']
+        flags = list(row.flags)
+        metrics = dict(row.metrics)
+        if paired.note:
+            flags.append(f'paired accuracy interval not made: {paired.note}')
+        if paired.ci is not None:
+            metrics['map50'] = replace(acc, diff_ci=paired.ci, method='paired-bootstrap')
+        if (
+            paired.change is not None
+            and acc.diff is not None
+            and abs(paired.change - acc.diff) > 1e-9
+        ):
+            flags.append(
+                f'paired over {paired.frames} frames both backends output: map50 change '
+                f'{paired.change:+.4f}, not the {acc.diff:+.4f} of the frames each scored'
+            )
+        out[i] = replace(row, metrics=metrics, flags=tuple(flags), paired=paired)
+    return out
 
 
 def _short(sha: str | None) -> str:

@@ -38,6 +38,9 @@ h1{font-size:22px;margin:0 0 4px}
 h2{font-size:18px;margin:28px 0 10px;padding-bottom:4px;border-bottom:1px solid var(--line)}
 h3{font-size:15px;margin:18px 0 8px}
 .meta{color:var(--muted);margin:0 0 12px}
+.thumbs{display:flex;flex-wrap:wrap;gap:10px}.thumbs figure{margin:0;max-width:100%}
+.thumbs img{display:block;max-width:100%;height:auto;border:1px solid var(--line)}
+.thumbs figcaption{color:var(--muted);font-size:12px}
 .badge{display:inline-block;padding:1px 8px;border-radius:10px;font-weight:600;font-size:12px;
 color:#fff;background:#777;white-space:nowrap}
 .badge.pass,.badge.match{background:#2e7d32}.badge.fail,.badge.mismatch{background:#c62828}
@@ -276,7 +279,71 @@ def _accuracy_cell(m: MetricComparison, role: str) -> str:
     value = escaped(number_text(m.value, '.4g'))
     if role != 'candidate' or m.diff is None:
         return f'<td class="n">{value}</td>'
-    return f'<td class="n">{value}<span class="ci">Δ {m.diff:+.4f} (no CI)</span></td>'
+    if m.diff_ci is None:
+        return f'<td class="n">{value}<span class="ci">Δ {m.diff:+.4f} (no CI)</span></td>'
+    lo, hi = m.diff_ci
+    interval = f'Δ {m.diff:+.4f} [{lo:+.4f}, {hi:+.4f}] paired'
+    return f'<td class="n">{value}<span class="ci">{escaped(interval)}</span></td>'
+
+
+def _paired(comparison: Comparison) -> str:
+    """What the precision costs: per paired row, the accuracy change with its paired interval,
+    the agreement of the two backends' boxes, the latency ratio, and the frames where the two
+    agree least as thumbnails (drawn from the bag, embedded)."""
+    from replaybench.comparison.paired import thumbnails
+
+    rows = [r for r in comparison.rows if r.paired is not None]
+    if not rows:
+        return ''
+    intro = (
+        '<h2 id="paired">What the precision costs</h2><p class="meta">Each candidate row of '
+        'boxes against its baseline row on the frames both output: the mAP@0.5 change with a '
+        'bootstrap interval paired by frame (the same resampled frames scored for both), the '
+        "agreement of the two backends' boxes per frame (matched: share of boxes of both that "
+        'found a box of the same label at IoU ≥ 0.5; IoU: mean best-match IoU of every box), '
+        'the median latency ratio, and the frames where the two agree least.</p>'
+    )
+    parts = [intro]
+    for row in rows:
+        paired = row.paired
+        assert paired is not None
+        level = round(paired.confidence * 100)
+        if paired.ci is not None and paired.change is not None:
+            lo, hi = paired.ci
+            change = (
+                f'mAP@0.5 {paired.baseline:.4f} → {paired.candidate:.4f}: Δ {paired.change:+.4f}, '
+                f'{level}% CI [{lo:+.4f}, {hi:+.4f}] ({paired.resamples} paired resamples of '
+                f'{paired.frames} frames, seed {paired.seed})'
+            )
+        else:
+            change = f'no paired interval: {paired.note}'
+        median = row.metrics['median_ms']
+        latency = f'median latency ×{median.ratio:.3f}' if median.ratio is not None else ''
+        if median.ratio_ci is not None:
+            latency += f' [{median.ratio_ci[0]:.3f}, {median.ratio_ci[1]:.3f}]'
+        agree = ''
+        if paired.matched_mean is not None and paired.iou_mean is not None:
+            agree = (
+                f'boxes agree: matched {paired.matched_mean:.3f} (lowest frame '
+                f'{paired.matched_min:.3f}), IoU {paired.iou_mean:.3f}; '
+                f'{paired.agreeing_frames} frames fully matched'
+            )
+        items = ''.join(f'<li>{escaped(t)}</li>' for t in (change, agree, latency) if t)
+        names = (str(row.baseline_backend), row.backend)
+        shots = thumbnails(paired, comparison.runs[row.run], row.topic, names)
+        figures = ''.join(
+            f'<figure><img src="{uri}" alt="{escaped(f"{row.topic} {f.stamp_ns}")}">'
+            f'<figcaption>matched {f.matched:.2f} · IoU {f.iou:.2f} · boxes '
+            f'{f.n_baseline} / {f.n_candidate}</figcaption></figure>'
+            for f, uri in shots
+        )
+        if not paired.worst and paired.matched_mean is not None:
+            figures = '<p class="meta">The two agree on every frame.</p>'
+        parts.append(
+            f'<h3>{escaped(row.name)} vs {escaped(names[0])}</h3><ul>{items}</ul>'
+            f'<div class="thumbs">{figures}</div>'
+        )
+    return ''.join(parts)
 
 
 #: The main accuracy figure of each task, read first (``MetricSpec.main``), in registry order.
@@ -581,6 +648,7 @@ def render_comparison_html(
         _banner(comparison),
         _gate(gate, conditions, strict, allow_inconclusive),
         _summary(comparison),
+        _paired(comparison),
         _charts(comparison),
         _runs(comparison),
         _footer(comparison),

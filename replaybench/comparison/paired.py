@@ -26,7 +26,7 @@ Heavy modules (the bag readers, the scoring) are imported when a comparison asks
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -47,6 +47,7 @@ __all__ = [
     'box_agreement',
     'paired_boxes',
     'paired_rows',
+    'thumbnails',
 ]
 
 #: Bootstrap draws of the paired interval (each scores both backends once).
@@ -94,6 +95,10 @@ class Paired:
     agreeing_frames: int = 0
     worst: tuple[FrameAgreement, ...] = ()
     note: str = ''
+    #: the baseline's and the candidate's boxes on each ``worst`` frame (for the thumbnails)
+    worst_boxes: tuple[tuple[tuple[Detection, ...], tuple[Detection, ...]], ...] = field(
+        default=(), compare=False, repr=False
+    )
 
 
 def _best_iou(a: Sequence[Detection], b: Sequence[Detection]) -> list[float]:
@@ -161,12 +166,17 @@ def paired_boxes(
     frames = [box_agreement(baseline[k], candidate[k], k) for k in both]
     matched = [f.matched for f in frames]
     ranked = sorted(frames, key=lambda f: (f.matched, f.iou))
+    worst = tuple(f for f in ranked if f.matched < 1.0 or f.iou < 1.0)[:WORST_FRAMES]
     agreement = {
+        'worst_boxes': tuple(
+            (tuple(baseline[f.frame_id, f.stamp_ns]), tuple(candidate[f.frame_id, f.stamp_ns]))
+            for f in worst
+        ),
         'matched_mean': float(np.mean(matched)) if frames else None,
         'iou_mean': float(np.mean([f.iou for f in frames])) if frames else None,
         'matched_min': min(matched) if frames else None,
         'agreeing_frames': sum(m == 1.0 for m in matched),
-        'worst': tuple(f for f in ranked if f.matched < 1.0 or f.iou < 1.0)[:WORST_FRAMES],
+        'worst': worst,
     }
     if not keys:
         return Paired(
@@ -307,3 +317,49 @@ def paired_rows(
             paired_boxes(b, c, base.truth, resamples=resamples, confidence=confidence, seed=seed)
         )
     return out
+
+
+def thumbnails(
+    paired: Paired, run: RunInfo, topic: str, names: tuple[str, str]
+) -> list[tuple[FrameAgreement, str]]:
+    """The ``worst`` frames of ``paired`` drawn from ``run``'s bag with both backends' boxes
+    (``names``: baseline, candidate), as JPEG ``data:`` URIs in ``worst`` order; frames whose
+    image the bag does not give (another topic, a bag that is gone) are left out."""
+    if not paired.worst or len(run.input_paths) != 1:
+        return []
+    import base64
+
+    import cv2
+
+    from replaybench.decode.image import decode_image, to_bgr8
+    from replaybench.errors import ReplaybenchError
+    from replaybench.report.samples import JPEG_QUALITY, sample_canvas
+    from replaybench.sources import open_source
+
+    bag = _input_path(run, run.input_paths[0])
+    if bag is None:
+        return []
+    wanted = {(f.frame_id, f.stamp_ns): i for i, f in enumerate(paired.worst)}
+    drawn: dict[int, str] = {}
+    try:
+        with open_source(bag) as source:
+            for raw in source.messages(topics=[topic]):
+                frame = decode_image(raw)
+                at = wanted.get((frame.frame_id, frame.stamp_ns))
+                if at is None:
+                    continue
+                agree = paired.worst[at]
+                base, cand = paired.worst_boxes[at]
+                title = f'{topic} #{frame.seq}: matched {agree.matched:.2f}, IoU {agree.iou:.2f}'
+                canvas = sample_canvas(
+                    to_bgr8(frame.image, frame.encoding), {names[0]: base, names[1]: cand}, title
+                )
+                ok, encoded = cv2.imencode('.jpg', canvas, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+                if ok:
+                    text = base64.b64encode(encoded.tobytes()).decode('ascii')
+                    drawn[at] = f'data:image/jpeg;base64,{text}'
+                if len(drawn) == len(wanted):
+                    break
+    except ReplaybenchError:
+        return [(paired.worst[i], uri) for i, uri in sorted(drawn.items())]
+    return [(paired.worst[i], uri) for i, uri in sorted(drawn.items())]

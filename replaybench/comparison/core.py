@@ -54,6 +54,7 @@ if TYPE_CHECKING:
 __all__ = [
     'ACCURACY_METRICS',
     'METRICS',
+    'PAIRED_METRICS',
     'RECORDED_METRICS',
     'RIG_METRICS',
     'RIG_POINT_METRICS',
@@ -349,10 +350,11 @@ def compare_runs(
     that topic, that one). With a single run folder the baseline backend defaults to its first
     backend, so the backends of one run are compared with each other.
 
-    A candidate row of boxes over the same frames as its baseline row (the same run, or runs
-    of the same inputs) is also compared frame by frame (``comparison.paired``): its map50
-    change gets the paired bootstrap interval (``paired_resamples`` draws, default
-    ``PAIRED_RESAMPLES``) and the row the agreement of the two backends' boxes.
+    A candidate row over the same frames as its baseline row (the same run, or runs of the
+    same inputs) is also compared frame by frame (``comparison.paired``), boxes on mAP@0.5
+    and label masks on mIoU: the change gets the paired bootstrap interval
+    (``paired_resamples`` draws, default ``PAIRED_RESAMPLES``) and the row the agreement of
+    the two backends' outputs.
 
     Raises UsageError for bad arguments and SourceError for unreadable run folders.
     """
@@ -544,18 +546,21 @@ def compare_runs(
     )
 
 
-def _pairable(row: Row) -> bool:
-    """A candidate row of boxes over its baseline row's frames: both have mAP@0.5, and the
-    two are of one run or of runs of the same inputs."""
-    acc = row.metrics.get('map50')
-    return (
-        row.role == 'candidate'
-        and row.topic != RIG_TOPIC
-        and acc is not None
-        and acc.value is not None
-        and acc.baseline is not None
-        and row.inputs_match is True
-    )
+#: The accuracy metric a row is paired on, by what its backend outputs: boxes, label masks.
+PAIRED_METRICS: tuple[str, ...] = ('map50', 'miou')
+
+
+def _paired_metric(row: Row) -> str | None:
+    """The metric a candidate row is paired on over its baseline row's frames (``map50`` for
+    boxes, ``miou`` for label masks: both rows have it), when the two are of one run or of
+    runs of the same inputs; None for any other row."""
+    if row.role != 'candidate' or row.topic == RIG_TOPIC or row.inputs_match is not True:
+        return None
+    for metric in PAIRED_METRICS:
+        acc = row.metrics.get(metric)
+        if acc is not None and acc.value is not None and acc.baseline is not None:
+            return metric
+    return None
 
 
 def _with_paired(
@@ -567,8 +572,8 @@ def _with_paired(
     confidence: float,
     resamples: int | None,
 ) -> list[Row]:
-    """``rows`` with each pairable row's ``paired`` and its map50 ``diff_ci``."""
-    chosen = [i for i, row in enumerate(rows) if _pairable(row)]
+    """``rows`` with each pairable row's ``paired`` and the ``diff_ci`` of its metric."""
+    chosen = [(i, metric) for i, row in enumerate(rows) if (metric := _paired_metric(row))]
     if not chosen:
         return rows
     from replaybench.comparison.paired import PAIRED_RESAMPLES, paired_rows
@@ -581,30 +586,31 @@ def _with_paired(
                 runs[rows[i].run],
                 rows[i].backend,
                 rows[i].topic,
+                metric,
             )
-            for i in chosen
+            for i, metric in chosen
         ],
         resamples=PAIRED_RESAMPLES if resamples is None else resamples,
         confidence=confidence,
         seed=seed,
     )
     out = list(rows)
-    for i, paired in zip(chosen, found, strict=True):
+    for (i, metric), paired in zip(chosen, found, strict=True):
         row = rows[i]
-        acc = row.metrics['map50']
+        acc = row.metrics[metric]
         flags = list(row.flags)
         metrics = dict(row.metrics)
         if paired.note:
             flags.append(f'paired accuracy interval not made: {paired.note}')
         if paired.ci is not None:
-            metrics['map50'] = replace(acc, diff_ci=paired.ci, method='paired-bootstrap')
+            metrics[metric] = replace(acc, diff_ci=paired.ci, method='paired-bootstrap')
         if (
             paired.change is not None
             and acc.diff is not None
             and abs(paired.change - acc.diff) > 1e-9
         ):
             flags.append(
-                f'paired over {paired.frames} frames both backends output: map50 change '
+                f'paired over {paired.frames} frames both backends output: {metric} change '
                 f'{paired.change:+.4f}, not the {acc.diff:+.4f} of the frames each scored'
             )
         out[i] = replace(row, metrics=metrics, flags=tuple(flags), paired=paired)

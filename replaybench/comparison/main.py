@@ -42,7 +42,8 @@ RECORDED_SHORT: dict[str, str] = {
 
 
 def paired_text(row: Row) -> str:
-    """The interval of a row's map50 change: the paired bootstrap's, or ``(no CI)``."""
+    """The interval of a row's paired change (map50 or miou): the paired bootstrap's, or
+    ``(no CI)``."""
     paired = row.paired
     if paired is None or paired.ci is None:
         return '(no CI)'
@@ -52,7 +53,12 @@ def paired_text(row: Row) -> str:
 
 
 def agreement_text(paired: Paired) -> str:
-    """The agreement of a row's boxes with its baseline's, in a few words."""
+    """The agreement of a row's outputs with its baseline's, in a few words."""
+    if paired.metric == 'miou':
+        return (
+            f'masks agree: pixels {paired.matched_mean:.4f}, mIoU {paired.iou_mean:.3f} '
+            f'(lowest frame {paired.matched_min:.4f})'
+        )
     return (
         f'boxes agree: matched {paired.matched_mean:.3f}, IoU {paired.iou_mean:.3f} '
         f'(lowest frame {paired.matched_min:.3f})'
@@ -120,6 +126,9 @@ def format_summary(
         acc = row.metrics['map50']
         if acc.diff is not None:
             parts.append(f'map50 {acc.diff:+.4f} {paired_text(row)}')
+        masks = row.metrics['miou']
+        if row.paired is not None and row.paired.metric == 'miou' and masks.diff is not None:
+            parts.append(f'miou {masks.diff:+.4f} {paired_text(row)}')
         if row.paired is not None and row.paired.matched_mean is not None:
             parts.append(agreement_text(row.paired))
         parts += recorded_parts(row)

@@ -75,8 +75,15 @@ def _row_line(row: Row, recorded: bool = False) -> str:
         text = f'{acc.diff:+.4f}'
         if acc.diff_ci is not None:
             text += f' [{acc.diff_ci[0]:+.4f}, {acc.diff_ci[1]:+.4f}] paired'
-    if row.paired is not None and row.paired.matched_mean is not None:
-        text += f'; boxes agree {row.paired.matched_mean:.3f}'
+    paired = row.paired
+    masks = row.metrics['miou']
+    if paired is not None and paired.metric == 'miou' and masks.diff is not None:
+        text = f'mIoU {masks.diff:+.4f}'
+        if masks.diff_ci is not None:
+            text += f' [{masks.diff_ci[0]:+.4f}, {masks.diff_ci[1]:+.4f}] paired'
+    if paired is not None and paired.matched_mean is not None:
+        what = 'pixels agree' if paired.metric == 'miou' else 'boxes agree'
+        text += f'; {what} {paired.matched_mean:.3f}'
     cells.append(_cell(text))
     if recorded:
         cells += [_cell(_recorded_text(row, k)) for k in RECORDED_SHORT]

@@ -56,13 +56,15 @@ _TIMING_SUFFIXES = (
 )
 _ACCURACY_SUFFIXES = ('', '_baseline', '_delta')
 
-#: comparison.csv's paired columns (appended last): the map50 change over the frames both
-#: backends output, its paired bootstrap interval, and the agreement of their boxes.
+#: comparison.csv's paired columns (appended last): the metric paired (``map50`` for boxes,
+#: ``miou`` for label masks), its change over the frames both backends output, its paired
+#: bootstrap interval, and the agreement of their outputs.
 PAIRED_COLUMNS: tuple[str, ...] = (
+    'paired_metric',
     'paired_frames',
-    'map50_paired_delta',
-    'map50_paired_ci_low',
-    'map50_paired_ci_high',
+    'paired_delta',
+    'paired_ci_low',
+    'paired_ci_high',
     'paired_resamples',
     'paired_confidence',
     'agreement_matched',
@@ -177,10 +179,11 @@ def _paired_cells(paired: Paired | None) -> dict[str, Any]:
         return dict.fromkeys(PAIRED_COLUMNS)
     ci = paired.ci
     return {
+        'paired_metric': paired.metric,
         'paired_frames': paired.frames,
-        'map50_paired_delta': paired.change,
-        'map50_paired_ci_low': ci[0] if ci else None,
-        'map50_paired_ci_high': ci[1] if ci else None,
+        'paired_delta': paired.change,
+        'paired_ci_low': ci[0] if ci else None,
+        'paired_ci_high': ci[1] if ci else None,
         'paired_resamples': paired.resamples or None,
         'paired_confidence': paired.confidence if ci else None,
         'agreement_matched': paired.matched_mean,

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -44,8 +44,10 @@ __all__ = [
     'WORST_FRAMES',
     'FrameAgreement',
     'Paired',
+    'Pairing',
     'box_agreement',
     'paired_boxes',
+    'paired_masks',
     'paired_rows',
     'thumbnails',
 ]
@@ -97,6 +99,10 @@ class Paired:
     note: str = ''
     #: the baseline's and the candidate's boxes on each ``worst`` frame (for the thumbnails)
     worst_boxes: tuple[tuple[tuple[Detection, ...], tuple[Detection, ...]], ...] = field(
+        default=(), compare=False, repr=False
+    )
+    #: the baseline's and the candidate's label masks on each ``worst`` frame (mask rows)
+    worst_masks: tuple[tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8]], ...] = field(
         default=(), compare=False, repr=False
     )
 
@@ -227,11 +233,109 @@ def paired_boxes(
     )
 
 
-class _Folder(NamedTuple):
-    """What a run folder gives the pairing: each (backend, topic)'s boxes, and the truth."""
+def paired_masks(
+    baseline: Mapping[BoxKey, npt.NDArray[np.uint8]],
+    candidate: Mapping[BoxKey, npt.NDArray[np.uint8]],
+    truth: Mapping[BoxKey, npt.NDArray[np.uint8]],
+    *,
+    resamples: int = PAIRED_RESAMPLES,
+    confidence: float = 0.95,
+    seed: int = 0,
+) -> Paired:
+    """The paired mIoU change and its bootstrap interval, and the agreement of two backends'
+    label masks (the module text): each frame's confusion matrix against its truth
+    (``tasks.segmentation.scoring.confusion``), summed over the drawn frames and scored by
+    ``scoring.scores`` as the run scores the sum over its frames. Per frame, ``matched`` is
+    the share of pixels both label alike and ``iou`` the mIoU of the candidate's mask against
+    the baseline's."""
+    import numpy as np
 
-    boxes: dict[tuple[str, str], dict[BoxKey, tuple[Detection, ...]]]
-    truth: dict[BoxKey, tuple[Detection, ...]] | None
+    from replaybench.tasks.segmentation.scoring import confusion, scores
+
+    both = sorted(k for k in baseline if k in candidate)
+    frames = []
+    for k in both:
+        a, b = baseline[k], candidate[k]
+        same = a.shape == b.shape
+        alike = float(np.count_nonzero(a == b)) / a.size if same and a.size else 0.0
+        between = scores(confusion(b, a, ignore=None)).miou if same else None
+        frames.append(
+            FrameAgreement(
+                k[0],
+                k[1],
+                alike,
+                1.0 if between is None and same else between or 0.0,
+                int(np.unique(a).size),
+                int(np.unique(b).size),
+            )
+        )
+    ranked = sorted(frames, key=lambda f: (f.matched, f.iou))
+    worst = tuple(f for f in ranked if f.matched < 1.0)[:WORST_FRAMES]
+    agreement = {
+        'matched_mean': float(np.mean([f.matched for f in frames])) if frames else None,
+        'iou_mean': float(np.mean([f.iou for f in frames])) if frames else None,
+        'matched_min': min(f.matched for f in frames) if frames else None,
+        'agreeing_frames': sum(f.matched == 1.0 for f in frames),
+        'worst': worst,
+        'worst_masks': tuple(
+            (baseline[f.frame_id, f.stamp_ns], candidate[f.frame_id, f.stamp_ns]) for f in worst
+        ),
+    }
+    keys = [
+        k for k in both if k in truth and truth[k].shape == baseline[k].shape == candidate[k].shape
+    ]
+    if not keys:
+        note = 'no frame both backends labelled has a ground-truth mask of its size'
+        return Paired('miou', 0, confidence=confidence, seed=seed, note=note, **agreement)  # type: ignore[arg-type]
+    # the class ids that occur: the matrices are kept over those alone (the IoUs are the same)
+    ids = np.unique(
+        np.concatenate([np.unique(m[k]) for m in (baseline, candidate, truth) for k in keys])
+    )
+    compact = [
+        np.stack([confusion(dets[k], truth[k])[np.ix_(ids, ids)] for k in keys])
+        for dets in (baseline, candidate)
+    ]
+    n, size = len(keys), len(ids)
+
+    def miou(matrix: npt.NDArray[np.int64]) -> float | None:
+        return scores(matrix.reshape(size, size)).miou
+
+    base_value = miou(compact[0].sum(axis=0))
+    cand_value = miou(compact[1].sum(axis=0))
+    draws = np.random.default_rng(seed).integers(0, n, size=(resamples, n))
+    weights = np.stack([np.bincount(d, minlength=n) for d in draws]).astype(np.int64)
+    sums = [weights @ c.reshape(n, size * size) for c in compact]
+    changes = []
+    for b_sum, c_sum in zip(sums[0], sums[1], strict=True):
+        b, c = miou(b_sum), miou(c_sum)
+        if b is not None and c is not None:
+            changes.append(c - b)
+    ci = None
+    if changes and base_value is not None and cand_value is not None:
+        lo, hi = np.quantile(np.asarray(changes), [(1 - confidence) / 2, (1 + confidence) / 2])
+        ci = (float(lo), float(hi))
+    return Paired(
+        'miou',
+        n,
+        base_value,
+        cand_value,
+        cand_value - base_value if base_value is not None and cand_value is not None else None,
+        ci,
+        resamples,
+        resamples - len(changes),
+        confidence,
+        seed,
+        note='' if ci is not None else 'every pixel of the paired frames is ignored',
+        **agreement,  # type: ignore[arg-type]
+    )
+
+
+class _Folder(NamedTuple):
+    """What a run folder gives the pairing: each (backend, topic)'s boxes or masks, and the
+    truth of each (by metric)."""
+
+    outputs: dict[tuple[str, str], dict[BoxKey, Any]]
+    truth: dict[str, dict[BoxKey, Any]]
     note: str
 
 
@@ -245,78 +349,161 @@ def _input_path(run: RunInfo, path: str) -> Path | None:
     return None
 
 
-def _read_folder(run: RunInfo, wanted: Sequence[tuple[str, str]]) -> _Folder:
+def _mask_truth_topic(run: RunInfo) -> str | None:
+    """The ground-truth mask topic of ``run``: its ``--ground-truth-masks`` (run.json
+    ``command``) when that names a topic, else the default; None for a folder of PNGs."""
+    from replaybench.tasks.segmentation.scoring import GROUND_TRUTH_MASK_TOPIC
+
+    command = list(run.data.run.command)
+    for i, word in enumerate(command):
+        given = None
+        if word == '--ground-truth-masks' and i + 1 < len(command):
+            given = command[i + 1]
+        elif word.startswith('--ground-truth-masks='):
+            given = word.split('=', 1)[1]
+        if given is not None:
+            return given if given.startswith('/') and not Path(given).is_dir() else None
+    return GROUND_TRUTH_MASK_TOPIC
+
+
+def _masks(source: Any, topic: str) -> dict[BoxKey, npt.NDArray[np.uint8]]:
+    """The mono8 label masks of a topic keyed by (frame_id, stamp)."""
+    import numpy as np
+
+    from replaybench.decode import decode_image
+    from replaybench.errors import DecodeError
+
+    found: dict[BoxKey, npt.NDArray[np.uint8]] = {}
+    for raw in source.messages(topics=[topic]):
+        try:
+            frame = decode_image(raw)
+        except DecodeError:
+            continue
+        if frame.encoding == 'mono8':
+            image = np.ascontiguousarray(frame.image).reshape(frame.image.shape[:2])
+            found[(frame.frame_id, frame.stamp_ns)] = image.astype(np.uint8, copy=False)
+    return found
+
+
+def _read_folder(run: RunInfo, wanted: Sequence[tuple[str, str, str]]) -> _Folder:
     from replaybench.errors import ReplaybenchError
     from replaybench.sinks.mcap_writer import detections_channel
     from replaybench.sources import open_source
     from replaybench.tasks.detections.truth import read_detections
+    from replaybench.tasks.segmentation.sink import labels_channel
 
     settings = run.data.run.settings
     outputs = run.data.run.outputs
     name = outputs.outputs_mcap if outputs is not None else None
     if not name or (settings.detections_format or 'mcap') != 'mcap':
-        return _Folder({}, None, f'{run.label}: no outputs.mcap (boxes are not kept)')
+        return _Folder({}, {}, f'{run.label}: no outputs.mcap (outputs are not kept)')
     mcap = run.dir / name
     if not mcap.is_file():
-        return _Folder({}, None, f'{run.label}: {name} is missing from {run.dir}')
-    gt_topic = settings.ground_truth_topic
-    if not gt_topic:
-        return _Folder({}, None, f'{run.label}: no ground-truth topic (a file is not paired)')
+        return _Folder({}, {}, f'{run.label}: {name} is missing from {run.dir}')
     if len(run.input_paths) != 1:
-        return _Folder({}, None, f'{run.label}: {len(run.input_paths)} inputs (one is paired)')
+        return _Folder({}, {}, f'{run.label}: {len(run.input_paths)} inputs (one is paired)')
+    metrics = {metric for _, _, metric in wanted}
+    gt_topic = settings.ground_truth_topic
+    mask_topic = _mask_truth_topic(run)
+    if 'map50' in metrics and not gt_topic:
+        return _Folder({}, {}, f'{run.label}: no ground-truth topic (a file is not paired)')
+    if 'miou' in metrics and mask_topic is None:
+        return _Folder({}, {}, f'{run.label}: ground-truth masks from a folder are not paired')
     bag = _input_path(run, run.input_paths[0])
     if bag is None:
-        return _Folder({}, None, f'{run.label}: input {run.input_paths[0]} not found')
+        return _Folder({}, {}, f'{run.label}: input {run.input_paths[0]} not found')
     size = run.data.run.inputs[0].size_bytes
     if size is not None and bag.is_file() and bag.stat().st_size != size:
-        return _Folder({}, None, f'{run.label}: input {bag} is not the one replayed (size)')
+        return _Folder({}, {}, f'{run.label}: input {bag} is not the one replayed (size)')
     try:
+        found: dict[tuple[str, str], dict[BoxKey, Any]] = {}
         with open_source(mcap) as source:
-            boxes = {
-                (backend, topic): read_detections(source, detections_channel(backend, topic))
-                for backend, topic in wanted
-            }
+            for backend, topic, metric in wanted:
+                if metric == 'miou':
+                    found[backend, topic] = _masks(source, labels_channel(backend, topic))
+                else:
+                    channel = detections_channel(backend, topic)
+                    found[backend, topic] = dict(read_detections(source, channel))
+        truth: dict[str, dict[BoxKey, Any]] = {}
         with open_source(bag) as source:
-            truth = read_detections(source, gt_topic)
+            if 'map50' in metrics and gt_topic:
+                truth['map50'] = dict(read_detections(source, gt_topic))
+            if 'miou' in metrics and mask_topic is not None:
+                truth['miou'] = dict(_masks(source, mask_topic))
     except ReplaybenchError as err:
-        return _Folder({}, None, f'{run.label}: {err}')
-    return _Folder(boxes, truth, '')
+        return _Folder({}, {}, f'{run.label}: {err}')
+    return _Folder(found, truth, '')
+
+
+#: What a pairing compares: (baseline run, baseline backend, candidate run, candidate backend,
+#: topic, metric: ``map50`` for boxes or ``miou`` for label masks).
+Pairing = tuple['RunInfo', str, 'RunInfo', str, str, str]
 
 
 def paired_rows(
-    pairs: Sequence[tuple[RunInfo, str, RunInfo, str, str]],
+    pairs: Sequence[Pairing],
     *,
     resamples: int = PAIRED_RESAMPLES,
     confidence: float = 0.95,
     seed: int = 0,
 ) -> list[Paired]:
-    """``paired_boxes`` for each (baseline run, baseline backend, candidate run, candidate
-    backend, topic), each run folder read once; a ``Paired`` with a ``note`` where it cannot
-    be made."""
-    wanted: dict[int, list[tuple[str, str]]] = {}
+    """``paired_boxes`` or ``paired_masks`` for each pairing, each run folder read once; a
+    ``Paired`` with a ``note`` where it cannot be made."""
+    wanted: dict[int, list[tuple[str, str, str]]] = {}
     runs: dict[int, RunInfo] = {}
-    for base_run, base_backend, cand_run, cand_backend, topic in pairs:
+    for base_run, base_backend, cand_run, cand_backend, topic, metric in pairs:
         runs[base_run.index], runs[cand_run.index] = base_run, cand_run
-        wanted.setdefault(base_run.index, []).append((base_backend, topic))
-        wanted.setdefault(cand_run.index, []).append((cand_backend, topic))
+        wanted.setdefault(base_run.index, []).append((base_backend, topic, metric))
+        wanted.setdefault(cand_run.index, []).append((cand_backend, topic, metric))
     folders = {i: _read_folder(runs[i], list(dict.fromkeys(w))) for i, w in wanted.items()}
     out = []
-    for base_run, base_backend, cand_run, cand_backend, topic in pairs:
+    for base_run, base_backend, cand_run, cand_backend, topic, metric in pairs:
         base, cand = folders[base_run.index], folders[cand_run.index]
         note = base.note or cand.note
-        if note or base.truth is None:
-            out.append(Paired('map50', 0, confidence=confidence, seed=seed, note=note))
+        truth = base.truth.get(metric)
+        if note or truth is None:
+            out.append(Paired(metric, 0, confidence=confidence, seed=seed, note=note))
             continue
-        b, c = base.boxes[base_backend, topic], cand.boxes[cand_backend, topic]
+        b, c = base.outputs[base_backend, topic], cand.outputs[cand_backend, topic]
         if not b or not c:
             empty = base_backend if not b else cand_backend
-            note = f'no boxes of {empty} on {topic} in outputs.mcap'
-            out.append(Paired('map50', 0, confidence=confidence, seed=seed, note=note))
+            what = 'masks' if metric == 'miou' else 'boxes'
+            note = f'no {what} of {empty} on {topic} in outputs.mcap'
+            out.append(Paired(metric, 0, confidence=confidence, seed=seed, note=note))
             continue
-        out.append(
-            paired_boxes(b, c, base.truth, resamples=resamples, confidence=confidence, seed=seed)
-        )
+        pair = paired_masks if metric == 'miou' else paired_boxes
+        out.append(pair(b, c, truth, resamples=resamples, confidence=confidence, seed=seed))
     return out
+
+
+def _thumbnail(
+    paired: Paired,
+    at: int,
+    image: npt.NDArray[np.uint8],
+    topic: str,
+    seq: int,
+    names: tuple[str, str],
+) -> npt.NDArray[np.uint8]:
+    """One least-agreeing frame drawn: the image with both backends' boxes, or (masks) the
+    image beside the two masks in the segmentation palette."""
+    import numpy as np
+
+    from replaybench.report.samples import sample_canvas
+
+    agree = paired.worst[at]
+    if paired.metric != 'miou':
+        base, cand = paired.worst_boxes[at]
+        title = f'{topic} #{seq}: matched {agree.matched:.2f}, IoU {agree.iou:.2f}'
+        drawn: npt.NDArray[np.uint8] = sample_canvas(image, {names[0]: base, names[1]: cand}, title)
+        return drawn
+    from replaybench.segmentation.palette import colourise
+
+    masks = [colourise(m)[:, :, ::-1] for m in paired.worst_masks[at]]  # palette RGB -> BGR
+    if any(m.shape != image.shape for m in masks):
+        masks = []
+    strip = np.hstack([image, *masks])
+    title = f'{topic} #{seq}: image | {names[0]} | {names[1]}: pixels alike {agree.matched:.4f}'
+    return np.asarray(sample_canvas(strip, {}, title), dtype=np.uint8)
 
 
 def thumbnails(
@@ -327,13 +514,15 @@ def thumbnails(
     image the bag does not give (another topic, a bag that is gone) are left out."""
     if not paired.worst or len(run.input_paths) != 1:
         return []
+    if not (paired.worst_masks if paired.metric == 'miou' else paired.worst_boxes):
+        return []
     import base64
 
     import cv2
 
     from replaybench.decode.image import decode_image, to_bgr8
     from replaybench.errors import ReplaybenchError
-    from replaybench.report.samples import JPEG_QUALITY, sample_canvas
+    from replaybench.report.samples import JPEG_QUALITY
     from replaybench.sources import open_source
 
     bag = _input_path(run, run.input_paths[0])
@@ -348,11 +537,8 @@ def thumbnails(
                 at = wanted.get((frame.frame_id, frame.stamp_ns))
                 if at is None:
                     continue
-                agree = paired.worst[at]
-                base, cand = paired.worst_boxes[at]
-                title = f'{topic} #{frame.seq}: matched {agree.matched:.2f}, IoU {agree.iou:.2f}'
-                canvas = sample_canvas(
-                    to_bgr8(frame.image, frame.encoding), {names[0]: base, names[1]: cand}, title
+                canvas = _thumbnail(
+                    paired, at, to_bgr8(frame.image, frame.encoding), topic, frame.seq, names
                 )
                 ok, encoded = cv2.imencode('.jpg', canvas, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
                 if ok:

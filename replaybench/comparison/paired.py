@@ -306,10 +306,10 @@ def paired_masks(
     weights = np.stack([np.bincount(d, minlength=n) for d in draws]).astype(np.int64)
     sums = [weights @ c.reshape(n, size * size) for c in compact]
     changes = []
-    for b_sum, c_sum in zip(sums[0], sums[1], strict=True):
-        b, c = miou(b_sum), miou(c_sum)
-        if b is not None and c is not None:
-            changes.append(c - b)
+    for base_sum, cand_sum in zip(sums[0], sums[1], strict=True):
+        base_draw, cand_draw = miou(base_sum), miou(cand_sum)
+        if base_draw is not None and cand_draw is not None:
+            changes.append(cand_draw - base_draw)
     ci = None
     if changes and base_value is not None and cand_value is not None:
         lo, hi = np.quantile(np.asarray(changes), [(1 - confidence) / 2, (1 + confidence) / 2])

@@ -84,7 +84,9 @@ def test_two_backends_of_one_run_get_the_change_and_the_interval_of_a_direct_pai
     assert paired.resamples == resamples
     assert paired.seed == 0
     assert paired.confidence == 0.95
-    assert paired.ci == (pytest.approx(lo, abs=1e-12), pytest.approx(hi, abs=1e-12))
+    assert paired.ci is not None
+    assert paired.ci[0] == pytest.approx(lo, abs=1e-12)
+    assert paired.ci[1] == pytest.approx(hi, abs=1e-12)
     # the point change is the run's own: run.json's mAP@0.5 of each backend
     assert paired.ci != _row(compared, 'onnx_cpu').paired.ci  # type: ignore[union-attr]
     run = rb.load_run(runs['two'])
@@ -94,6 +96,7 @@ def test_two_backends_of_one_run_get_the_change_and_the_interval_of_a_direct_pai
     assert row.metrics['map50'].diff == pytest.approx(paired.change, abs=1e-12)
     assert row.metrics['map50'].diff_ci == paired.ci
     assert row.metrics['map50'].method == 'paired-bootstrap'
+    assert paired.change is not None
     assert paired.ci[0] < paired.change < paired.ci[1]
     # the two detectors differ on some frames: agreement below 1, the worst frames listed
     assert paired.matched_mean is not None
@@ -288,7 +291,9 @@ def test_two_segmenters_get_the_miou_change_and_the_interval_of_a_direct_paired_
     ]
     lo, hi = np.quantile(changes, [0.025, 0.975])
     assert paired.frames == n == 10
-    assert paired.ci == (pytest.approx(lo, abs=1e-12), pytest.approx(hi, abs=1e-12))
+    assert paired.ci is not None
+    assert paired.ci[0] == pytest.approx(lo, abs=1e-12)
+    assert paired.ci[1] == pytest.approx(hi, abs=1e-12)
     run = rb.load_run(mask_runs['two'])
     by_backend = {s.backend: s.miou for s in run.summary_rows}
     assert paired.baseline == pytest.approx(by_backend['hsv_seg'], abs=1e-12)

@@ -357,7 +357,7 @@ def _paired(comparison: Comparison) -> str:
         agree = _agreement_text(paired)
         items = ''.join(f'<li>{escaped(t)}</li>' for t in (change, agree, latency) if t)
         names = (str(row.baseline_backend), row.backend)
-        shots = thumbnails(paired, comparison.runs[row.run], row.topic, names)
+        shots, missing = thumbnails(paired, comparison.runs[row.run], row.topic, names)
         figures = ''.join(
             f'<figure><img src="{uri}" alt="{escaped(f"{row.topic} {f.stamp_ns}")}">'
             f'<figcaption>{escaped(_caption(paired, f))}</figcaption></figure>'
@@ -365,6 +365,8 @@ def _paired(comparison: Comparison) -> str:
         )
         if not paired.worst and paired.matched_mean is not None:
             figures = '<p class="meta">The two agree on every frame.</p>'
+        if missing:
+            figures += f'<p class="meta">{escaped(missing)}</p>'
         parts.append(
             f'<h3>{escaped(row.name)} vs {escaped(names[0])}</h3><ul>{items}</ul>'
             f'<div class="thumbs">{figures}</div>'

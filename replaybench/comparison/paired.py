@@ -508,32 +508,41 @@ def _thumbnail(
 
 def thumbnails(
     paired: Paired, run: RunInfo, topic: str, names: tuple[str, str]
-) -> list[tuple[FrameAgreement, str]]:
+) -> tuple[list[tuple[FrameAgreement, str]], str]:
     """The ``worst`` frames of ``paired`` drawn from ``run``'s bag with both backends' boxes
-    (``names``: baseline, candidate), as JPEG ``data:`` URIs in ``worst`` order; frames whose
-    image the bag does not give (another topic, a bag that is gone) are left out."""
-    if not paired.worst or len(run.input_paths) != 1:
-        return []
-    if not (paired.worst_masks if paired.metric == 'miou' else paired.worst_boxes):
-        return []
+    (``names``: baseline, candidate), as JPEG ``data:`` URIs in ``worst`` order, and a line
+    saying which could not be drawn and why ('' when all were)."""
+    if not paired.worst or not (
+        paired.worst_masks if paired.metric == 'miou' else paired.worst_boxes
+    ):
+        return [], ''
+    if len(run.input_paths) != 1:
+        return [], f'not drawn: the run has {len(run.input_paths)} inputs'
     import base64
 
     import cv2
 
-    from replaybench.decode.image import decode_image, to_bgr8
-    from replaybench.errors import ReplaybenchError
+    from replaybench.decode.image import decode_image, image_stamp, to_bgr8
+    from replaybench.errors import DecodeError, ReplaybenchError
     from replaybench.report.samples import JPEG_QUALITY
     from replaybench.sources import open_source
 
     bag = _input_path(run, run.input_paths[0])
     if bag is None:
-        return []
+        return [], f'not drawn: input {run.input_paths[0]} not found'
     wanted = {(f.frame_id, f.stamp_ns): i for i, f in enumerate(paired.worst)}
+    stamps = {f.stamp_ns for f in paired.worst}
     drawn: dict[int, str] = {}
     try:
         with open_source(bag) as source:
             for raw in source.messages(topics=[topic]):
-                frame = decode_image(raw)
+                try:
+                    # the stamp first: only the frames drawn are decoded
+                    if image_stamp(raw) not in stamps:
+                        continue
+                    frame = decode_image(raw)
+                except DecodeError:
+                    continue
                 at = wanted.get((frame.frame_id, frame.stamp_ns))
                 if at is None:
                     continue
@@ -546,6 +555,9 @@ def thumbnails(
                     drawn[at] = f'data:image/jpeg;base64,{text}'
                 if len(drawn) == len(wanted):
                     break
-    except ReplaybenchError:
-        return [(paired.worst[i], uri) for i, uri in sorted(drawn.items())]
-    return [(paired.worst[i], uri) for i, uri in sorted(drawn.items())]
+    except ReplaybenchError as err:
+        note = f'{len(wanted) - len(drawn)} of {len(wanted)} frames not drawn: {err}'
+        return [(paired.worst[i], uri) for i, uri in sorted(drawn.items())], note
+    missing = len(wanted) - len(drawn)
+    note = f'{missing} of {len(wanted)} frames not found in {bag}' if missing else ''
+    return [(paired.worst[i], uri) for i, uri in sorted(drawn.items())], note

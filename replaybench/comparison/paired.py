@@ -395,7 +395,7 @@ def _read_folder(run: RunInfo, wanted: Sequence[tuple[str, str, str]]) -> _Folde
     settings = run.data.run.settings
     outputs = run.data.run.outputs
     name = outputs.outputs_mcap if outputs is not None else None
-    if not name or (settings.detections_format or 'mcap') != 'mcap':
+    if not name:
         return _Folder({}, {}, f'{run.label}: no outputs.mcap (outputs are not kept)')
     mcap = run.dir / name
     if not mcap.is_file():

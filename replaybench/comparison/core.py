@@ -54,7 +54,6 @@ if TYPE_CHECKING:
 __all__ = [
     'ACCURACY_METRICS',
     'METRICS',
-    'PAIRED_METRICS',
     'RECORDED_METRICS',
     'RIG_METRICS',
     'RIG_POINT_METRICS',
@@ -507,7 +506,9 @@ def compare_runs(
             extra = [f for f in flags if f not in flags_of_run[run.index]]
             if extra:
                 warnings.append(f'{row.name}: ' + '; '.join(extra))
-    rows = _with_paired(
+    from replaybench.comparison.paired import with_paired
+
+    rows = with_paired(
         rows, runs, baseline, seed=seed, confidence=confidence, resamples=paired_resamples
     )
     warnings.extend(
@@ -544,77 +545,6 @@ def compare_runs(
             if (found := rec.figures.get('pipeline_ms')) is not None
         },
     )
-
-
-#: The accuracy metric a row is paired on, by what its backend outputs: boxes, label masks.
-PAIRED_METRICS: tuple[str, ...] = ('map50', 'miou')
-
-
-def _paired_metric(row: Row) -> str | None:
-    """The metric a candidate row is paired on over its baseline row's frames (``map50`` for
-    boxes, ``miou`` for label masks: both rows have it), when the two are of one run or of
-    runs of the same inputs; None for any other row."""
-    if row.role != 'candidate' or row.topic == RIG_TOPIC or row.inputs_match is not True:
-        return None
-    for metric in PAIRED_METRICS:
-        acc = row.metrics.get(metric)
-        if acc is not None and acc.value is not None and acc.baseline is not None:
-            return metric
-    return None
-
-
-def _with_paired(
-    rows: list[Row],
-    runs: Sequence[RunInfo],
-    baseline: int,
-    *,
-    seed: int,
-    confidence: float,
-    resamples: int | None,
-) -> list[Row]:
-    """``rows`` with each pairable row's ``paired`` and the ``diff_ci`` of its metric."""
-    chosen = [(i, metric) for i, row in enumerate(rows) if (metric := _paired_metric(row))]
-    if not chosen:
-        return rows
-    from replaybench.comparison.paired import PAIRED_RESAMPLES, paired_rows
-
-    found = paired_rows(
-        [
-            (
-                runs[baseline],
-                str(rows[i].baseline_backend),
-                runs[rows[i].run],
-                rows[i].backend,
-                rows[i].topic,
-                metric,
-            )
-            for i, metric in chosen
-        ],
-        resamples=PAIRED_RESAMPLES if resamples is None else resamples,
-        confidence=confidence,
-        seed=seed,
-    )
-    out = list(rows)
-    for (i, metric), paired in zip(chosen, found, strict=True):
-        row = rows[i]
-        acc = row.metrics[metric]
-        flags = list(row.flags)
-        metrics = dict(row.metrics)
-        if paired.note:
-            flags.append(f'paired accuracy interval not made: {paired.note}')
-        if paired.ci is not None:
-            metrics[metric] = replace(acc, diff_ci=paired.ci, method='paired-bootstrap')
-        if (
-            paired.change is not None
-            and acc.diff is not None
-            and abs(paired.change - acc.diff) > 1e-9
-        ):
-            flags.append(
-                f'paired over {paired.frames} frames both backends output: {metric} change '
-                f'{paired.change:+.4f}, not the {acc.diff:+.4f} of the frames each scored'
-            )
-        out[i] = replace(row, metrics=metrics, flags=tuple(flags), paired=paired)
-    return out
 
 
 def _short(sha: str | None) -> str:

@@ -13,6 +13,7 @@ from replaybench.comparison.core import (
     TIMING_METRICS,
 )
 from replaybench.comparison.gate import gate_verdict, method_text
+from replaybench.comparison.paired_html import paired_html
 from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match
 from replaybench.report.markup import escaped, number_text
 from replaybench.report.svg import Label, colour, fit_label, nice_ticks, step_cdf
@@ -25,7 +26,6 @@ if TYPE_CHECKING:
 
     from replaybench.comparison.core import Comparison, MetricComparison, Row
     from replaybench.comparison.gate import GateResult
-    from replaybench.comparison.paired import FrameAgreement, Paired
 
 __all__ = ['render_comparison_html']
 
@@ -285,93 +285,6 @@ def _accuracy_cell(m: MetricComparison, role: str) -> str:
     lo, hi = m.diff_ci
     interval = f'Δ {m.diff:+.4f} [{lo:+.4f}, {hi:+.4f}] paired'
     return f'<td class="n">{value}<span class="ci">{escaped(interval)}</span></td>'
-
-
-#: A paired metric's name on the page.
-_PAIRED_NAMES = {'map50': 'mAP@0.5', 'miou': 'mIoU'}
-
-
-def _agreement_text(paired: Paired) -> str:
-    if paired.matched_mean is None or paired.iou_mean is None:
-        return ''
-    if paired.metric == 'miou':
-        return (
-            f'masks agree: pixels {paired.matched_mean:.4f} (lowest frame '
-            f'{paired.matched_min:.4f}), mIoU of the two {paired.iou_mean:.3f}; '
-            f'{paired.agreeing_frames} frames alike'
-        )
-    return (
-        f'boxes agree: matched {paired.matched_mean:.3f} (lowest frame '
-        f'{paired.matched_min:.3f}), IoU {paired.iou_mean:.3f}; '
-        f'{paired.agreeing_frames} frames fully matched'
-    )
-
-
-def _caption(paired: Paired, frame: FrameAgreement) -> str:
-    if paired.metric == 'miou':
-        return f'pixels alike {frame.matched:.4f} · mIoU of the two {frame.iou:.3f}'
-    return (
-        f'matched {frame.matched:.2f} · IoU {frame.iou:.2f} · boxes '
-        f'{frame.n_baseline} / {frame.n_candidate}'
-    )
-
-
-def _paired(comparison: Comparison) -> str:
-    """What the precision costs: per paired row, the accuracy change with its paired interval,
-    the agreement of the two backends' outputs, the latency ratio, and the frames where the two
-    agree least as thumbnails (drawn from the bag, embedded)."""
-    from replaybench.comparison.paired import thumbnails
-
-    rows = [r for r in comparison.rows if r.paired is not None]
-    if not rows:
-        return ''
-    intro = (
-        '<h2 id="paired">What the precision costs</h2><p class="meta">Each candidate row '
-        'against its baseline row on the frames both output: the accuracy change (mAP@0.5 for '
-        'boxes, mIoU for label masks) with a bootstrap interval paired by frame (the same '
-        'resampled frames scored for both), the agreement of the two backends per frame '
-        '(boxes — matched: share of the boxes of both that found a box of the same label at '
-        'IoU ≥ 0.5, IoU: mean best-match IoU of every box; masks — the share of pixels both '
-        'label alike, and the mIoU of one mask against the other), the median latency ratio, '
-        'and the frames where the two agree least.</p>'
-    )
-    parts = [intro]
-    for row in rows:
-        paired = row.paired
-        assert paired is not None
-        level = round(paired.confidence * 100)
-        name = _PAIRED_NAMES.get(paired.metric, paired.metric)
-        if paired.ci is not None and paired.change is not None:
-            lo, hi = paired.ci
-            change = (
-                f'{name} {paired.baseline:.4f} → {paired.candidate:.4f}: Δ {paired.change:+.4f}, '
-                f'{level}% CI [{lo:+.4f}, {hi:+.4f}] ({paired.resamples} paired resamples of '
-                f'{paired.frames} frames, seed {paired.seed})'
-            )
-        else:
-            change = f'no paired interval: {paired.note}'
-        median = row.metrics['median_ms']
-        latency = f'median latency ×{median.ratio:.3f}' if median.ratio is not None else ''
-        if median.ratio_ci is not None:
-            latency += f' [{median.ratio_ci[0]:.3f}, {median.ratio_ci[1]:.3f}]'
-        agree = _agreement_text(paired)
-        items = ''.join(f'<li>{escaped(t)}</li>' for t in (change, agree, latency) if t)
-        names = (str(row.baseline_backend), row.backend)
-        shots, missing = thumbnails(paired, comparison.runs[row.run], row.topic, names)
-        figures = ''.join(
-            f'<figure><img src="{uri}" alt="{escaped(f"{row.topic} {f.stamp_ns}")}">'
-            f'<figcaption>{escaped(_caption(paired, f))}</figcaption></figure>'
-            for f, uri in shots
-        )
-        if not paired.worst and paired.matched_mean is not None:
-            figures = '<p class="meta">The two agree on every frame.</p>'
-        if missing:
-            figures += f'<p class="meta">{escaped(missing)}</p>'
-        parts.append(
-            f'<h3>{escaped(row.name)} vs {escaped(names[0])}</h3><ul>{items}</ul>'
-            f'<div class="thumbs">{figures}</div>'
-        )
-    return ''.join(parts)
 
 
 #: The main accuracy figure of each task, read first (``MetricSpec.main``), in registry order.
@@ -676,7 +589,7 @@ def render_comparison_html(
         _banner(comparison),
         _gate(gate, conditions, strict, allow_inconclusive),
         _summary(comparison),
-        _paired(comparison),
+        paired_html(comparison),
         _charts(comparison),
         _runs(comparison),
         _footer(comparison),

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple, Protocol, TypeVar
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -36,20 +36,23 @@ if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
 
+    from replaybench.comparison.metric import MetricComparison
     from replaybench.comparison.runs import RunInfo
     from replaybench.types import Detection
 
 __all__ = [
+    'PAIRED_METRICS',
     'PAIRED_RESAMPLES',
     'WORST_FRAMES',
     'FrameAgreement',
     'Paired',
     'Pairing',
     'box_agreement',
+    'input_path',
     'paired_boxes',
     'paired_masks',
     'paired_rows',
-    'thumbnails',
+    'with_paired',
 ]
 
 #: Bootstrap draws of the paired interval (each scores both backends once).
@@ -339,7 +342,7 @@ class _Folder(NamedTuple):
     note: str
 
 
-def _input_path(run: RunInfo, path: str) -> Path | None:
+def input_path(run: RunInfo, path: str) -> Path | None:
     """An input of ``run`` as run.json names it: as given (absolute, or from the current
     folder), else beside the run folder; None when neither exists."""
     given = Path(path)
@@ -409,7 +412,7 @@ def _read_folder(run: RunInfo, wanted: Sequence[tuple[str, str, str]]) -> _Folde
         return _Folder({}, {}, f'{run.label}: no ground-truth topic (a file is not paired)')
     if 'miou' in metrics and mask_topic is None:
         return _Folder({}, {}, f'{run.label}: ground-truth masks from a folder are not paired')
-    bag = _input_path(run, run.input_paths[0])
+    bag = input_path(run, run.input_paths[0])
     if bag is None:
         return _Folder({}, {}, f'{run.label}: input {run.input_paths[0]} not found')
     size = run.data.run.inputs[0].size_bytes
@@ -476,88 +479,100 @@ def paired_rows(
     return out
 
 
-def _thumbnail(
-    paired: Paired,
-    at: int,
-    image: npt.NDArray[np.uint8],
-    topic: str,
-    seq: int,
-    names: tuple[str, str],
-) -> npt.NDArray[np.uint8]:
-    """One least-agreeing frame drawn: the image with both backends' boxes, or (masks) the
-    image beside the two masks in the segmentation palette."""
-    import numpy as np
-
-    from replaybench.report.samples import sample_canvas
-
-    agree = paired.worst[at]
-    if paired.metric != 'miou':
-        base, cand = paired.worst_boxes[at]
-        title = f'{topic} #{seq}: matched {agree.matched:.2f}, IoU {agree.iou:.2f}'
-        drawn: npt.NDArray[np.uint8] = sample_canvas(image, {names[0]: base, names[1]: cand}, title)
-        return drawn
-    from replaybench.segmentation.palette import colourise
-
-    masks = [colourise(m)[:, :, ::-1] for m in paired.worst_masks[at]]  # palette RGB -> BGR
-    if any(m.shape != image.shape for m in masks):
-        masks = []
-    strip = np.hstack([image, *masks])
-    title = f'{topic} #{seq}: image | {names[0]} | {names[1]}: pixels alike {agree.matched:.4f}'
-    return np.asarray(sample_canvas(strip, {}, title), dtype=np.uint8)
+#: The accuracy metric a row is paired on, by what its backend outputs: boxes, label masks.
+PAIRED_METRICS: tuple[str, ...] = ('map50', 'miou')
 
 
-def thumbnails(
-    paired: Paired, run: RunInfo, topic: str, names: tuple[str, str]
-) -> tuple[list[tuple[FrameAgreement, str]], str]:
-    """The ``worst`` frames of ``paired`` drawn from ``run``'s bag with both backends' boxes
-    (``names``: baseline, candidate), as JPEG ``data:`` URIs in ``worst`` order, and a line
-    saying which could not be drawn and why ('' when all were)."""
-    if not paired.worst or not (
-        paired.worst_masks if paired.metric == 'miou' else paired.worst_boxes
-    ):
-        return [], ''
-    if len(run.input_paths) != 1:
-        return [], f'not drawn: the run has {len(run.input_paths)} inputs'
-    import base64
+class _Row(Protocol):
+    """What ``with_paired`` reads of a compare row (``comparison.core.Row``)."""
 
-    import cv2
+    __dataclass_fields__: ClassVar[dict[str, Any]]
 
-    from replaybench.decode.image import decode_image, image_stamp, to_bgr8
-    from replaybench.errors import DecodeError, ReplaybenchError
-    from replaybench.report.samples import JPEG_QUALITY
-    from replaybench.sources import open_source
+    @property
+    def run(self) -> int: ...
+    @property
+    def backend(self) -> str: ...
+    @property
+    def topic(self) -> str: ...
+    @property
+    def role(self) -> str: ...
+    @property
+    def baseline_backend(self) -> str | None: ...
+    @property
+    def inputs_match(self) -> bool | None: ...
+    @property
+    def metrics(self) -> dict[str, MetricComparison]: ...
+    @property
+    def flags(self) -> tuple[str, ...]: ...
 
-    bag = _input_path(run, run.input_paths[0])
-    if bag is None:
-        return [], f'not drawn: input {run.input_paths[0]} not found'
-    wanted = {(f.frame_id, f.stamp_ns): i for i, f in enumerate(paired.worst)}
-    stamps = {f.stamp_ns for f in paired.worst}
-    drawn: dict[int, str] = {}
-    try:
-        with open_source(bag) as source:
-            for raw in source.messages(topics=[topic]):
-                try:
-                    # the stamp first: only the frames drawn are decoded
-                    if image_stamp(raw) not in stamps:
-                        continue
-                    frame = decode_image(raw)
-                except DecodeError:
-                    continue
-                at = wanted.get((frame.frame_id, frame.stamp_ns))
-                if at is None:
-                    continue
-                canvas = _thumbnail(
-                    paired, at, to_bgr8(frame.image, frame.encoding), topic, frame.seq, names
-                )
-                ok, encoded = cv2.imencode('.jpg', canvas, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
-                if ok:
-                    text = base64.b64encode(encoded.tobytes()).decode('ascii')
-                    drawn[at] = f'data:image/jpeg;base64,{text}'
-                if len(drawn) == len(wanted):
-                    break
-    except ReplaybenchError as err:
-        note = f'{len(wanted) - len(drawn)} of {len(wanted)} frames not drawn: {err}'
-        return [(paired.worst[i], uri) for i, uri in sorted(drawn.items())], note
-    missing = len(wanted) - len(drawn)
-    note = f'{missing} of {len(wanted)} frames not found in {bag}' if missing else ''
-    return [(paired.worst[i], uri) for i, uri in sorted(drawn.items())], note
+
+_R = TypeVar('_R', bound=_Row)
+
+
+def _paired_metric(row: _Row) -> str | None:
+    """The metric a candidate row is paired on over its baseline row's frames (``map50`` for
+    boxes, ``miou`` for label masks: both rows have it), when the two are of one run or of
+    runs of the same inputs; None for any other row."""
+    from replaybench.results.model.summary import RIG_TOPIC
+
+    if row.role != 'candidate' or row.topic == RIG_TOPIC or row.inputs_match is not True:
+        return None
+    for metric in PAIRED_METRICS:
+        acc = row.metrics.get(metric)
+        if acc is not None and acc.value is not None and acc.baseline is not None:
+            return metric
+    return None
+
+
+def with_paired(
+    rows: list[_R],
+    runs: Sequence[RunInfo],
+    baseline: int,
+    *,
+    seed: int,
+    confidence: float,
+    resamples: int | None,
+) -> list[_R]:
+    """``rows`` with each pairable row's ``paired`` and the ``diff_ci`` of its metric."""
+    from dataclasses import replace
+
+    chosen = [(i, metric) for i, row in enumerate(rows) if (metric := _paired_metric(row))]
+    if not chosen:
+        return rows
+    found = paired_rows(
+        [
+            (
+                runs[baseline],
+                str(rows[i].baseline_backend),
+                runs[rows[i].run],
+                rows[i].backend,
+                rows[i].topic,
+                metric,
+            )
+            for i, metric in chosen
+        ],
+        resamples=PAIRED_RESAMPLES if resamples is None else resamples,
+        confidence=confidence,
+        seed=seed,
+    )
+    out = list(rows)
+    for (i, metric), paired in zip(chosen, found, strict=True):
+        row = rows[i]
+        acc = row.metrics[metric]
+        flags = list(row.flags)
+        metrics = dict(row.metrics)
+        if paired.note:
+            flags.append(f'paired accuracy interval not made: {paired.note}')
+        if paired.ci is not None:
+            metrics[metric] = replace(acc, diff_ci=paired.ci, method='paired-bootstrap')
+        if (
+            paired.change is not None
+            and acc.diff is not None
+            and abs(paired.change - acc.diff) > 1e-9
+        ):
+            flags.append(
+                f'paired over {paired.frames} frames both backends output: {metric} change '
+                f'{paired.change:+.4f}, not the {acc.diff:+.4f} of the frames each scored'
+            )
+        out[i] = replace(row, metrics=metrics, flags=tuple(flags), paired=paired)
+    return out

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from replaybench.backends.base import BackendOptions
-from replaybench.replay.instances import BackendInstance
+from replaybench.replay.instances import BackendInstance, backend_label
 from replaybench.replay.rate import Rate
 
 if TYPE_CHECKING:
@@ -147,11 +147,6 @@ class RunConfig:
             detections_format=self.detections_format,
             report=self.report,
         )
-
-
-def backend_label(name: str) -> str:
-    """The label a backend carries in frames.csv, summary.csv and outputs.mcap's topics."""
-    return name.replace('-', '_')
 
 
 @dataclass(frozen=True, slots=True)

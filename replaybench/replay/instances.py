@@ -30,6 +30,7 @@ if TYPE_CHECKING:
 __all__ = [
     'BackendInstance',
     'ParamSpec',
+    'backend_label',
     'check_label',
     'instance_options',
     'parse_backend',
@@ -46,6 +47,12 @@ STR_KEYS = ('model_family', 'labels', 'engine', 'precision')
 
 _LABEL = re.compile(r'[A-Za-z0-9_-]+')
 _LABEL_RULE = "letters, digits, '_' and '-' only (no '+', '=' or '.')"
+
+
+def backend_label(name: str) -> str:
+    """The label a backend (an instance) carries in frames.csv, summary.csv and outputs.mcap's
+    topics: its name with ``-`` written ``_``."""
+    return name.replace('-', '_')
 
 
 @dataclass(frozen=True, slots=True)
@@ -107,8 +114,6 @@ def parse_instances(backends: Sequence[str], params: Sequence[str] = ()) -> list
     order. UsageError in one line for two instances with the same label (also once ``-`` is
     written ``_``), a malformed option, a parameter that names no instance, one given twice or
     one of a value of the wrong type (``with_params``)."""
-    from replaybench.replay.config import backend_label
-
     order: list[tuple[str, str]] = []
     seen: dict[str, str] = {}
     for text in backends:

@@ -245,6 +245,8 @@ def test_peak_searches_an_instance_under_its_label_with_its_params(
         (['-b', 'a=hsv', '--param', 'a.min_area'], "invalid --param 'a.min_area': use LABEL"),
         (['-b', 'a=hsv', '--param', 'a.colour=red'], "hsv: unknown option 'colour'"),
         (['-b', 'a=onnx-cpu', '--param', 'a.modle=x.onnx'], "onnx-cpu: unknown option 'modle'"),
+        (['-b', 'a=null', '--param', 'a.min_area=5'], "null: unknown option 'min_area'"),
+        (['-b', 'a=busy', '--param', 'a.ms=5'], "busy backend: unknown option 'ms'"),
         (['-b', 'a=hsv', '--param', 'a.min_area=big'], "option min_area='big' is not a number"),
         (['-b', 'a=onnx-cpu', '--param', 'a.conf=high'], "--param a.conf='high': expected a"),
         (['-b', 'a=onnx-cpu', '--param', 'a.threads=0'], 'expected an integer >= 1'),

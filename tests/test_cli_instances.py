@@ -162,6 +162,40 @@ def test_a_param_changes_its_instance_alone(bag: Path, tmp_path: Path) -> None:
     assert per_frame['big'] == 0
 
 
+def test_each_per_topic_pipeline_of_an_instance_has_its_params(tmp_path: Path) -> None:
+    bag = write_mcap(tmp_path / 'two.mcap', frames=4, size=(160, 120), cameras=2)
+    out = tmp_path / 'run'
+    result = runner.invoke(
+        app,
+        [
+            'run',
+            str(bag),
+            '-b',
+            'small=hsv',
+            '-b',
+            'big=hsv',
+            '--param',
+            'big.min_area=100000',
+            '--pipelines',
+            'per-topic',
+            '--out',
+            str(out),
+            '--no-report',
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    rows = [(r['backend'], r['topic']) for r in _csv(out / 'summary.csv')]
+    cameras = sorted({t for _, t in rows if t != 'rig'})
+    assert len(cameras) == 2
+    per_frame = {
+        (r['backend'], r['topic']): float(r['detections_per_frame'])
+        for r in _csv(out / 'summary.csv')
+    }
+    for camera in cameras:  # the second camera's pipeline is an instance made for it
+        assert per_frame['small', camera] > 0
+        assert per_frame['big', camera] == 0
+
+
 def test_a_backend_given_by_its_name_keeps_its_name_and_takes_params(
     bag: Path, tmp_path: Path
 ) -> None:

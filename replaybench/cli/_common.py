@@ -389,7 +389,11 @@ def with_instance_options(command: str) -> Callable[[_Function], _Function]:
     def decorate(func: _Function) -> _Function:
         signature = inspect.signature(func, eval_str=True)
         backend_option = typer.Option('--backend', '-b', help=_BACKEND_HELP[command])
-        param_option = typer.Option('--param', help=_PARAM_HELP[command])
+        param_option = typer.Option(
+            '--param',
+            help=_PARAM_HELP[command],
+            metavar='LABEL.KEY=V1,V2,...' if command == 'sweep' else 'LABEL.KEY=VALUE',
+        )
         changed = []
         for p in signature.parameters.values():
             if p.name == 'backend':

@@ -303,3 +303,19 @@ def test_bad_instances_and_params_exit_2_with_one_line_and_write_nothing(
     assert line.startswith('replaybench: error: ')
     assert said in line
     assert not out.exists()
+
+
+def test_the_python_api_takes_instances_as_the_command_line_does(bag: Path) -> None:
+    import replaybench.api as rb
+
+    res = rb.run(
+        bag,
+        backends=['small=hsv', 'big=hsv'],
+        params=['big.min_area=100000'],
+        max_frames=4,
+    )
+    assert [(b.name, b.backend, dict(b.params)) for b in res.backends] == [
+        ('small', 'hsv', {}),
+        ('big', 'hsv', {'min_area': '100000'}),
+    ]
+    assert [s.backend for s in res.summary_rows] == ['small', 'big']

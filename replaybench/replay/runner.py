@@ -302,14 +302,16 @@ def _check_config(config: RunConfig, *, check_available: bool) -> None:
         raise UsageError(msg)
     labels: dict[str, str] = {}
     for label in config.backends:
-        first = labels.setdefault(backend_label(label), label)
-        if first is not label:
+        written = backend_label(label)
+        if written in labels:
+            first = labels[written]
             msg = (
                 f'two --backend instances have the label {label!r}'
                 + (f' ({first!r} is written the same)' if first != label else '')
                 + ': give each its own, --backend LABEL=NAME'
             )
             raise UsageError(msg)
+        labels[written] = label
         if label != config.instance(label).backend:
             check_label(label, f'{label}={config.instance(label).backend}')
     if config.repeat < 1:

@@ -16,6 +16,7 @@ from replaybench.cli._common import (
     echo,
     fail,
     fmt,
+    with_instance_options,
     with_run_options,
 )
 from replaybench.cli.progress import RunProgress
@@ -132,6 +133,7 @@ def _print_summary(summaries: list[Summary]) -> None:
 
 @app.command()
 @with_run_options('run')
+@with_instance_options('run')
 def run(
     bags: Annotated[
         list[Path],
@@ -139,14 +141,6 @@ def run(
             help='Bag files or rosbag2 folders, replayed one after another.', show_default=False
         ),
     ],
-    backend: Annotated[
-        list[str],
-        typer.Option(
-            '--backend',
-            '-b',
-            help='Backend to run (repeat for several; see `replaybench backends`).',
-        ),
-    ] = [],  # noqa: B006
     out: Annotated[
         Path | None,
         typer.Option(
@@ -160,6 +154,8 @@ def run(
         ),
     ] = False,
     *,
+    backend: list[str],
+    param: list[str],
     options: dict[str, Any],
 ) -> None:
     """Replay bags through backends and write detections, CSVs, run.json and a report.
@@ -174,6 +170,7 @@ def run(
         settings = run_config(
             bags,
             backends=backend,
+            params=param,
             out=out if out is not None else new_run_dir(),
             force=force,
             command=['replaybench', *sys.argv[1:]],

@@ -15,10 +15,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from replaybench.backends.base import BackendOptions
+from replaybench.replay.instances import BackendInstance, backend_label
 from replaybench.replay.rate import Rate
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Mapping, Sequence
 
     from replaybench.replay.sync import SyncSpec
 
@@ -57,6 +58,8 @@ class RunConfig:
     """Everything one ``replaybench run`` needs; the CLI builds it from its options."""
 
     inputs: Sequence[Path]
+    #: the backends' instances by label (``--backend LABEL=NAME``; a registered name alone is
+    #: an instance of that backend under its own name, unless ``instances`` says otherwise)
     backends: Sequence[str]
     out_dir: Path | None  # None: in memory, no file written
     force: bool = False
@@ -103,6 +106,15 @@ class RunConfig:
     #: --pipelines: 'shared' (one backend instance serves every camera topic's queue in turn)
     #: or 'per-topic' (one instance per camera topic, each in a worker thread of its own)
     pipelines: str = 'shared'
+    #: the instances of ``backends`` by label (``replaybench.replay.instances``): the backend
+    #: each is made of and its own ``--param`` values; a label not here is the backend of
+    #: that name with no parameter of its own
+    instances: Mapping[str, BackendInstance] = field(default_factory=dict)
+
+    def instance(self, label: str) -> BackendInstance:
+        """The instance labelled ``label``: its backend and its own parameters."""
+        found = self.instances.get(label)
+        return found if found is not None else BackendInstance(label, label)
 
     def input_options(self) -> InputOptions:
         """The part of the config that opens and reads the inputs."""
@@ -144,11 +156,6 @@ class RunConfig:
             detections_format=self.detections_format,
             report=self.report,
         )
-
-
-def backend_label(name: str) -> str:
-    """The label a backend carries in frames.csv, summary.csv and outputs.mcap's topics."""
-    return name.replace('-', '_')
 
 
 @dataclass(frozen=True, slots=True)

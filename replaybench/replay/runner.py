@@ -55,6 +55,7 @@ from replaybench.replay.inputs import (
     open_input,
     settle_hash,
 )
+from replaybench.replay.instances import check_label, instance_options
 from replaybench.replay.output import (
     Renderer,
     SampleImage,
@@ -184,7 +185,10 @@ def run_benchmark(
     limits.enter_context(thread_limits(config.threads))
     try:
         with folder if folder is not None else contextlib.nullcontext():
-            made = make_backends(config.backends, _with_bag_sizes(config), factory)
+            base = _with_bag_sizes(config)
+            made = make_backends(
+                [config.instance(label) for label in config.backends], base, factory
+            )
             config = _frame_set_sync(made, config, notice)
             input_options = _chosen_topics(made, config, input_options)
             recorded = any(backend_traits(b).uses_recorded_detections for _, b in made)
@@ -199,12 +203,13 @@ def run_benchmark(
                 pair_inputs(inputs, config.sync, config.topics) if config.sync is not None else None
             )
             opened = open_backends(made, inputs, notice)
+            for entry in opened:
+                entry.instance = config.instance(entry.name)
             if pairing is not None:
                 hand_frame_sets(opened, pairing, inputs)
             topics = _camera_topics(inputs)
             if config.pipelines == 'per-topic' and len(topics) > 1:
-                options = _with_bag_sizes(config)
-                open_pipelines(opened, topics, inputs, factory, options)
+                open_pipelines(opened, topics, inputs, factory, base)
             outcome = _execute(
                 config,
                 calls,
@@ -297,9 +302,20 @@ def _check_config(config: RunConfig, *, check_available: bool) -> None:
     if not config.backends:
         msg = 'no backend given: add --backend NAME (see `replaybench backends`)'
         raise UsageError(msg)
-    if len(set(config.backends)) != len(config.backends):
-        msg = 'each --backend may be given once'
-        raise UsageError(msg)
+    labels: dict[str, str] = {}
+    for label in config.backends:
+        written = backend_label(label)
+        if written in labels:
+            first = labels[written]
+            msg = (
+                f'two --backend instances have the label {label!r}'
+                + (f' ({first!r} is written the same)' if first != label else '')
+                + ': give each its own, --backend LABEL=NAME'
+            )
+            raise UsageError(msg)
+        labels[written] = label
+        if label != config.instance(label).backend:
+            check_label(label, f'{label}={config.instance(label).backend}')
     if config.repeat < 1:
         msg = f'--repeat must be at least 1, not {config.repeat}'
         raise UsageError(msg)
@@ -314,7 +330,7 @@ def _check_config(config: RunConfig, *, check_available: bool) -> None:
             msg = f'{bag}: no such file or directory'
             raise SourceError(msg)
     if check_available:
-        for name in config.backends:
+        for name in dict.fromkeys(config.instance(label).backend for label in config.backends):
             status = get_backend(name).available()
             if not status.ok:
                 msg = f'backend {name!r} is not available here: {status.reason}'
@@ -382,7 +398,7 @@ def _execute(
                     recorder,
                     opened,
                     inputs,
-                    gpu_index=lambda backend: _gpu_index(backend, config.options),
+                    gpu_index=lambda entry: _gpu_index(entry, config.options),
                     warnings=warnings,
                     runs=backend_runs,
                 )
@@ -394,7 +410,7 @@ def _execute(
                         entry,
                         backend_label(entry.name),
                         inputs,
-                        gpu_index=_gpu_index(entry.backend, config.options),
+                        gpu_index=_gpu_index(entry, config.options),
                         warnings=warnings,
                         runs=backend_runs,
                     )
@@ -534,9 +550,12 @@ def _frame_set_sync(
     return config
 
 
-def _gpu_index(backend: Backend, options: BackendOptions) -> int | None:
-    """The GPU whose utilisation is sampled: --device for the GPU backends, none otherwise."""
-    return options.device if backend_traits(backend).device == 'cuda' else None
+def _gpu_index(entry: OpenBackend, options: BackendOptions) -> int | None:
+    """The GPU whose utilisation is sampled: --device (the instance's own, if it has one) for
+    the GPU backends, none otherwise."""
+    if backend_traits(entry.backend).device != 'cuda':
+        return None
+    return instance_options(options, entry.instance).device
 
 
 def _failures(failed: Sequence[BackendRun]) -> str:

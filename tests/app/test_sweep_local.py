@@ -380,3 +380,38 @@ def test_a_stereo_sweep_sets_the_matchers_disparities_and_shows_its_figures(
         assert float(row['epe']) == pytest.approx(figures.epe, abs=1e-9)
         assert row['map50'] == ''
     assert rows[0]['bad2'] != rows[1]['bad2']
+
+
+def test_labelled_instances_of_one_backend_sweep_their_axes_with_their_fixed_params(
+    bags: dict[str, Path], tmp_path: Path
+) -> None:
+    result = _sweep(
+        [bags['a']],
+        tmp_path / 'sw',
+        backends=['small=hsv', 'big=hsv'],
+        params=['small.min_area=10', 'big.min_area=100000', 'big.kernel=3,5'],
+        max_frames=12,
+    )
+    assert result.status == 'complete'
+    cells = result.record['cells']
+    assert [(c['backend'], c['params']) for c in cells] == [
+        ('small', {'min_area': '10'}),
+        ('big', {'min_area': '100000', 'kernel': '3'}),
+        ('big', {'min_area': '100000', 'kernel': '5'}),
+    ]
+    assert result.record['settings']['backends'] == ['small=hsv', 'big=hsv']
+    detections = []
+    for cell in cells:
+        run = json.loads((tmp_path / 'sw' / cell['run_dir'] / 'run.json').read_text())
+        (entry,) = run['backends']
+        assert (entry['name'], entry['backend'], entry['params']) == (
+            cell['backend'],
+            'hsv',
+            cell['params'],
+        )
+        assert entry['info']['detector']['min_area'] == float(cell['params']['min_area'])
+        assert run['summary'][0]['backend'] == cell['backend']
+        detections.append(run['summary'][0]['detections_per_frame'])
+    assert detections[0] > 0
+    assert detections[1:] == [0, 0]
+    _valid(result.record)

@@ -189,8 +189,13 @@ class ReadAhead:
 class BackendRun:
     """One backend of the run: its status, what it reported and what it cost."""
 
+    #: the instance's name: ``--backend LABEL=NAME``'s label, or the backend's name
     name: str = ''
     label: str = ''
+    #: the registered backend the instance is made of ('' in run folders written before it)
+    backend: str = ''
+    #: the instance's own ``--param`` values (key: text), applied on top of the run's options
+    params: Mapping[str, str] = field(default_factory=empty_mapping)
     status: str = 'ok'
     error: BackendFailure | None = None
     info: Mapping[str, Any] = field(default_factory=empty_mapping)

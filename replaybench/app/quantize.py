@@ -23,23 +23,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from replaybench._version import __version__
+from replaybench.detector.calibration import QuantizeError, calibration_frames
 from replaybench.detector.provenance import PROVENANCE_KEY
-from replaybench.errors import ReplaybenchError, UsageError
+from replaybench.errors import UsageError
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Sequence
-
-    from replaybench.types import Frame
 
 __all__ = [
     'METHODS',
     'QuantizeError',
     'QuantizeOutcome',
     'QuantizeSettings',
-    'calibration_frames',
     'head_nodes',
     'quantize_model',
 ]
@@ -50,10 +46,6 @@ METHODS = ('minmax', 'entropy', 'percentile')
 MIN_OPSET = 13
 #: Operator domains ONNX Runtime's CPU provider runs.
 _DOMAINS = frozenset({'', 'ai.onnx', 'com.microsoft', 'ai.onnx.ml'})
-
-
-class QuantizeError(ReplaybenchError):
-    """A model, a bag or an ``--out`` that ``quantize`` cannot use (exit 2)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -225,70 +217,6 @@ def _named(model: Any) -> Any:
 
 
 # -- the bag ----------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class Calibration:
-    """The frames picked for calibration and where they came from."""
-
-    frames: tuple[Frame, ...]
-    topics: tuple[str, ...]
-    available: int
-
-
-def _pick(count: int, wanted: int) -> list[int]:
-    """``wanted`` indices spread evenly over ``range(count)`` (all of them when fewer)."""
-    if wanted >= count:
-        return list(range(count))
-    if wanted == 1:
-        return [count // 2]
-    return sorted({round(i * (count - 1) / (wanted - 1)) for i in range(wanted)})
-
-
-def calibration_frames(
-    bag: Path,
-    frames: int,
-    *,
-    topics: Sequence[str] = (),
-    holdout: Sequence[tuple[float, float | None]] = (),
-) -> Calibration:
-    """``frames`` decoded frames spread evenly over ``bag``'s image topics (default: every
-    non-depth image topic), none of them in a held-out window."""
-    from replaybench.decode import decode_image, probe_topics
-    from replaybench.sources import open_source
-
-    with open_source(bag) as source:
-        cameras = probe_topics(source)
-        if topics:
-            known = {c.name for c in cameras}
-            missing = [t for t in topics if t not in known]
-            if missing:
-                names = ', '.join(sorted(known)) or 'none'
-                msg = f'{bag}: no image topic {missing[0]!r} (image topics: {names})'
-                raise QuantizeError(msg)
-            chosen = list(topics)
-        else:
-            chosen = [c.name for c in cameras if not c.is_depth and not c.error]
-        if not chosen:
-            msg = f'{bag}: no colour or mono image topic to calibrate on'
-            raise QuantizeError(msg)
-        first = min((t.first_ns for t in source.topics()), default=0)
-        windows = [
-            (first + int(s * 1e9), None if e is None else first + int(e * 1e9)) for s, e in holdout
-        ]
-
-        def held(log_ns: int) -> bool:
-            return any(log_ns >= s and (e is None or log_ns < e) for s, e in windows)
-
-        raws = [m for m in source.messages(topics=chosen) if not held(m.log_time_ns)]
-        picked = []
-        for i in _pick(len(raws), frames):
-            frame = decode_image(raws[i])  # its image may be a view into the open file
-            picked.append(frame._replace(image=np.array(frame.image)))
-    if not picked:
-        msg = f'{bag}: no frame left to calibrate on outside the --holdout windows'
-        raise QuantizeError(msg)
-    return Calibration(tuple(picked), tuple(chosen), len(raws))
 
 
 # -- the backend ------------------------------------------------------------------------------

@@ -13,17 +13,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from replaybench.app.quantize import (
-    QuantizeSettings,
-    calibration_frames,
-    head_nodes,
-    quantize_model,
-)
+from replaybench.app.quantize import QuantizeSettings, head_nodes, quantize_model
 from replaybench.backends.base import BackendOptions
 from replaybench.backends.onnx_cpu import OnnxCpuBackend
 from replaybench.backends.onnx_seg import OnnxSegBackend
 from replaybench.cli import app
 from replaybench.decode import decode_image
+from replaybench.detector.calibration import calibration_frames
 from replaybench.detector.provenance import PROVENANCE_KEY
 from replaybench.sources import open_source
 

@@ -46,7 +46,11 @@ def _frames(bag: Path, *, start_s: float = 0.0, end_s: float | None = None) -> l
     from replaybench.sources import open_source
 
     with open_source(bag) as source:
-        topics = [c.name for c in probe_topics(source) if not c.is_depth and not c.error]
+        topics = [
+            c.name
+            for c in probe_topics(source)
+            if not c.is_depth and not c.error and not c.name.startswith('/ground_truth/')
+        ]
         first = min(t.first_ns for t in source.topics())
         lo = first + int(start_s * 1e9)
         hi = None if end_s is None else first + int(end_s * 1e9)

@@ -3,8 +3,9 @@
 ``replaybench quantize`` (ONNX Runtime's calibration) and ``tensorrt --precision int8`` (a
 TensorRT calibration cache) take the same frames for the same bag, ``frames`` and
 ``holdout``: ``frames`` image messages of the selected topics (default: every non-depth image
-topic), in replay order, at evenly spaced positions, leaving out every message whose log time
-falls in a held-out window (seconds from the bag's first message).
+topic but the ground truth's, ``/ground_truth/...``), in replay order, at evenly spaced
+positions, leaving out every message whose log time falls in a held-out window (seconds from
+the bag's first message).
 """
 
 from __future__ import annotations
@@ -23,6 +24,10 @@ if TYPE_CHECKING:
     from replaybench.types import Frame
 
 __all__ = ['Calibration', 'QuantizeError', 'calibration_frames']
+
+
+#: Image topics under this prefix are ground truth (label masks), no camera.
+TRUTH_PREFIX = '/ground_truth/'
 
 
 class QuantizeError(ReplaybenchError):
@@ -70,7 +75,11 @@ def calibration_frames(
                 raise QuantizeError(msg)
             chosen = list(topics)
         else:
-            chosen = [c.name for c in cameras if not c.is_depth and not c.error]
+            chosen = [
+                c.name
+                for c in cameras
+                if not c.is_depth and not c.error and not c.name.startswith(TRUTH_PREFIX)
+            ]
         if not chosen:
             msg = f'{bag}: no colour or mono image topic to calibrate on'
             raise QuantizeError(msg)

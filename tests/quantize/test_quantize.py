@@ -384,3 +384,12 @@ def test_entropy_and_percentile_calibrate_too(tmp_path, method) -> None:
     outcome = quantize_model(settings)
     assert outcome.provenance['method'] == method
     assert out.is_file()
+
+
+def test_ground_truth_mask_topics_are_never_calibrated_on(tmp_path) -> None:
+    from replaybench.fixtures.writer import write_mcap
+
+    bag = write_mcap(tmp_path / 'masks.mcap', 4, masks=True)
+    picked = calibration_frames(bag, 8)
+    assert picked.topics == ('/camera/image_raw',)
+    assert {f.topic for f in picked.frames} == {'/camera/image_raw'}

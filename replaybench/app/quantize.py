@@ -15,7 +15,9 @@ result is moved onto ``out`` when it is complete.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
 import json
 import shutil
 import tempfile
@@ -400,17 +402,18 @@ def _quantize(
         level = root.level
         root.setLevel(logging.ERROR)  # its advice to pre-process goes to the root logger
         try:
-            quantize_static(
-                str(source),
-                str(target),
-                _Reader(feeds),
-                quant_format=QuantFormat.QDQ,
-                per_channel=True,
-                activation_type=QuantType.QUInt8,
-                weight_type=QuantType.QInt8,
-                nodes_to_exclude=list(excluded),
-                calibrate_method=method,
-            )
+            with contextlib.redirect_stdout(io.StringIO()):  # its calibrators print progress
+                quantize_static(
+                    str(source),
+                    str(target),
+                    _Reader(feeds),
+                    quant_format=QuantFormat.QDQ,
+                    per_channel=True,
+                    activation_type=QuantType.QUInt8,
+                    weight_type=QuantType.QInt8,
+                    nodes_to_exclude=list(excluded),
+                    calibrate_method=method,
+                )
         except Exception as exc:  # onnxruntime raises several types for ops it cannot take
             text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             msg = f'{settings.model}: ONNX Runtime cannot quantise it: {text[:200]}'

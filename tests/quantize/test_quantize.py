@@ -378,12 +378,15 @@ def test_an_unknown_method_is_one_line(tmp_path) -> None:
 
 
 @pytest.mark.parametrize('method', ['entropy', 'percentile'])
-def test_entropy_and_percentile_calibrate_too(tmp_path, method) -> None:
+def test_entropy_and_percentile_calibrate_too_and_print_nothing(tmp_path, method, capfd) -> None:
     out = tmp_path / f'{method}.onnx'
     settings = QuantizeSettings(model=SEGMENTER, bag=RAW, out=out, frames=2, method=method)
     outcome = quantize_model(settings)
     assert outcome.provenance['method'] == method
     assert out.is_file()
+    printed = capfd.readouterr()
+    assert printed.out == ''
+    assert printed.err == ''
 
 
 def test_ground_truth_mask_topics_are_never_calibrated_on(tmp_path) -> None:

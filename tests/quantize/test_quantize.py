@@ -8,10 +8,11 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
+from typer.testing import CliRunner, Result
 
 from replaybench.app.quantize import QuantizeSettings, head_nodes, quantize_model
 from replaybench.backends.base import BackendOptions
@@ -22,6 +23,9 @@ from replaybench.decode import decode_image
 from replaybench.detector.calibration import calibration_frames
 from replaybench.detector.provenance import PROVENANCE_KEY
 from replaybench.sources import open_source
+
+if TYPE_CHECKING:
+    from replaybench.types import Frame
 
 onnx = pytest.importorskip('onnx')
 from onnx import TensorProto, helper  # noqa: E402
@@ -35,7 +39,7 @@ SEGMENTER = REPO / 'replaybench' / 'models' / 'blobs_seg.onnx'
 runner = CliRunner()
 
 
-def _quantize(*args: str) -> object:
+def _quantize(*args: str) -> Result:
     return runner.invoke(app, ['quantize', *args])
 
 
@@ -67,7 +71,7 @@ def _tiny_model(
     return path
 
 
-def _frames(bag: Path) -> list:
+def _frames(bag: Path) -> list[Frame]:
     with open_source(bag) as source:
         topic = next(t.name for t in source.topics() if t.msgtype.endswith('Image'))
         frames = [decode_image(m) for m in source.messages(topics=[topic])]
@@ -82,7 +86,7 @@ def int8_detector(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp('int8')
     model = folder / 'blobs.onnx'
     shutil.copyfile(DETECTOR, model)
-    out = folder / 'blobs.int8.onnx'
+    out: Path = folder / 'blobs.int8.onnx'
     result = _quantize(str(model), str(RAW), '--out', str(out), '--frames', '10')
     assert result.exit_code == 0, result.output
     return out
@@ -287,7 +291,8 @@ def test_the_bundled_segmenter_quantises_through_onnx_seg_and_its_masks_agree(tm
         backend = OnnxSegBackend(BackendOptions(model=model, threads=1))
         backend.open()
         try:
-            masks[name] = [backend.detect(f).mask.labels for f in frames]
+            found = [backend.detect(f).mask for f in frames]
+            masks[name] = [m.labels for m in found if m is not None]
             info = backend.info()
         finally:
             backend.close()
@@ -314,7 +319,7 @@ def test_an_opset_11_model_is_upgraded_to_13_and_recorded(tmp_path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ['old.int8.onnx', 'old.onnx']
 
 
-def _one_error(result) -> str:
+def _one_error(result: Result) -> str:
     assert result.exit_code == 2, result.output
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1, lines

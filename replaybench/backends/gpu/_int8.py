@@ -80,7 +80,7 @@ def entropy_calibrator(
     """An ``IInt8EntropyCalibrator2`` over ``batches`` (one frame a batch) that reads and
     writes its cache at ``cache``."""
 
-    class EntropyCalibrator(trt.IInt8EntropyCalibrator2):  # type: ignore[misc,name-defined]
+    class EntropyCalibrator(trt.IInt8EntropyCalibrator2):  # type: ignore[misc]
         def __init__(self) -> None:
             trt.IInt8EntropyCalibrator2.__init__(self)
             self.batches = list(batches)

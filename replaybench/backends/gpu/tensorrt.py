@@ -22,6 +22,7 @@ first run of a key builds the engine inside ``open()`` (seconds to minutes); lat
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
 import os
 from pathlib import Path
@@ -240,7 +241,7 @@ class TensorrtBackend(CudaBackend):
         if cache.is_file():
             return cache
         try:
-            import tensorrt as trt
+            trt = importlib.import_module('tensorrt')
         except ImportError as exc:
             msg = f'{self.name}: INT8 calibration needs the tensorrt module: {exc}'
             raise BackendUnavailableError(msg) from exc

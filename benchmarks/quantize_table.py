@@ -292,7 +292,7 @@ def _table(rows: Sequence[dict[str, Any]]) -> str:
         lat = row['latency']
         acc = row.get('accuracy')
         change = (
-            f'{acc["metric"]} {acc["fp32"]:.3f} -> {acc["int8"]:.3f}: {acc["change"]:+.4f} '
+            f'{acc["metric"]} {acc["fp32"]:.4f} -> {acc["int8"]:.4f}: {acc["change"]:+.4f} '
             f'[{acc["ci95"][0]:+.4f}, {acc["ci95"][1]:+.4f}]'
             if acc
             else 'n/a (no labels)'

@@ -91,12 +91,17 @@ def calibration_frames(
         def held(log_ns: int) -> bool:
             return any(log_ns >= s and (e is None or log_ns < e) for s, e in windows)
 
-        raws = [m for m in source.messages(topics=chosen) if not held(m.log_time_ns)]
+        # two passes: log times first, then only the picked messages decoded (a long bag's
+        # messages are never all held at once)
+        times = [m.log_time_ns for m in source.messages(topics=chosen)]
+        eligible = [i for i, t in enumerate(times) if not held(t)]
+        wanted = {eligible[j] for j in _pick(len(eligible), frames)}
         picked = []
-        for i in _pick(len(raws), frames):
-            frame = decode_image(raws[i])  # its image may be a view into the open file
-            picked.append(frame._replace(image=np.array(frame.image)))
+        for i, raw in enumerate(source.messages(topics=chosen)):
+            if i in wanted:
+                frame = decode_image(raw)  # its image may be a view into the open file
+                picked.append(frame._replace(image=np.array(frame.image)))
     if not picked:
         msg = f'{bag}: no frame left to calibrate on outside the --holdout windows'
         raise QuantizeError(msg)
-    return Calibration(tuple(picked), tuple(chosen), len(raws))
+    return Calibration(tuple(picked), tuple(chosen), len(eligible))

@@ -298,7 +298,9 @@ def _table(rows: Sequence[dict[str, Any]]) -> str:
             else 'n/a (no labels)'
         )
         agree = row['agreement']
-        if 'mask_pixels_equal' in agree:
+        if 'mean_abs_disparity_diff_px' in agree:
+            shown = f'disparity {agree["mean_abs_disparity_diff_px"]:.3f} px from FP32 (mean)'
+        elif 'mask_pixels_equal' in agree:
             shown = f'{agree["mask_pixels_equal"] * 100:.2f} % of mask pixels equal'
         else:
             frac = agree['matched_frac_fp32']
@@ -392,6 +394,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 row['quantize'] = q
                 rows.append(row)
                 print(_table(rows[-1:]), file=sys.stderr)
+        if not only or 'stereo' in only:
+            rows.append(_stereo_row(work, args.repeats))
+            print(_table(rows[-1:]), file=sys.stderr)
         yolox = SHARED / 'models' / 'yolox_nano.onnx'
         if (not only or 'yolox' in only) and yolox.is_file():
             euroc = sorted((SHARED / 'euroc_micro' / 'cam0' / 'data').glob('*.png'))
@@ -432,6 +437,42 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.out is not None:
         args.out.write_text(json.dumps(rows, indent=2, sort_keys=True) + '\n', encoding='utf-8')
     return 0
+
+
+def _stereo_row(work: Path, repeats: int) -> dict[str, Any]:
+    """The bundled stereo model on the stereo fixture: calibrated on its first 2 s (20 pairs),
+    compared on the other 20; agreement: the mean absolute disparity difference."""
+    from replaybench.backends.base import BackendOptions
+    from replaybench.backends.onnx_stereo import OnnxStereoBackend
+    from replaybench.detector.calibration import calibration_pairs
+    from replaybench.fixtures.stereo import write_stereo_mcap
+    from replaybench.types import FrameSet
+
+    bag = write_stereo_mcap(work / 'stereo.mcap', frames=40)
+    topics = ('/stereo/left/image_rect', '/stereo/right/image_rect')
+    model = REPO / 'replaybench' / 'models' / 'stereo_small.onnx'
+    out = work / 'stereo.int8.onnx'
+    q = _quantize(model, bag, out, frames=20, topics=topics, holdout=((2.0, None),))
+    flat = calibration_pairs(bag, 40, topics).frames
+    sets = [FrameSet(frames=(flat[i], flat[i + 1])) for i in range(40, len(flat), 2)]
+    backends = []
+    for path in (model, out):
+        backend = OnnxStereoBackend(BackendOptions(model=path, threads=1))
+        backend.open()
+        backends.append(backend)
+    try:
+        latency = _latency(backends, sets, repeats)  # type: ignore[arg-type]
+        a, b = ([np.asarray(x.detect(s).output.disparity) for s in sets] for x in backends)
+    finally:
+        for backend in backends:
+            backend.close()
+    diff = [float(np.nanmean(np.abs(x - y))) for x, y in zip(a, b, strict=True)]
+    return {
+        'model': 'bundled stereo_small.onnx (320x240 pairs)',
+        'latency': latency,
+        'agreement': {'mean_abs_disparity_diff_px': float(np.mean(diff))},
+        'quantize': q,
+    }
 
 
 def _astronaut(yolox: Path, int8: Path, frames: Sequence[Frame]) -> tuple[Any, Any]:

@@ -26,7 +26,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from replaybench._version import __version__
-from replaybench.detector.calibration import QuantizeError, calibration_frames
+from replaybench.detector.calibration import (
+    QuantizeError,
+    calibration_frames,
+    calibration_pairs,
+)
 from replaybench.detector.provenance import PROVENANCE_KEY
 from replaybench.errors import UsageError
 
@@ -247,7 +251,11 @@ def _preprocessor(backend: str, model: Path) -> Any:
         from replaybench.backends.onnx_seg import OnnxSegBackend
 
         return OnnxSegBackend(options)
-    msg = f'quantize calibrates through onnx-cpu or onnx-seg, not {backend!r}'
+    if backend == 'onnx-stereo':
+        from replaybench.backends.onnx_stereo import OnnxStereoBackend
+
+        return OnnxStereoBackend(options)
+    msg = f'quantize calibrates through onnx-cpu, onnx-seg or onnx-stereo, not {backend!r}'
     raise QuantizeError(msg)
 
 
@@ -327,18 +335,32 @@ def quantize_model(settings: QuantizeSettings) -> QuantizeOutcome:
             raise UsageError(msg)
         excluded, rule = tuple(settings.exclude), '--exclude' if settings.exclude else 'none'
     backend = _task_backend(model, settings.backend)
-    calib = calibration_frames(
-        settings.bag, settings.frames, topics=settings.topics, holdout=settings.holdout
-    )
+    stereo = backend == 'onnx-stereo'
+    if stereo:
+        calib = calibration_pairs(
+            settings.bag, settings.frames, settings.topics, holdout=settings.holdout
+        )
+    else:
+        calib = calibration_frames(
+            settings.bag, settings.frames, topics=settings.topics, holdout=settings.holdout
+        )
+    used = calib.frames[0::2] if stereo else calib.frames
     warnings: list[str] = []
     if calib.available < settings.frames:
+        kind = 'stereo pair(s)' if stereo else 'frame(s)'
         warnings.append(
-            f'{settings.bag.name} holds {calib.available} frame(s) to calibrate on, fewer than '
+            f'{settings.bag.name} holds {calib.available} {kind} to calibrate on, fewer than '
             f'--frames {settings.frames}: all {calib.available} used'
         )
     pre = _preprocessor(backend, path)
     try:
-        feeds = [pre.inputs(frame) for frame in calib.frames]
+        if stereo:
+            from replaybench.types import FrameSet
+
+            pairs = zip(calib.frames[0::2], calib.frames[1::2], strict=True)
+            feeds = [pre.inputs(FrameSet(frames=pair)) for pair in pairs]
+        else:
+            feeds = [pre.inputs(frame) for frame in calib.frames]
     finally:
         pre.close()
     frames_used: dict[str, list[int]] = {}
@@ -349,7 +371,7 @@ def quantize_model(settings: QuantizeSettings) -> QuantizeOutcome:
         'bag': settings.bag.name,
         'bag_sha256': _sha256(settings.bag),
         'topics': list(calib.topics),
-        'frames': len(calib.frames),
+        'frames': len(used),
         'frames_asked': settings.frames,
         'frames_used': frames_used,
         'holdout': [[s, e] for s, e in settings.holdout],

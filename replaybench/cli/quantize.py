@@ -64,7 +64,10 @@ def quantize(
     topic: Annotated[
         list[str],
         typer.Option(
-            '--topic', '-t', help='Image topic TOPIC to calibrate on (default: every one).'
+            '--topic',
+            '-t',
+            help='Image topic TOPIC to calibrate on (default: every one; a stereo model: '
+            'LEFT then RIGHT).',
         ),
     ] = [],  # noqa: B006
     backend: Annotated[
@@ -72,8 +75,8 @@ def quantize(
         typer.Option(
             '--backend',
             '-b',
-            help='The backend NAME whose preprocessing feeds the calibration: onnx-cpu or '
-            'onnx-seg (default: from the model metadata, else onnx-cpu).',
+            help='The backend NAME whose preprocessing feeds the calibration: onnx-cpu, '
+            'onnx-seg or onnx-stereo (default: from the model metadata, else onnx-cpu).',
         ),
     ] = None,
 ) -> None:

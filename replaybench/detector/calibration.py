@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
     from replaybench.types import Frame
 
-__all__ = ['Calibration', 'QuantizeError', 'calibration_frames']
+__all__ = ['Calibration', 'QuantizeError', 'calibration_frames', 'calibration_pairs']
 
 
 #: Image topics under this prefix are ground truth (label masks), no camera.
@@ -105,3 +105,67 @@ def calibration_frames(
         msg = f'{bag}: no frame left to calibrate on outside the --holdout windows'
         raise QuantizeError(msg)
     return Calibration(tuple(picked), tuple(chosen), len(eligible))
+
+
+def calibration_pairs(
+    bag: Path,
+    frames: int,
+    topics: Sequence[str],
+    *,
+    holdout: Sequence[tuple[float, float | None]] = (),
+) -> Calibration:
+    """``frames`` stereo pairs (left, right: ``topics`` in that order, paired by equal header
+    stamps, each frame with its CameraInfo), spread evenly over the pairs outside the held-out
+    windows; ``Calibration.frames`` holds them flat, left then right."""
+    from replaybench.decode import CameraInfoIndex, camera_info_topic_for, decode_image
+    from replaybench.decode.image import image_stamp
+    from replaybench.decode.kinds import message_kind
+    from replaybench.sources import open_source
+
+    if len(topics) != 2 or topics[0] == topics[1]:
+        msg = f'{bag}: a stereo model calibrates on two topics: --topic LEFT --topic RIGHT'
+        raise QuantizeError(msg)
+    with open_source(bag) as source:
+        names = [t.name for t in source.topics()]
+        info_topics = [t.name for t in source.topics() if message_kind(t.msgtype) == 'camera_info']
+        missing = [t for t in topics if t not in names]
+        if missing:
+            msg = f'{bag}: no image topic {missing[0]!r}'
+            raise QuantizeError(msg)
+        first = min((t.first_ns for t in source.topics()), default=0)
+        windows = [
+            (first + int(s * 1e9), None if e is None else first + int(e * 1e9)) for s, e in holdout
+        ]
+        stamps: dict[str, dict[int, int]] = {t: {} for t in topics}
+        for i, raw in enumerate(source.messages(topics=topics)):
+            held = any(
+                raw.log_time_ns >= s and (e is None or raw.log_time_ns < e) for s, e in windows
+            )
+            if not held:
+                stamps[raw.topic].setdefault(image_stamp(raw), i)
+        common = sorted(set(stamps[topics[0]]) & set(stamps[topics[1]]))
+        chosen = [common[j] for j in _pick(len(common), frames)]
+        wanted = {stamps[t][stamp] for stamp in chosen for t in topics}
+        image_topics = [t for t in names if t in topics]
+        infos = CameraInfoIndex.from_source(
+            source,
+            [
+                found
+                for t in topics
+                if (found := camera_info_topic_for(t, info_topics, image_topics)) is not None
+            ],
+        )
+        decoded: dict[tuple[str, int], Frame] = {}
+        for i, raw in enumerate(source.messages(topics=topics)):
+            if i in wanted:
+                frame = decode_image(raw)
+                frame = frame._replace(
+                    image=np.array(frame.image),
+                    camera_info=infos.lookup(frame.topic, frame.stamp_ns),
+                )
+                decoded[(frame.topic, frame.stamp_ns)] = frame
+    picked = tuple(decoded[(t, stamp)] for stamp in chosen for t in topics)
+    if not picked:
+        msg = f'{bag}: no stereo pair (equal stamps) to calibrate on outside the --holdout windows'
+        raise QuantizeError(msg)
+    return Calibration(picked, tuple(topics), len(common))

@@ -401,3 +401,24 @@ def test_ground_truth_mask_topics_are_never_calibrated_on(tmp_path) -> None:
     picked = calibration_frames(bag, 8)
     assert picked.topics == ('/camera/image_raw',)
     assert {f.topic for f in picked.frames} == {'/camera/image_raw'}
+
+
+def test_the_bundled_stereo_model_calibrates_on_pairs_through_onnx_stereo(tmp_path) -> None:
+    from replaybench.fixtures.stereo import write_stereo_mcap
+
+    bag = write_stereo_mcap(tmp_path / 'stereo.mcap', frames=4, size=(320, 240))
+    left, right = '/stereo/left/image_rect', '/stereo/right/image_rect'
+    stereo_model = REPO / 'replaybench' / 'models' / 'stereo_small.onnx'
+    out = tmp_path / 'stereo.int8.onnx'
+    args = [str(stereo_model), str(bag), '--out', str(out), '--frames', '3']
+    result = _quantize(*args, '--topic', left, '--topic', right)
+    assert result.exit_code == 0, result.output
+    assert 'through onnx-stereo' in result.stdout
+    record = json.loads(
+        {p.key: p.value for p in onnx.load(str(out)).metadata_props}[PROVENANCE_KEY]
+    )
+    assert record['backend'] == 'onnx-stereo'
+    assert record['frames'] == 3
+    assert record['frames_used'] == {left: [0, 2, 3], right: [0, 2, 3]}
+    one = _one_error(_quantize(*args, '--topic', left))
+    assert 'two topics: --topic LEFT --topic RIGHT' in one

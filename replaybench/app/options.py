@@ -150,7 +150,10 @@ class RunOptions:
         'auto', '--engine', 'GPU engine for the cuda backend: auto, ort or torch.', peak=True
     )
     precision: str = _opt(
-        'fp32', '--precision', 'fp32 (TF32 off), tf32 or fp16 (GPU backends).', peak=True
+        'fp32',
+        '--precision',
+        'fp32 (TF32 off), tf32 or fp16 (GPU backends); int8 (tensorrt).',
+        peak=True,
     )
     recorded_topic: str | None = _opt(
         None,

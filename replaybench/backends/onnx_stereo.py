@@ -442,6 +442,19 @@ class OnnxStereoBackend:
             output=result,
         )
 
+    def inputs(self, frame_set: FrameSet) -> dict[str, Any]:
+        """The model's inputs for a left/right set as ``detect`` prepares them (rectified,
+        converted, resized and scaled; a copy): what ``replaybench quantize`` calibrates on."""
+        if self._session is None:
+            self.open()
+        left, right = frame_set.frames
+        rectifier = self.rectifier(left, right)
+        rect_left, rect_right = rectifier.rectify(left.image, right.image)
+        self._fill(
+            (self._channels(rect_left, left.encoding), self._channels(rect_right, right.encoding))
+        )
+        return {name: buffer.copy() for name, buffer in self._feed.items()}
+
     def info(self) -> dict[str, Any]:
         facts: dict[str, Any] = {
             'task': 'stereo',

@@ -261,6 +261,7 @@ def _rig_lines(run: RunResult) -> list[str]:
 def _show_run(outcome: RunOutcome) -> int:
     """Print a finished run (the table, its warnings, the folder); its exit status."""
     from replaybench.backends.gpu import engine_lines
+    from replaybench.detector.provenance import quantization_line
     from replaybench.report.recorded import recorded_latency_lines
 
     _print_summary(outcome.summaries)
@@ -291,6 +292,10 @@ def _show_run(outcome: RunOutcome) -> int:
             )
     for line in engine_lines(outcome.run):
         echo(line)
+    for entry in outcome.run.backends:
+        quantized = quantization_line(entry.name, entry.info)
+        if quantized is not None:
+            echo(quantized)
     for line in _task_lines(outcome.run):
         echo(line)
     assert outcome.run_dir is not None  # the command line always writes a folder

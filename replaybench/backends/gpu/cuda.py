@@ -178,6 +178,12 @@ class CudaBackend:
             known = ', '.join(PRECISIONS)
             msg = f'{self.name}: unknown --precision {opts.precision!r}; known: {known}'
             raise BackendError(msg)
+        if opts.precision == 'int8' and not self._int8:
+            msg = (
+                f"{self.name}: --precision int8 is the tensorrt backend's (docs/quantize.md); "
+                f'{self.name} runs fp32, tf32 or fp16'
+            )
+            raise BackendError(msg)
         if opts.device < 0:
             msg = f'{self.name}: --device must be >= 0, got {opts.device}'
             raise BackendError(msg)
@@ -212,6 +218,9 @@ class CudaBackend:
         self._engine: OrtEngine | TorchEngine | None = None
         self._tf32: Tf32Hold | None = None
         self._facts: dict[str, Any] = {}
+
+    #: Whether ``--precision int8`` is offered (``tensorrt``).
+    _int8: ClassVar[bool] = False
 
     @classmethod
     def _extra_keys(cls) -> tuple[str, ...]:

@@ -294,8 +294,11 @@ def _check_out(out: Path, model: Path) -> None:
             )
             raise QuantizeError(msg) from exc
     elif not out.parent.is_dir():
-        msg = f'--out {out}: folder {out.parent} does not exist'
-        raise QuantizeError(msg)
+        try:  # as run's --out, the folders are made
+            out.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            msg = f'--out {out}: folder {out.parent} cannot be made: {err.strerror or err}'
+            raise QuantizeError(msg) from None
 
 
 def _sha256(path: Path) -> str:

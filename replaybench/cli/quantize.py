@@ -16,7 +16,12 @@ __all__: list[str] = []
 @app.command()
 def quantize(
     model: Annotated[
-        Path, typer.Argument(help='The float ONNX model (MODEL.onnx).', show_default=False)
+        Path,
+        typer.Argument(
+            help='The float ONNX model (MODEL.onnx), or "bundled": the model the backend runs '
+            'by default (the bundled detector, segmenter or stereo model).',
+            show_default=False,
+        ),
     ],
     bag: Annotated[
         Path,
@@ -92,6 +97,8 @@ def quantize(
     from replaybench.app.quantize import QuantizeSettings, parse_holdout, quantize_model
 
     try:
+        if str(model) == 'bundled':
+            model = _bundled(backend)
         if exclude == ['none']:
             excluded: tuple[str, ...] | None = ()
         elif 'none' in exclude:
@@ -124,3 +131,25 @@ def quantize(
         f'{len(record["excluded"])} node(s) in float; opset {record["opset_from"]}'
         + (f' -> {record["opset_to"]}' if record['opset_to'] != record['opset_from'] else '')
     )
+
+
+def _bundled(backend: str | None) -> Path:
+    """The model ``backend`` runs by default (``onnx-cpu`` where None); ``UsageError`` for a
+    backend without one."""
+    from replaybench.errors import UsageError
+
+    name = backend or 'onnx-cpu'
+    if name == 'onnx-cpu':
+        from replaybench.detector.spec import DEFAULT_MODEL
+
+        return DEFAULT_MODEL
+    if name == 'onnx-seg':
+        from replaybench.segmentation.spec import DEFAULT_SEG_MODEL
+
+        return DEFAULT_SEG_MODEL
+    if name == 'onnx-stereo':
+        from replaybench.backends.onnx_stereo import DEFAULT_STEREO_MODEL
+
+        return DEFAULT_STEREO_MODEL
+    msg = f'no bundled model for --backend {name}: give onnx-cpu, onnx-seg or onnx-stereo'
+    raise UsageError(msg)

@@ -5,6 +5,7 @@ The bundled models are quantised for real (ONNX Runtime's ``quantize_static``) o
 
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 from pathlib import Path
@@ -422,3 +423,21 @@ def test_the_bundled_stereo_model_calibrates_on_pairs_through_onnx_stereo(tmp_pa
     assert record['frames_used'] == {left: [0, 2, 3], right: [0, 2, 3]}
     one = _one_error(_quantize(*args, '--topic', left))
     assert 'two topics: --topic LEFT --topic RIGHT' in one
+
+
+def test_bundled_names_the_backends_default_model_and_out_folders_are_made(tmp_path) -> None:
+    out = tmp_path / 'new' / 'folder' / 'm.onnx'
+    result = _quantize('bundled', str(RAW), '--out', str(out), '--frames', '4')
+    assert result.exit_code == 0, result.stderr
+    record = json.loads(
+        {p.key: p.value for p in onnx.load(str(out)).metadata_props}['replaybench.quantization']
+    )
+    digest = hashlib.sha256(DETECTOR.read_bytes()).hexdigest()
+    assert record['source_sha256'] == digest
+    assert record['source'] == 'blobs.onnx'
+    refused = _quantize('bundled', str(RAW), '--out', str(tmp_path / 'x.onnx'), '-b', 'hsv')
+    assert refused.exit_code == 2
+    assert refused.stderr.strip().splitlines()[-1] == (
+        'replaybench: error: no bundled model for --backend hsv: give onnx-cpu, onnx-seg or '
+        'onnx-stereo'
+    )

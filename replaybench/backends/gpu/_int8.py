@@ -34,11 +34,13 @@ if TYPE_CHECKING:
 
 __all__ = [
     'CACHE_NAME',
+    'Holdout',
     'build_calibration_cache',
     'calibration_batches',
     'calibration_id',
     'entropy_calibrator',
     'is_quantized',
+    'parse_holdouts',
 ]
 
 #: The cache's file name in the engine folder (``trt_int8_calibration_table_name``).
@@ -53,19 +55,48 @@ def is_quantized(path: Path) -> bool:
     return any(n.op_type == 'QuantizeLinear' for n in model.graph.node)
 
 
-def calibration_id(bag: Path, frames: int) -> str:
-    """What a calibration cache depends on besides the model: the bag's sha256 and ``frames``."""
+Holdout = tuple[tuple[float, float | None], ...]
+
+
+def parse_holdouts(text: str) -> Holdout:
+    """``calibration_holdout``: comma-separated ``START:END`` or ``START:`` windows in seconds of
+    log time from the bag's start (quantize's ``--holdout``); ``ValueError`` naming the window
+    otherwise."""
+    windows = []
+    for part in (p.strip() for p in text.split(',')):
+        if not part:
+            continue
+        start_text, sep, end_text = part.partition(':')
+        try:
+            start = float(start_text)
+            end = float(end_text) if end_text.strip() else None
+        except ValueError:
+            start, end = -1.0, None
+        if not sep or start < 0 or (end is not None and end <= start):
+            msg = f'{part!r}: expected START:END or START: in seconds, START >= 0 < END'
+            raise ValueError(msg)
+        windows.append((start, end))
+    return tuple(windows)
+
+
+def calibration_id(bag: Path, frames: int, holdout: Holdout = ()) -> str:
+    """What a calibration cache depends on besides the model: the bag's sha256, ``frames``
+    and the held-out windows (none: the id as before they existed)."""
     from replaybench.sources.digest import input_sha256
 
-    return f'{input_sha256(bag)}:{frames}'
+    windows = ''.join(f':{s:g}-{"" if e is None else f"{e:g}"}' for s, e in holdout)
+    return f'{input_sha256(bag)}:{frames}{windows}'
 
 
-def calibration_batches(spec: ModelSpec | SegModelSpec, bag: Path, frames: int) -> list[np.ndarray]:
-    """The calibration frames as the model's float32 input tensors ``[1, 3, H, W]``."""
+def calibration_batches(
+    spec: ModelSpec | SegModelSpec, bag: Path, frames: int, holdout: Holdout = ()
+) -> list[np.ndarray]:
+    """The calibration frames (none in a ``holdout`` window) as the model's float32 input
+    tensors ``[1, 3, H, W]``."""
     from replaybench.detector.calibration import calibration_frames
     from replaybench.detector.preprocess import Letterboxer
 
-    picked = calibration_frames(bag, frames)
+    picked = calibration_frames(bag, frames, holdout=holdout)
     letterbox = Letterboxer(spec.preprocess)
     batches = []
     for frame in picked.frames:

@@ -31,10 +31,12 @@ from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple
 from replaybench.backends.gpu._cuda import cache_dir, device_facts
 from replaybench.backends.gpu._int8 import (
     CACHE_NAME,
+    Holdout,
     build_calibration_cache,
     calibration_batches,
     calibration_id,
     is_quantized,
+    parse_holdouts,
 )
 from replaybench.backends.gpu.availability import (
     tensorrt_availability,
@@ -125,7 +127,7 @@ class TensorrtBackend(CudaBackend):
 
     @classmethod
     def _extra_keys(cls) -> tuple[str, ...]:
-        return ('trt_cache', 'calibration_bag', 'calibration_frames')
+        return ('trt_cache', 'calibration_bag', 'calibration_frames', 'calibration_holdout')
 
     @classmethod
     def available(cls) -> Availability:
@@ -208,6 +210,7 @@ class TensorrtBackend(CudaBackend):
                     'cache': str(self._calibration_cache),
                     'bag': self.options.extra['calibration_bag'],
                     'frames': self._calibration_frames(),
+                    'holdout': [[s, e] for s, e in self._calibration_holdout()],
                 }
             )
         return spec, session, facts
@@ -218,6 +221,13 @@ class TensorrtBackend(CudaBackend):
             msg = f'{self.name}: calibration_frames must be an integer >= 1, got {text!r}'
             raise BackendError(msg)
         return int(text)
+
+    def _calibration_holdout(self) -> Holdout:
+        try:
+            return parse_holdouts(self.options.extra.get('calibration_holdout', ''))
+        except ValueError as err:
+            msg = f'{self.name}: calibration_holdout {err}'
+            raise BackendError(msg) from None
 
     def _calibration(self) -> tuple[str, Path | None]:
         """int8: ``('qdq', None)`` for a quantised model, else the calibration's id and bag."""
@@ -234,7 +244,7 @@ class TensorrtBackend(CudaBackend):
         if not bag.exists():
             msg = f'{self.name}: calibration_bag {bag} not found'
             raise BackendError(msg)
-        return calibration_id(bag, self._calibration_frames()), bag
+        return calibration_id(bag, self._calibration_frames(), self._calibration_holdout()), bag
 
     def _calibrate(self, spec: ModelSpec | SegModelSpec, bag: Path, cache: Path) -> Path:
         """The engine folder's calibration cache, built once from the bag's frames."""
@@ -245,7 +255,9 @@ class TensorrtBackend(CudaBackend):
         except ImportError as exc:
             msg = f'{self.name}: INT8 calibration needs the tensorrt module: {exc}'
             raise BackendUnavailableError(msg) from exc
-        batches = calibration_batches(spec, bag, self._calibration_frames())
+        batches = calibration_batches(
+            spec, bag, self._calibration_frames(), self._calibration_holdout()
+        )
         return build_calibration_cache(
             trt, self._torch, self.model_path, batches, cache, self._device
         )

@@ -204,3 +204,35 @@ def test_calibration_batches_are_the_letterboxed_frames(tiny_model) -> None:
     assert [b.shape for b in batches] == [(1, 3, 32, 64)] * 2
     assert float(batches[0].min()) >= 0.0
     assert float(batches[0].max()) <= 1.0
+
+
+def test_a_calibration_holdout_keeps_its_frames_out_and_is_part_of_the_cache_key(
+    monkeypatch, gpu, tiny_model, tmp_path
+) -> None:
+    fed: list[np.ndarray] = []
+    monkeypatch.setitem(sys.modules, 'tensorrt', _fake_tensorrt(fed))
+    extra = {
+        'trt_cache': str(tmp_path / 'engines'),
+        'calibration_bag': str(RAW),
+        'calibration_frames': '4',
+        'calibration_holdout': '0:0.2',
+    }
+    backend = TensorrtBackend(BackendOptions(model=tiny_model, precision='int8', extra=extra))
+    with pytest.raises(BackendUnavailableError, match='did not enable TensorrtExecutionProvider'):
+        backend.open()
+    held = calibration_frames(RAW, 4, holdout=((0.0, 0.2),))
+    assert all(f.seq not in {0, 1, 2, 3, 4, 5} for f in held.frames)  # 0.2 s of 30 Hz
+    from replaybench.detector.spec import load_model_spec
+
+    expected = calibration_batches(load_model_spec(tiny_model), RAW, 4, ((0.0, 0.2),))
+    assert len(fed) == len(expected) == 4
+    assert all(np.array_equal(a, b) for a, b in zip(fed, expected, strict=True))
+    assert backend.engine_key is not None
+    assert backend.engine_key.calibration.endswith(':4:0-0.2')
+
+
+def test_a_malformed_calibration_holdout_is_one_line(tiny_model, tmp_path) -> None:
+    extra = {'calibration_bag': str(RAW), 'calibration_holdout': '5'}
+    backend = TensorrtBackend(BackendOptions(model=tiny_model, precision='int8', extra=extra))
+    with pytest.raises(BackendError, match=r"^tensorrt: calibration_holdout '5': expected START"):
+        backend._calibration_holdout()

@@ -206,8 +206,9 @@ def test_calibration_batches_are_the_letterboxed_frames(tiny_model) -> None:
     assert float(batches[0].max()) <= 1.0
 
 
+@pytest.mark.usefixtures('gpu')
 def test_a_calibration_holdout_keeps_its_frames_out_and_is_part_of_the_cache_key(
-    monkeypatch, gpu, tiny_model, tmp_path
+    monkeypatch, tiny_model, tmp_path
 ) -> None:
     fed: list[np.ndarray] = []
     monkeypatch.setitem(sys.modules, 'tensorrt', _fake_tensorrt(fed))
@@ -231,7 +232,7 @@ def test_a_calibration_holdout_keeps_its_frames_out_and_is_part_of_the_cache_key
     assert backend.engine_key.calibration.endswith(':4:0-0.2')
 
 
-def test_a_malformed_calibration_holdout_is_one_line(tiny_model, tmp_path) -> None:
+def test_a_malformed_calibration_holdout_is_one_line(tiny_model) -> None:
     extra = {'calibration_bag': str(RAW), 'calibration_holdout': '5'}
     backend = TensorrtBackend(BackendOptions(model=tiny_model, precision='int8', extra=extra))
     with pytest.raises(BackendError, match=r"^tensorrt: calibration_holdout '5': expected START"):

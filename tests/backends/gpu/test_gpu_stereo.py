@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pytest
 from backends.gpu.gpufakes import GPU_A, fake_gpu_build, fake_loader, torch_on_the_cpu
+from backends.gpu.gpuhelpers import stereo_pairs
 from typer.testing import CliRunner
 
 from replaybench.backends import get_backend
@@ -32,10 +33,11 @@ from replaybench.cli import app
 from replaybench.detector.spec import DEFAULT_MODEL
 from replaybench.errors import BackendError
 from replaybench.stereo import Disparity
-from replaybench.types import FrameSet
 
 if TYPE_CHECKING:
     from pathlib import Path
+
+    from replaybench.types import FrameSet
 
 TORCH_TOLERANCE_PX = 1e-4
 ORT_RESIZED_TOLERANCE_PX = 1e-5
@@ -48,24 +50,6 @@ def _needs_onnx2torch() -> Any:
     if importlib.util.find_spec('onnx2torch') is None:
         pytest.skip('onnx2torch is not installed (make install)')
     return torch
-
-
-def _pairs(bag: Path) -> list[FrameSet]:
-    """The bag's stereo pairs as FrameSets, each member with its CameraInfo."""
-    from replaybench.decode import decode_camera_info, decode_image
-    from replaybench.sources import open_source
-
-    infos, images = {}, {}
-    with open_source(bag) as source:
-        for msg in source.messages():
-            if msg.topic.endswith('camera_info'):
-                infos[msg.topic.split('/')[2]] = decode_camera_info(msg)
-            elif msg.topic.startswith('/stereo/'):
-                frame = decode_image(msg)
-                side = msg.topic.split('/')[2]
-                images[(frame.stamp_ns, side)] = frame._replace(camera_info=infos[side])
-    stamps = sorted({stamp for stamp, _ in images})
-    return [FrameSet((images[(s, 'left')], images[(s, 'right')])) for s in stamps]
 
 
 @pytest.fixture(scope='module')
@@ -124,13 +108,13 @@ def test_the_gpu_stereo_backends_are_registered_as_stereo_backends_of_frame_sets
 
 
 @pytest.mark.parametrize('bag', ['rect', 'raw', 'large'])
-def test_the_torch_engine_gives_onnx_stereos_disparity_on_the_fixture_pairs(
+def test_the_torch_engine_gives_onnx_stereos_disparity_on_the_fixturestereo_pairs(
     monkeypatch, bags, driver, bag
 ):
     torch = _needs_onnx2torch()
     driver([GPU_A])
     torch_on_the_cpu(monkeypatch, torch)
-    sets = _pairs(bags[bag])
+    sets = stereo_pairs(bags[bag])
 
     results, info = _disparities(CudaStereoBackend(BackendOptions(engine='torch')), sets)
     _check_against_onnx_stereo(results, _expected(sets), TORCH_TOLERANCE_PX)
@@ -150,7 +134,7 @@ def test_the_ort_engine_binds_both_images_and_gives_onnx_stereos_disparity(
     driver([GPU_A])
     seen = fake_gpu_build(monkeypatch, ['CUDAExecutionProvider'])
     torch_on_the_cpu(monkeypatch, torch)
-    sets = _pairs(bags[bag])
+    sets = stereo_pairs(bags[bag])
 
     results, info = _disparities(CudaStereoBackend(BackendOptions(engine='ort')), sets)
     _check_against_onnx_stereo(results, _expected(sets), tolerance)
@@ -168,7 +152,7 @@ def test_tensorrt_stereo_builds_its_engine_key_from_the_stereo_input(
     torch_on_the_cpu(monkeypatch, torch)
     fake_loader(monkeypatch, {'libnvinfer.so.10': 101300, 'libnvonnxparser.so.10': None})
     seen = fake_gpu_build(monkeypatch, ['TensorrtExecutionProvider', 'CUDAExecutionProvider'])
-    sets = _pairs(bags['rect'])[:1]
+    sets = stereo_pairs(bags['rect'])[:1]
     options = BackendOptions(precision='fp16', extra={'trt_cache': str(tmp_path / 'engines')})
 
     results, info = _disparities(TensorrtStereoBackend(options), sets)

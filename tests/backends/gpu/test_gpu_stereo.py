@@ -144,6 +144,77 @@ def test_the_ort_engine_binds_both_images_and_gives_onnx_stereos_disparity(
     assert seen.runs == len(sets) + 1  # and the warm-up pair in open()
 
 
+def _variant(tmp_path: Path, layout: str, channels: int) -> Path:
+    """The bundled model behind a front of its own: ``six-channel`` (one ``[1, 2C, H, W]``
+    input split into left and right) and/or colour (C 3, averaged to grey), so that its
+    disparity is the network's own and differs between left and right."""
+    onnx = pytest.importorskip('onnx')
+    from onnx import TensorProto, helper
+
+    from replaybench.backends.onnx_stereo import DEFAULT_STEREO_MODEL
+
+    proto = onnx.load(str(DEFAULT_STEREO_MODEL))
+    height, width = 240, 320
+    front = []
+    if layout == 'six-channel':
+        inputs = [
+            helper.make_tensor_value_info(
+                'pair', TensorProto.FLOAT, [1, 2 * channels, height, width]
+            )
+        ]
+        sides = ['pair_left', 'pair_right'] if channels == 3 else ['left', 'right']
+        front.append(helper.make_node('Split', ['pair'], sides, axis=1))
+    else:
+        sides = ['in_left', 'in_right']
+        inputs = [
+            helper.make_tensor_value_info(name, TensorProto.FLOAT, [1, channels, height, width])
+            for name in sides
+        ]
+    if channels == 3:
+        for side, grey in zip(sides, ('left', 'right'), strict=True):
+            front.append(helper.make_node('ReduceMean', [side], [grey], axes=[1], keepdims=1))
+    nodes = [*front, *proto.graph.node]
+    del proto.graph.node[:]
+    proto.graph.node.extend(nodes)
+    del proto.graph.input[:]
+    proto.graph.input.extend(inputs)
+    for prop in proto.metadata_props:
+        if prop.key == 'replaybench.stereo_layout':
+            prop.value = layout
+        if prop.key == 'replaybench.channel_order':
+            prop.value = 'grey' if channels == 1 else 'rgb'
+    onnx.checker.check_model(proto)
+    path = tmp_path / f'{layout}-{channels}.onnx'
+    onnx.save(proto, str(path))
+    return path
+
+
+@pytest.mark.parametrize(
+    ('layout', 'channels'), [('six-channel', 1), ('two-inputs', 3), ('six-channel', 3)]
+)
+@pytest.mark.parametrize('engine', ['ort', 'torch'])
+def test_every_layout_and_channel_count_gives_onnx_stereos_disparity(
+    monkeypatch, tmp_path, bags, driver, layout, channels, engine
+):
+    torch = _needs_onnx2torch() if engine == 'torch' else pytest.importorskip('torch')
+    driver([GPU_A])
+    fake_gpu_build(monkeypatch, ['CUDAExecutionProvider'])
+    torch_on_the_cpu(monkeypatch, torch)
+    model = _variant(tmp_path, layout, channels)
+    sets = stereo_pairs(bags['large'])[:1]
+
+    results, info = _disparities(
+        CudaStereoBackend(BackendOptions(engine=engine, model=model)), sets
+    )
+    expected, _ = _disparities(OnnxStereoBackend(BackendOptions(model=model, threads=1)), sets)
+    tolerance = TORCH_TOLERANCE_PX if engine == 'torch' else ORT_RESIZED_TOLERANCE_PX
+    _check_against_onnx_stereo(results, [r.output.disparity for r in expected], tolerance)
+    assert (info['layout'], info['channel_order']) == (layout, 'grey' if channels == 1 else 'rgb')
+    assert [i['shape'][1] for i in info['inputs']] == (
+        [2 * channels] if layout == 'six-channel' else [channels] * 2
+    )
+
+
 def test_tensorrt_stereo_builds_its_engine_key_from_the_stereo_input(
     monkeypatch, bags, driver, tmp_path
 ):

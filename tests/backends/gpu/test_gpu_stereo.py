@@ -108,7 +108,7 @@ def test_the_gpu_stereo_backends_are_registered_as_stereo_backends_of_frame_sets
 
 
 @pytest.mark.parametrize('bag', ['rect', 'raw', 'large'])
-def test_the_torch_engine_gives_onnx_stereos_disparity_on_the_fixturestereo_pairs(
+def test_the_torch_engine_gives_onnx_stereos_disparity_on_the_fixture_pairs(
     monkeypatch, bags, driver, bag
 ):
     torch = _needs_onnx2torch()

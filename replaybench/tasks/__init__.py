@@ -167,14 +167,22 @@ def require_task(name: str) -> None:
 
 
 def all_metrics() -> tuple[MetricSpec, ...]:
-    """``COMMON_METRICS``, then each task's metrics in ``task_names`` order.
+    """``COMMON_METRICS``, then each task's metrics in ``task_names`` order, then each task's
+    streaming metrics (``Task.streaming_metrics``, ``replaybench.replay.streaming``).
 
     ``TaskUnavailableError`` when a task cannot be loaded or a metric name (or alias) is
     declared twice.
     """
     declared: list[tuple[str, MetricSpec]] = [('the common metrics', m) for m in COMMON_METRICS]
+    streaming: list[tuple[str, MetricSpec]] = []
     for name in task_names():
-        declared += [(f'task {name!r}', m) for m in get_task(name).metrics]
+        task = get_task(name)
+        later = set(getattr(task, 'streaming_metrics', ()))
+        declared += [(f'task {name!r}', m) for m in task.metrics if m.name not in later]
+        streaming += [(f'task {name!r}', m) for m in task.metrics if m.name in later]
+    # every task's streaming metrics (``Task.streaming_metrics``) after the other metrics: the
+    # columns of comparison.csv and sweep.csv that were there before them keep their places
+    declared += streaming
     owner: dict[str, str] = {}
     for where, spec in declared:
         for known in (spec.name, *spec.aliases):

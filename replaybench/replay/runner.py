@@ -41,7 +41,6 @@ from replaybench.errors import (
     UsageError,
 )
 from replaybench.replay.clock import Clock, MonotonicClock
-from replaybench.replay.latency import with_added_latency
 from replaybench.replay.config import (
     DEFAULT_GROUND_TRUTH_TOPIC,
     RunConfig,
@@ -56,6 +55,7 @@ from replaybench.replay.inputs import (
     open_input,
     settle_hash,
 )
+from replaybench.replay.latency import with_added_latency
 from replaybench.replay.output import (
     Renderer,
     SampleImage,

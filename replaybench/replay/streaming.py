@@ -20,7 +20,7 @@ again after the passes to find its truth (``header_keys``).
 from __future__ import annotations
 
 import bisect
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 from replaybench.errors import DecodeError
 
@@ -28,7 +28,6 @@ if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
 
     from replaybench.replay.inputs import OpenedInput
-    from replaybench.replay.recording import Recorder
     from replaybench.results.model import SummaryRow
 
 __all__ = [
@@ -112,6 +111,20 @@ def header_keys(inp: OpenedInput, topic: str, seqs: Iterable[int]) -> Mapping[in
         if not wanted:
             break
     return found
+
+
+class Recorder(Protocol):
+    """What the scores read of the run's ``replaybench.replay.recording.Recorder`` (and what a
+    task's scorer is given: its kept outputs besides)."""
+
+    @property
+    def inputs(self) -> Sequence[OpenedInput]: ...
+    @property
+    def picks(self) -> Mapping[tuple[str, str], list[Pick]]: ...
+    @property
+    def stream_tasks(self) -> Mapping[tuple[str, str], str]: ...
+    @property
+    def streaming_refused(self) -> set[str]: ...
 
 
 def _resolved(recorder: Recorder, picks: Sequence[Pick]) -> list[Pick]:

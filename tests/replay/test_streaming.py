@@ -6,7 +6,6 @@ figures are counted here from the boxes and the frames' times, independently of 
 from __future__ import annotations
 
 import csv
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -23,6 +22,7 @@ from replaybench.types import BackendResult, Detection, StageTimes
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
+    from pathlib import Path
 
     from replaybench.replay.runner import RunOutcome
     from replaybench.types import Frame
@@ -97,9 +97,11 @@ class DelayedTruth:
         pass
 
 
-def _run(tmp_path: Path, delay_s: float, rate: Rate | None = None) -> RunOutcome:
+def _run(
+    tmp_path: Path, delay_s: float, rate: Rate | None = None, added_ms: float | None = None
+) -> RunOutcome:
     clock = VirtualClock()
-    name = f'd{delay_s * 1e3:g}'
+    name = f'd{delay_s * 1e3:g}-a{added_ms}'
     return run_benchmark(
         RunConfig(
             inputs=[_bag(tmp_path / f'{name}.mcap')],
@@ -108,6 +110,7 @@ def _run(tmp_path: Path, delay_s: float, rate: Rate | None = None) -> RunOutcome
             rate=rate or Rate('fixed', hz=30.0),
             warmup=0,
             report=False,
+            added_latency_ms=added_ms,
         ),
         clock=clock,
         backend_factory=lambda _name, _options: DelayedTruth(clock, delay_s),
@@ -250,3 +253,17 @@ def test_the_output_picked_is_the_latest_finished_at_the_release_whichever_frame
     ]
     # an output finished exactly at a release is in use there
     assert _picks([(0.0, 0.1), (0.1, 0.2)]) == [None, 0]
+
+
+def test_added_latency_is_a_wait_inside_detect_counted_in_the_latency_and_the_streaming_scores(
+    tmp_path: Path,
+) -> None:
+    added = _run(tmp_path, 0.0, added_ms=20.0)
+    frames = _frames(added)
+    assert {f['latency_ms'] for f in frames} == {'20.0000'}
+    assert {f['infer_ms'] for f in frames} == {'0.0000'}  # the backend's own stage, as it said
+    assert [f['output_age_ms'] for f in frames] == ['', *['33.3333'] * (FRAMES - 1)]
+    delayed = _run(tmp_path, 0.020)
+    assert _streaming(added) == _streaming(delayed)
+    assert added.run.settings.added_latency_ms == 20.0
+    assert delayed.run.settings.added_latency_ms is None

@@ -12,9 +12,10 @@ is no clock a robot would share, and the scores are refused (``REFUSED_AT_MAX``)
 
 What the picks are scored to is the task's (``Task.streaming``, ``'module:attr'`` of a
 callable ``(recorder, backend, topic, picks) -> metrics``; ``Task.streaming_metrics`` names
-them): the engine picks outputs by time and never knows the task. A frame pushed out of its
-queue is scored too (against the output in use when it was released); its header is read
-again after the passes to find its truth (``header_keys``).
+them, each with the offline figure it is the streaming form of): the engine picks outputs by
+time and never knows the task. A frame pushed out of its queue is scored too (against the
+output in use when it was released); its header is read again after the passes to find its
+truth (``header_keys``).
 """
 
 from __future__ import annotations
@@ -162,7 +163,7 @@ def streaming_scores(recorder: Recorder, row: SummaryRow) -> dict[str, float | N
     if name is None:
         return {}
     task = get_task(name)
-    names: tuple[str, ...] = getattr(task, 'streaming_metrics', ())
+    names = tuple(getattr(task, 'streaming_metrics', ()))
     target: str | None = getattr(task, 'streaming', None)
     if not names or target is None:
         return {}

@@ -60,6 +60,7 @@ __all__ = [
     'get_task',
     'load_view',
     'require_task',
+    'streaming_offline',
     'task_names',
     'task_recording',
     'task_truth',
@@ -194,6 +195,18 @@ def all_metrics() -> tuple[MetricSpec, ...]:
 
 
 _NO_VIEWS = TaskViews()
+
+
+def streaming_offline() -> dict[str, tuple[str, str]]:
+    """Every task's streaming metrics (``Task.streaming_metrics``, in ``task_names`` order):
+    name -> (its label, the name of the offline figure it is the streaming form of)."""
+    found: dict[str, tuple[str, str]] = {}
+    for name in task_names():
+        task = get_task(name)
+        labels = {m.name: m.label for m in task.metrics}
+        for streaming, offline in dict(getattr(task, 'streaming_metrics', {})).items():
+            found[streaming] = (labels.get(streaming, streaming), offline)
+    return found
 
 
 def task_views(task: Task) -> TaskViews:

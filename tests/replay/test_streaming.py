@@ -101,7 +101,7 @@ def _run(
     tmp_path: Path, delay_s: float, rate: Rate | None = None, added_ms: float | None = None
 ) -> RunOutcome:
     clock = VirtualClock()
-    name = f'd{delay_s * 1e3:g}-a{added_ms}'
+    name = f'd{delay_s * 1e3:g}-a{added_ms}-{rate or "30hz"}'
     return run_benchmark(
         RunConfig(
             inputs=[_bag(tmp_path / f'{name}.mcap')],
@@ -267,3 +267,23 @@ def test_added_latency_is_a_wait_inside_detect_counted_in_the_latency_and_the_st
     assert _streaming(added) == _streaming(delayed)
     assert added.run.settings.added_latency_ms == 20.0
     assert delayed.run.settings.added_latency_ms is None
+
+
+def test_the_report_shows_offline_against_streaming_and_the_output_ages(tmp_path: Path) -> None:
+    from replaybench.report import render_report
+
+    outcome = _run(tmp_path, 0.020)
+    assert outcome.run_dir is not None
+    page = render_report(outcome.run_dir).read_text(encoding='utf-8')
+    section = page[page.index('<h2 id="streaming">') :]
+    found = _streaming(outcome)['streaming_map50']
+    assert found is not None
+    assert f'<td class="n">1.000</td><td class="n">{found:.3f}</td>' in section
+    assert f'{found - 1:+.3f}' in section
+    # the distribution: 23 frames 33 ms old, the first without an output
+    assert '<td class="n">33 ms</td><td class="n">23</td>' in section
+    assert '<td class="n">no output yet</td><td class="n">1</td>' in section
+    # a run without streaming scores has no such section
+    refused = _run(tmp_path, 0.020, Rate('max'))
+    assert refused.run_dir is not None
+    assert 'id="streaming"' not in render_report(refused.run_dir).read_text(encoding='utf-8')

@@ -204,8 +204,9 @@ def streaming_offline() -> dict[str, tuple[str, str]]:
     for name in task_names():
         task = get_task(name)
         labels = {m.name: m.label for m in task.metrics}
-        for streaming, offline in dict(getattr(task, 'streaming_metrics', {})).items():
-            found[streaming] = (labels.get(streaming, streaming), offline)
+        pairs: Mapping[str, str] = getattr(task, 'streaming_metrics', {})
+        for streaming, offline in pairs.items():
+            found[streaming] = (labels.get(streaming, streaming), str(offline))
     return found
 
 

@@ -21,6 +21,7 @@ truth (``header_keys``).
 from __future__ import annotations
 
 import bisect
+import contextlib
 from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 from replaybench.errors import DecodeError
@@ -91,9 +92,10 @@ def pick_outputs(number: int, frames: Sequence[StreamFrame]) -> list[Pick]:
 
 def header_keys(inp: OpenedInput, topic: str, seqs: Iterable[int]) -> Mapping[int, tuple[int, str]]:
     """(stamp_ns, frame_id) of the frames ``seqs`` of ``topic``, read again from the input
-    after the passes (frames pushed out of their queue were never decoded); a frame that does
-    not decode is absent (it is not scored)."""
-    from replaybench.decode.image import decode_image
+    after the passes (frames pushed out of their queue were never decoded), from their headers
+    (``image_header``: their pixels are not decoded); a frame without a readable header is
+    absent (it is not scored)."""
+    from replaybench.decode.image import image_header
 
     wanted = set(seqs)
     found: dict[int, tuple[int, str]] = {}
@@ -102,12 +104,8 @@ def header_keys(inp: OpenedInput, topic: str, seqs: Iterable[int]) -> Mapping[in
     for raw in inp.source.messages(topics=[topic], start_ns=inp.start_ns, end_ns=inp.end_ns):
         if raw.seq not in wanted:
             continue
-        try:
-            frame = decode_image(raw)
-        except DecodeError:
-            pass
-        else:
-            found[raw.seq] = (frame.stamp_ns, frame.frame_id)
+        with contextlib.suppress(DecodeError):
+            found[raw.seq] = image_header(raw)
         wanted.discard(raw.seq)
         if not wanted:
             break

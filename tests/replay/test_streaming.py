@@ -288,3 +288,18 @@ def test_the_report_shows_offline_against_streaming_and_the_output_ages(tmp_path
     refused = _run(tmp_path, 0.020, Rate('max'))
     assert refused.run_dir is not None
     assert 'id="streaming"' not in render_report(refused.run_dir).read_text(encoding='utf-8')
+
+
+def test_a_frame_header_is_read_without_its_pixels_as_the_decoder_reads_it(tmp_path: Path) -> None:
+    from pathlib import Path
+
+    from replaybench.decode.image import decode_image, image_header
+    from replaybench.sources import open_source
+
+    root = Path(__file__).resolve().parents[2] / 'fixtures' / 'bags'
+    for bag in (_bag(tmp_path / 'h.mcap'), root / 'jpeg.mcap', root / 'rgb8.bag'):
+        with open_source(bag) as source:
+            images = [t.name for t in source.topics() if 'Image' in t.msgtype]
+            for raw in source.messages(topics=images):
+                frame = decode_image(raw)
+                assert image_header(raw) == (frame.stamp_ns, frame.frame_id)

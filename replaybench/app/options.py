@@ -86,6 +86,14 @@ class RunOptions:
     queue_depth: int = _opt(
         1, '--queue-depth', 'Per-topic queue depth in timed modes (newest kept).', low=1
     )
+    added_latency_ms: float | None = _opt(
+        None,
+        '--added-latency-ms',
+        'Testing aid: every detect waits MS more (a real wait, counted in its latency); '
+        'docs/streaming.md.',
+        low=0,
+        metavar='MS',
+    )
     warmup: int | None = _opt(
         None,
         '--warmup',

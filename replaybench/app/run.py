@@ -152,6 +152,7 @@ def config_of(
         force=force,
         rate=parsed,
         queue_depth=options.queue_depth,
+        added_latency_ms=options.added_latency_ms,
         warmup=options.warmup,
         threads=options.threads,
         max_frames=options.max_frames,

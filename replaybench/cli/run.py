@@ -209,6 +209,30 @@ def _task_lines(run: RunResult) -> list[str]:
     return lines
 
 
+def _streaming_lines(outcome: RunOutcome) -> list[str]:
+    """Per (backend, topic) with streaming scores: each beside its offline figure with the
+    difference, and the output age's median and 90th percentile (docs/streaming.md)."""
+    from replaybench.results.streaming import output_ages, streaming_pairs
+    from replaybench.tasks import streaming_offline
+
+    offline_of = streaming_offline()
+    ages = output_ages(outcome.records)
+    lines = []
+    for s in outcome.summaries:
+        pairs = streaming_pairs(s, offline_of)
+        if not pairs:
+            continue
+        shown = ', '.join(
+            f'{p.label.removeprefix("streaming ")} {p.offline_value:.3f} -> {p.value:.3f} '
+            f'({p.change:+.3f})'
+            for p in pairs
+        )
+        age = ages.get((s.backend, s.topic))
+        aged = f'; output age p50 {age.p50_ms:.1f} ms, p90 {age.p90_ms:.1f} ms' if age else ''
+        lines.append(f'streaming {visible(s.backend)} {visible(s.topic)}: {shown}{aged}')
+    return lines
+
+
 def _sync_lines(run: RunResult) -> list[str]:
     """--sync: per input, its sets and each topic's unpaired frames (full topic names)."""
     sync = run.sync
@@ -266,6 +290,8 @@ def _show_run(outcome: RunOutcome) -> int:
 
     _print_summary(outcome.summaries)
     for line in _rig_lines(outcome.run):
+        echo(line)
+    for line in _streaming_lines(outcome):
         echo(line)
     for line, is_warning in recorded_latency_lines(outcome.summaries):
         echo(f'replaybench: warning: {line}' if is_warning else line, err=is_warning)

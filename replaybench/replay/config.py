@@ -71,6 +71,9 @@ class RunConfig:
     start_s: float | None = None
     duration_s: float | None = None
     topics: Sequence[str] | None = None
+    #: ``--added-latency-ms``: every backend's ``detect`` waits this long more
+    #: (``replaybench.replay.latency``, a testing aid); None: nothing added
+    added_latency_ms: float | None = None
     ground_truth_topic: str | None = DEFAULT_GROUND_TRUTH_TOPIC
     ground_truth_explicit: bool = False
     options: BackendOptions = field(default_factory=BackendOptions)

@@ -56,6 +56,7 @@ from replaybench.replay.inputs import (
     settle_hash,
 )
 from replaybench.replay.instances import check_label, instance_options
+from replaybench.replay.latency import with_added_latency
 from replaybench.replay.output import (
     Renderer,
     SampleImage,
@@ -87,7 +88,7 @@ from replaybench.results.runfolder import RunFolder, check_out_dir
 
 if TYPE_CHECKING:
     import threading
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Mapping, Sequence
 
     from replaybench.backends.base import Backend, BackendOptions
     from replaybench.replay.config import InputOptions
@@ -176,6 +177,8 @@ def run_benchmark(
     started = dt.datetime.now(dt.UTC)
     t_start = time.perf_counter()
     calls = _Calls(clock or MonotonicClock(), progress, stop, render, notice)
+    if config.added_latency_ms:  # every instance made, per-topic pipelines' too
+        factory = _slower(factory, config.added_latency_ms, calls.clock)
     input_options = config.input_options()
     # in memory (no out_dir): no folder, no file
     folder = RunFolder(config.out_dir, force=config.force) if config.out_dir is not None else None
@@ -244,6 +247,24 @@ def _task_columns(opened: Sequence[OpenBackend], inputs: Sequence[OpenedInput]) 
     from replaybench.tasks import frame_columns
 
     return frame_columns({entry.task(inp.number) for entry in opened for inp in inputs})
+
+
+def _slower(
+    factory: Callable[[str, BackendOptions], Backend], added_ms: float, clock: Clock
+) -> Callable[[str, BackendOptions], Backend]:
+    """``factory`` whose backends wait ``added_ms`` after each detect (``--added-latency-ms``,
+    ``replaybench.replay.latency``)."""
+
+    def made(name: str, options: BackendOptions) -> Backend:
+        return with_added_latency(factory(name, options), added_ms, clock)
+
+    return made
+
+
+def _refused(metrics: Mapping[str, float | None]) -> bool:
+    """Whether a row's streaming metrics are there and empty (refused at --rate max)."""
+    streaming = [v for k, v in metrics.items() if k.startswith('streaming_')]
+    return bool(streaming) and all(v is None for v in streaming)
 
 
 def _with_bag_sizes(config: RunConfig) -> BackendOptions:
@@ -466,6 +487,13 @@ def _execute(
     for recording in recorder.task_recordings():
         warnings.extend(recording.warnings())
     summary = summaries(recorder, resources)
+    if any(
+        r.backend in recorder.streaming_refused and r.task_metrics and _refused(r.task_metrics)
+        for r in summary
+    ):
+        from replaybench.replay.streaming import REFUSED_AT_MAX
+
+        warnings.append(REFUSED_AT_MAX)
     agreements = (
         agreement_table(recorder.detections, iou=AGREEMENT_IOU) if len(config.backends) > 1 else []
     )

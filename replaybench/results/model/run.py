@@ -89,6 +89,9 @@ class RunSettings:
     #: ``--pipelines per-topic``: the pipelines and the cores they had; None: one shared
     #: backend instance per backend (``--pipelines shared``, and every run before it existed)
     pipelines: Pipelines | None = None
+    #: ``--added-latency-ms``: waited after every detect (a testing aid, docs/streaming.md);
+    #: absent where nothing was added
+    added_latency_ms: float | None = field(default=None, metadata=OMIT_NONE)
 
 
 @dataclass(frozen=True, slots=True)

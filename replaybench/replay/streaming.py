@@ -7,8 +7,8 @@ every frame of a (backend, topic), the output that was the latest finished at th
 release time: at a timed rate on the replay clock (release and finish times of the pass's
 log), for a backend replaying recorded outputs (``recorded``) on the recording's clock (the
 frame's log time, and the log time of each recorded output). Before the first output a frame
-has none (scored as an empty output). At ``--rate max`` every frame is released at once: there
-is no clock a robot would share, and the scores are refused (``REFUSED_AT_MAX``).
+has none (scored as an empty output). At ``--rate max`` a frame is released as soon as the backend is
+free: there is no clock a robot would share, and the scores are refused (``REFUSED_AT_MAX``).
 
 What the picks are scored to is the task's (``Task.streaming``, ``'module:attr'`` of a
 callable ``(recorder, backend, topic, picks) -> metrics``; ``Task.streaming_metrics`` names
@@ -43,8 +43,9 @@ __all__ = [
 
 #: The warning of a run at ``--rate max`` whose backends would have streaming scores.
 REFUSED_AT_MAX = (
-    'streaming scores refused: at --rate max every frame is released at once, there is no '
-    'clock a robot would share; replay at recorded, a factor (1x) or a fixed rate (30hz)'
+    'streaming scores refused at --rate max: a frame is released as soon as the backend is '
+    'free, on no clock a robot would share; replay at recorded, a factor (1x) or a fixed rate '
+    '(30hz) for them'
 )
 
 #: (topic, seq, log_time_ns, stamp_ns, frame_id); stamp None and frame_id '' for a frame that

@@ -7,8 +7,9 @@ every frame of a (backend, topic), the output that was the latest finished at th
 release time: at a timed rate on the replay clock (release and finish times of the pass's
 log), for a backend replaying recorded outputs (``recorded``) on the recording's clock (the
 frame's log time, and the log time of each recorded output). Before the first output a frame
-has none (scored as an empty output). At ``--rate max`` a frame is released as soon as the backend is
-free: there is no clock a robot would share, and the scores are refused (``REFUSED_AT_MAX``).
+has none (scored as an empty output). At ``--rate max`` a frame is released as soon as the
+backend is free: there is no clock a robot would share, and the scores are refused
+(``REFUSED_AT_MAX``).
 
 What the picks are scored to is the task's (``Task.streaming``, ``'module:attr'`` of a
 callable ``(recorder, backend, topic, picks) -> metrics``; ``Task.streaming_metrics`` names

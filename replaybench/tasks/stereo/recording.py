@@ -15,7 +15,7 @@ baseline.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any, Protocol, cast
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, cast
 
 import numpy as np
 
@@ -33,7 +33,14 @@ if TYPE_CHECKING:
     from replaybench.stereo.metrics import StereoFigures
     from replaybench.types import BackendResult
 
-__all__ = ['DisparityTruth', 'StereoRecording', 'figures_of', 'recording', 'score_output']
+__all__ = [
+    'DisparityTruth',
+    'KeptDisparity',
+    'StereoRecording',
+    'figures_of',
+    'recording',
+    'score_output',
+]
 
 
 class DisparityTruth(Protocol):
@@ -86,6 +93,32 @@ def score_output(output: Disparity | None, truth: npt.NDArray[np.float32]) -> Di
     )
 
 
+class KeptDisparity(NamedTuple):
+    """A disparity kept after its pair was scored (the agreement, the streaming scores): its
+    estimated pixels as zlib'd float32 (NaN without an estimate) and the geometry that makes
+    depth of it."""
+
+    shape: tuple[int, ...]
+    packed: bytes
+    f: float
+    t: float
+    cx_offset: float
+
+    @classmethod
+    def of(cls, output: Disparity) -> KeptDisparity:
+        import zlib
+
+        values = np.where(output.estimated(), output.disparity, np.nan).astype(np.float32)
+        packed = zlib.compress(np.ascontiguousarray(values).tobytes(), 1)
+        return cls(values.shape, packed, output.f, output.t, output.cx_offset)
+
+    def values(self) -> npt.NDArray[np.float32]:
+        """The disparity, NaN without an estimate."""
+        import zlib
+
+        return np.frombuffer(zlib.decompress(self.packed), np.float32).reshape(self.shape)
+
+
 class StereoRecording(TaskRecordingBase):
     """Each (backend label, topic)'s pixel sums over its pairs with truth."""
 
@@ -93,12 +126,16 @@ class StereoRecording(TaskRecordingBase):
     scores_boxes = False
     writes_first = False
 
-    def __init__(self, backends: int = 1) -> None:
+    def __init__(
+        self, backends: int = 1, streams: Mapping[tuple[str, str], object] | None = None
+    ) -> None:
         self.counts: dict[tuple[str, str], DisparityCounts] = {}
-        #: with several backends, each (backend, topic)'s disparities by (input, seq), zlib'd
-        #: float32 (their estimated pixels; NaN elsewhere), for the agreement
+        #: with several backends, or for the streaming scores of a (backend, topic) with picks
+        #: (``Recorder.picks``, filled before a pass's frames are recorded), each (backend,
+        #: topic)'s disparities by (input, seq), zlib'd (``KeptDisparity``)
         self.keep = backends > 1
-        self.kept: dict[tuple[str, str], dict[tuple[int, int], tuple[tuple[int, ...], bytes]]] = {}
+        self.streams: Mapping[tuple[str, str], object] = {} if streams is None else streams
+        self.kept: dict[tuple[str, str], dict[tuple[int, int], KeptDisparity]] = {}
         self.unconverted: dict[str, int] = {}
         #: the truth of the pair last recorded (``frame`` runs before ``sample``)
         self._truth: npt.NDArray[np.float32] | None = None
@@ -125,7 +162,7 @@ class StereoRecording(TaskRecordingBase):
             raise BackendError(msg)
         if output is not None:
             write_disparity(writer, label, topic, log_time_ns, stamp_ns, frame_id, output)
-            if self.keep:
+            if self.keep or (label, topic) in self.streams:
                 self._keep(label, topic, (inp.number, key[1]), output)
         table = cast('DisparityTruth | None', inp.truth.get('stereo'))
         truth = None if table is None else table.lookup(frame_id, stamp_ns)
@@ -142,21 +179,11 @@ class StereoRecording(TaskRecordingBase):
         return figures_of(counts.figures())
 
     def _keep(self, label: str, topic: str, frame: tuple[int, int], output: Disparity) -> None:
-        import zlib
-
-        values = np.where(output.estimated(), output.disparity, np.nan).astype(np.float32)
-        packed = zlib.compress(np.ascontiguousarray(values).tobytes(), 1)
-        self.kept.setdefault((label, topic), {})[frame] = (values.shape, packed)
+        self.kept.setdefault((label, topic), {})[frame] = KeptDisparity.of(output)
 
     def agreements(self) -> list[dict[str, Any]]:
         """Per topic and pair of stereo backends (run order): the pairs both returned, the
         figures of the second's disparities against the first's as truth."""
-        import zlib
-
-        def unpack(found: tuple[tuple[int, ...], bytes]) -> npt.NDArray[np.float32]:
-            shape, packed = found
-            return np.frombuffer(zlib.decompress(packed), np.float32).reshape(shape)
-
         rows: list[dict[str, Any]] = []
         groups = list(self.kept)
         for i, (first, topic) in enumerate(groups):
@@ -167,9 +194,9 @@ class StereoRecording(TaskRecordingBase):
                 both = sorted(set(a) & set(b))
                 total = DisparityCounts()
                 for frame in both:
-                    reference, other = unpack(a[frame]), unpack(b[frame])
+                    reference, other = a[frame].values(), b[frame].values()
                     if reference.shape == other.shape:
-                        total += score_disparity(other, reference)
+                        total += score_disparity(other, reference, min_disparity=-np.inf)
                 figures = figures_of(total.figures())
                 rows.append(
                     {'backend_a': first, 'backend_b': second, 'topic': topic, 'frames': len(both)}
@@ -195,7 +222,7 @@ class StereoRecording(TaskRecordingBase):
         return output, self._truth
 
     def _depth_truth(
-        self, label: str, output: Disparity | None, depth: npt.NDArray[np.float32]
+        self, label: str, output: Disparity | KeptDisparity | None, depth: npt.NDArray[np.float32]
     ) -> npt.NDArray[np.float32] | None:
         """Truth depth as disparity with the output's f and baseline; without an output, the
         depth itself (only which pixels hold truth matters: they all count as bad); None,
@@ -229,8 +256,11 @@ class _Recorder(Protocol):
     @property
     def backends(self) -> int: ...
 
+    @property
+    def picks(self) -> Mapping[tuple[str, str], object]: ...
+
 
 def recording(recorder: _Recorder) -> StereoRecording:
     """The stereo task's ``TaskRecording`` for the run of ``recorder``: it keeps disparities
     for the agreement when the run has several backends."""
-    return StereoRecording(recorder.backends)
+    return StereoRecording(recorder.backends, recorder.picks)

@@ -64,7 +64,20 @@ class StereoTask:
             terminal_label='dens.',
         ),
         MetricSpec('abs_rel', 'depth AbsRel', 'AbsRel', 'lower'),
+        # streaming scores (replaybench.replay.streaming): each pair's truth against the
+        # disparity in use at its release; timed rates and recorded outputs only
+        MetricSpec('streaming_epe', 'streaming EPE (px)', 'stream EPE', 'lower', fmt='.3f'),
+        MetricSpec('streaming_bad2', 'streaming bad-2', 'stream bad-2', 'lower'),
+        MetricSpec('streaming_density', 'streaming density', 'stream density', 'higher'),
     )
+    #: the streaming metrics, each with the offline figure it is the streaming form of, and
+    #: how picks are scored to them (``replaybench.tasks.stereo.streaming``)
+    streaming_metrics: ClassVar[Mapping[str, str]] = {
+        'streaming_epe': 'epe',
+        'streaming_bad2': 'bad2',
+        'streaming_density': 'density',
+    }
+    streaming: ClassVar[str] = 'replaybench.tasks.stereo.streaming:score'
     frame_columns: ClassVar[tuple[str, ...]] = FRAME_COLUMNS
     #: ``replaybench run``'s table: EPE, bad-2 and density after the memory column, where a
     #: row has them; the report shows bad-2 in its Summary and the others under More figures

@@ -383,8 +383,10 @@ def _masks(source: Any, topic: str) -> dict[BoxKey, npt.NDArray[np.uint8]]:
         except DecodeError:
             continue
         if frame.encoding == 'mono8':
-            image = np.ascontiguousarray(frame.image).reshape(frame.image.shape[:2])
-            found[(frame.frame_id, frame.stamp_ns)] = image.astype(np.uint8, copy=False)
+            # a copy: the decoded image may view the message's bytes, which the source frees
+            # (an mmap'd bag) once it is closed
+            image = np.array(frame.image, dtype=np.uint8, copy=True)
+            found[(frame.frame_id, frame.stamp_ns)] = image.reshape(image.shape[:2])
     return found
 
 

@@ -67,7 +67,10 @@ def rgba(hex_colour: str, alpha: float = 1.0) -> tuple[float, float, float, floa
 
 
 def annotation_text(det: Detection) -> str:
-    """The text drawn next to a box: ``label score`` (score with two decimals)."""
+    """The text drawn next to a box: ``label score`` (score with two decimals), after the
+    track's id where the box has one: ``#7 red 0.93``."""
+    if det.id:
+        return f'#{det.id} {det.label} {det.score:.2f}'
     return f'{det.label} {det.score:.2f}'
 
 

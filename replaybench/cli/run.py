@@ -147,6 +147,14 @@ def run(
             help='Backend to run (repeat for several; see `replaybench backends`).',
         ),
     ] = [],  # noqa: B006
+    tracker: Annotated[
+        list[str],
+        typer.Option(
+            '--tracker',
+            help='Tracker over every backend: a row DETECTOR+TRACKER beside each (iou, sort, '
+            'bytetrack; repeat for several; docs/tracking.md).',
+        ),
+    ] = [],  # noqa: B006
     out: Annotated[
         Path | None,
         typer.Option(
@@ -167,13 +175,14 @@ def run(
     Example: replaybench run fixtures/bags/rgb8_raw.mcap --backend hsv --backend null --out runs/a
     """
     from replaybench.app.run import run_config
+    from replaybench.backends.tracked import with_trackers
     from replaybench.replay.runner import new_run_dir
 
     progress = RunProgress()
     try:
         settings = run_config(
             bags,
-            backends=backend,
+            backends=with_trackers(backend, tracker),
             out=out if out is not None else new_run_dir(),
             force=force,
             command=['replaybench', *sys.argv[1:]],

@@ -48,7 +48,9 @@ def annotations_channel(backend: str, image_topic: str) -> str:
     '/replaybench/yolo_nano/camera/image_raw/annotations'
     """
     topic = image_topic if image_topic.startswith('/') else f'/{image_topic}'
-    return f'/replaybench/{backend.replace("-", "_")}{topic}/annotations'
+    # a tracked backend's + (hsv+sort) as _: ROS names hold letters, digits, _ and /
+    name = backend.replace('-', '_').replace('+', '_')
+    return f'/replaybench/{name}{topic}/annotations'
 
 
 def backend_colour(index: int) -> str:

@@ -29,7 +29,20 @@ if TYPE_CHECKING:
     from replaybench.tracking import TrackScores
     from replaybench.types import BackendResult, Detection
 
-__all__ = ['READERS', 'TracksRecording', 'figures_of', 'recording', 'score_sequence']
+__all__ = [
+    'METRIC_NAMES',
+    'READERS',
+    'TracksRecording',
+    'figures_of',
+    'recording',
+    'score_sequence',
+]
+
+#: the tracking figures of a row (``figures_of``), in summary.csv's order
+METRIC_NAMES = (
+    'hota', 'deta', 'assa', 'loca', 'idf1', 'idp', 'idr', 'mota', 'motp',
+    'id_switches', 'fragmentations', 'mt', 'ml',
+)  # fmt: skip
 
 #: the tracks task reads no recorded outputs of its own
 READERS: Mapping[str, OutputReader] = {}
@@ -92,11 +105,14 @@ class TracksRecording(TaskRecordingBase):
     and the tracker's times."""
 
     def __init__(self) -> None:
-        self.sequences: dict[tuple[str, str], list[tuple[tuple[Detection, ...], ...]]] = {}
+        self.sequences: dict[
+            tuple[str, str], list[tuple[tuple[Detection, ...], tuple[Detection, ...]]]
+        ] = {}
         self.times: dict[tuple[str, str], list[float]] = {}
         #: why a row has no tracking metrics, by row
         self.refused: dict[tuple[str, str], str] = {}
         self._warnings: dict[str, None] = {}
+        self._figures: dict[tuple[str, str], dict[str, float | None]] | None = None
 
     def frame(
         self,
@@ -133,44 +149,38 @@ class TracksRecording(TaskRecordingBase):
         self.sequences.setdefault(row, []).append((boxes, result.detections))
         return {'track_ms': track_ms}
 
+    def _scored(self) -> dict[tuple[str, str], dict[str, float | None]]:
+        """Every row's figures, scored once (after the passes); why a row has none goes into
+        the warnings."""
+        if self._figures is not None:
+            return self._figures
+        figures: dict[tuple[str, str], dict[str, float | None]] = {}
+        for row in dict.fromkeys([*self.times, *self.sequences]):
+            backend, topic = row
+            found: dict[str, float | None] = dict.fromkeys(METRIC_NAMES)
+            frames = self.sequences.get(row)
+            reason = self.refused.get(row)
+            if reason is None and frames:
+                try:
+                    found.update(figures_of(score_sequence(frames)))
+                except ValueError as err:
+                    reason = str(err)
+            if reason is not None:
+                self._warnings[f'{backend} on {topic}: no tracking metrics: {reason}'] = None
+            times = self.times.get(row)
+            found['track_ms'] = sum(times) / len(times) if times else None
+            figures[row] = found
+        self._figures = figures
+        return figures
+
     def summary(self, backend: str, topic: str) -> Mapping[str, Any] | None:
         """The row's tracking figures (None where refused or without truth) and its mean
         tracker time; None for a row that is not the task's."""
-        row = (backend, topic)
-        times = self.times.get(row)
-        frames = self.sequences.get(row)
-        if times is None and frames is None:
-            return None
-        found: dict[str, float | None] = dict.fromkeys(
-            (
-                'hota',
-                'deta',
-                'assa',
-                'loca',
-                'idf1',
-                'idp',
-                'idr',
-                'mota',
-                'motp',
-                'id_switches',
-                'fragmentations',
-                'mt',
-                'ml',
-            )
-        )
-        reason = self.refused.get(row)
-        if reason is not None:
-            self._warnings[f'{backend} on {topic}: no tracking metrics: {reason}'] = None
-        elif frames:
-            try:
-                found.update(figures_of(score_sequence([(t, d) for t, d in frames])))
-            except ValueError as err:
-                self._warnings[f'{backend} on {topic}: no tracking metrics: {err}'] = None
-        found['track_ms'] = sum(times) / len(times) if times else None
-        return found
+        return self._scored().get((backend, topic))
 
     def warnings(self) -> list[str]:
         """Why rows have no tracking metrics."""
+        self._scored()
         return list(self._warnings)
 
 

@@ -192,9 +192,10 @@ class _TrackedBase:
             prepare(recorded)
 
     def task_of(self, input_index: int) -> str:
-        """``tracks`` where the detector gives boxes; ``BackendError`` (exit 2) otherwise."""
+        """``tracks`` where the detector gives boxes (a recording's tracks among them, whose
+        ids it does not keep); ``BackendError`` (exit 2) otherwise."""
         inner = backend_task(self.detector, input_index)
-        if inner != DEFAULT_TASK:
+        if inner not in (DEFAULT_TASK, TRACKS_TASK):  # recorded tracks are boxes too
             msg = (
                 f'backend {self.name!r}: a tracker needs a box backend; '
                 f'{self.detector_class.name} gives {inner} here'

@@ -222,3 +222,34 @@ def test_a_tracker_that_cannot_run_is_refused_in_one_line(
     done = _cli('run', str(FIXTURES / 'jpeg.mcap'), *args, '--out', str(tmp_path / 'x'))
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [f'replaybench: error: {line}']
+
+
+def test_recorded_tracks_are_scored_as_tracks_without_a_flag_and_timed_from_the_bag(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / 'live'
+    done = _cli(
+        'run', str(FIXTURES / 'live_tracks.mcap'), '--backend', 'recorded', '--no-report',
+        '--out', str(out),
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    (row,) = _rows(out / 'summary.csv')
+    assert all(row[m] != '' for m in METRICS)
+    assert row['track_ms'] == ''  # the tracker ran on the robot: no time of it here
+    assert float(row['pipeline_ms_p50']) >= 40  # the node's latency, from the log times
+    from replaybench.fixtures.live import LIVE_TRACKS_TOPIC
+
+    with open_source(FIXTURES / 'live_tracks.mcap') as source:
+        recorded = [
+            decode_detections(raw).detections for raw in source.messages(topics=[LIVE_TRACKS_TOPIC])
+        ]
+    assert all(d.id for frame in recorded for d in frame)
+
+
+def test_a_detectors_recorded_boxes_stay_boxes() -> None:
+    from replaybench.fixtures.live import LIVE_TOPIC
+
+    with open_source(FIXTURES / 'live_detections.mcap') as source:
+        boxes = [d for raw in source.messages(topics=[LIVE_TOPIC]) for d in decode_detections(raw).detections]  # fmt: skip
+    assert boxes
+    assert not any(d.id for d in boxes)

@@ -14,7 +14,8 @@ tracking fixture (``replaybench.fixtures.tracks``, 90 frames): IDF1, HOTA, MOTA 
 switches of each, deterministic. ByteTrack's IDF1 must reach SORT's, and SORT's the IoU
 baseline's.
 
-Run alone: ``python -m benchmarks.bench_tracking [--quick] [--out benchmarks/results/tracking.json]``.
+Run alone:
+``python -m benchmarks.bench_tracking [--quick] [--out benchmarks/results/tracking.json]``.
 """
 
 from __future__ import annotations

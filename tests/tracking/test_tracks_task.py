@@ -192,7 +192,8 @@ def test_truth_without_ids_gives_box_figures_and_a_warning_but_no_tracking_figur
         '--no-report', '--out', str(out),
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
-    assert 'hsv+sort on /camera/image_raw: no tracking metrics: its ground-truth boxes carry no ids' in done.stderr  # fmt: skip
+    why = 'hsv+sort on /camera/image_raw: no tracking metrics: its ground-truth boxes carry no ids'
+    assert why in done.stderr
     row = _rows(out / 'summary.csv')[1]
     assert row['backend'] == 'hsv+sort'
     assert row['map50'] != ''
@@ -205,11 +206,11 @@ def test_truth_without_ids_gives_box_figures_and_a_warning_but_no_tracking_figur
         (
             ['--backend', 'hsv-seg', '--tracker', 'sort'],
             "backend 'hsv-seg+sort': a tracker needs a box backend; hsv-seg gives segmentation",
-        ),  # fmt: skip
+        ),
         (
             ['--backend', 'hsv', '--tracker', 'deepsort'],
             "--tracker 'deepsort': unknown tracker; known: iou, sort, bytetrack",
-        ),  # fmt: skip
+        ),
         (
             ['--backend', 'hsv+kalman'],
             "backend 'hsv+kalman': unknown tracker 'kalman'; known: iou, sort, bytetrack",
@@ -250,6 +251,7 @@ def test_a_detectors_recorded_boxes_stay_boxes() -> None:
     from replaybench.fixtures.live import LIVE_TOPIC
 
     with open_source(FIXTURES / 'live_detections.mcap') as source:
-        boxes = [d for raw in source.messages(topics=[LIVE_TOPIC]) for d in decode_detections(raw).detections]  # fmt: skip
+        found = [decode_detections(raw).detections for raw in source.messages(topics=[LIVE_TOPIC])]
+    boxes = [d for frame in found for d in frame]
     assert boxes
     assert not any(d.id for d in boxes)

@@ -255,3 +255,20 @@ def test_a_detectors_recorded_boxes_stay_boxes() -> None:
     boxes = [d for frame in found for d in frame]
     assert boxes
     assert not any(d.id for d in boxes)
+
+
+def test_the_reports_more_figures_hold_the_tracking_figures_of_the_tracked_rows(
+    tracked: Path,
+) -> None:
+    from replaybench.report.taskviews import report_parts
+
+    rows = rb.load_run(tracked).summary_rows
+    parts = report_parts()
+    assert 'hota' in [m.name for m in parts.main]
+    found = [columns(rows) for columns in parts.more_columns]
+    headings, cells = next(f for f in found if 'IDF1' in f[0])
+    assert headings[:4] == ('DetA', 'AssA', 'LocA', 'IDF1')
+    idf1 = headings.index('IDF1')
+    assert cells[0][idf1] == '–'  # hsv: no tracks
+    assert float(cells[3][idf1]) == pytest.approx(rows[3].metric('idf1'), abs=5e-4)
+    assert cells[3][headings.index('IDSW')].isdigit()

@@ -74,7 +74,10 @@ class TracksTask:
     frame_columns: ClassVar[tuple[str, ...]] = FRAME_COLUMNS
     #: ``replaybench run``'s table: HOTA, IDF1 and MOTA after the memory column, where a row
     #: has them; the report shows HOTA in its Summary and the others under More figures
-    views: ClassVar[TaskViews] = TaskViews(terminal_metrics=('hota', 'idf1', 'mota'))
+    views: ClassVar[TaskViews] = TaskViews(
+        more_columns='replaybench.tasks.tracks.views:more_columns',
+        terminal_metrics=('hota', 'idf1', 'mota'),
+    )
 
     #: each frame's tracks kept and, against the box truth's ids, scored after the passes
     recording: ClassVar[str] = 'replaybench.tasks.tracks.recording:recording'

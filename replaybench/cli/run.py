@@ -151,6 +151,7 @@ def run(
         list[str],
         typer.Option(
             '--tracker',
+            metavar='NAME',
             help='Tracker over every backend: a row DETECTOR+TRACKER beside each (iou, sort, '
             'bytetrack; repeat for several; docs/tracking.md).',
         ),

@@ -4,8 +4,9 @@ Each ``DETECTOR+TRACKER`` is a backend of its own: a new instance of the detecto
 run's options, feeding one tracker (``replaybench.tracking.trackers``) inside its ``detect``.
 Its frames are timed as the detector's are, the tracker's time included (``latency_ms``); the
 tracker's own time per frame is the frame's ``track_ms`` (``TrackStage``, the tracks task's
-frames.csv column). It gets the frames the replay gives it, in replay order; a frame dropped
-from the queue is never given to it. Its results are the tracks the tracker reports, as
+frames.csv column). Each camera topic of each input has a tracker of its own, which gets that
+camera's frames the replay gives the backend, in replay order; a frame dropped from the queue is
+never given to it. Its results are the tracks the tracker reports, as
 detections carrying the track's id (``Detection.id``) and the matched box's class and score.
 
 Tracker parameters: the keys of the tracker's ``__init__`` (``max_age``, ``min_hits``,
@@ -175,16 +176,21 @@ class _TrackedBase:
         return cls.detector_class.available()
 
     def __init__(self, options: BackendOptions) -> None:
-        from replaybench.tracking.trackers import make_tracker
-
         self.params, rest = tracker_params(self.tracker_name, options)
         self.detector: Backend = self.detector_class(replace(options, extra=rest))  # type: ignore[call-arg]
+        self.tracker: Any = self._new_tracker()  # checks the parameters before any frame
+        #: one tracker per camera topic of each input: a camera's tracks are its own
+        self._trackers: dict[tuple[int, str], Any] = {}
+        self._np: Any = None
+
+    def _new_tracker(self) -> Any:
+        from replaybench.tracking.trackers import make_tracker
+
         try:
-            self.tracker: Any = make_tracker(self.tracker_name, **self.params)
+            return make_tracker(self.tracker_name, **self.params)
         except ValueError as err:
             msg = f'backend {self.name!r}: {err}'
             raise BackendError(msg) from None
-        self._np: Any = None
 
     def prepare(self, recorded: Any) -> None:
         prepare = getattr(self.detector, 'prepare', None)
@@ -219,7 +225,11 @@ class _TrackedBase:
         dets = found.detections
         boxes = np.array([(d.x0, d.y0, d.x1, d.y1) for d in dets], dtype=np.float64).reshape(-1, 4)
         scores = np.array([d.score for d in dets], dtype=np.float64)
-        tracks = self.tracker.update(boxes, scores)
+        stream = (frame.input_index, frame.topic)
+        tracker = self._trackers.get(stream)
+        if tracker is None:
+            tracker = self._trackers[stream] = self._new_tracker()
+        tracks = tracker.update(boxes, scores)
         out = _tracked(tracks, dets)
         took = time.perf_counter_ns() - t0
         return BackendResult(out, found.stages, output=TrackStage(took))

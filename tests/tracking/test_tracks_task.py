@@ -65,9 +65,9 @@ def _rows(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-def _written(run: Path, backend: str) -> list[tuple[Detection, ...]]:
+def _written(run: Path, backend: str, topic: str = TOPIC) -> list[tuple[Detection, ...]]:
     """The detections of ``backend`` in the run's outputs.mcap, in log-time order."""
-    channel = detections_channel(backend, TOPIC)
+    channel = detections_channel(backend, topic)
     with open_source(run / 'outputs.mcap') as source:
         return [decode_detections(raw).detections for raw in source.messages(topics=[channel])]
 
@@ -120,20 +120,39 @@ def test_the_figures_are_the_written_tracks_scored_against_the_bag_truth(
         assert got[name] == pytest.approx(expected[name], abs=1e-12), name
 
 
-def test_the_written_ids_are_the_tracker_run_over_the_detector_rows_boxes_in_replay_order(
-    tracked: Path,
-) -> None:
-    boxes = _written(tracked, 'hsv')
-    tracks = _written(tracked, 'hsv+sort')
-    tracker = make_tracker('sort')
-    assert len(boxes) == len(tracks) == 90
-    for dets, written in zip(boxes, tracks, strict=True):
-        found = tracker.update(
+def _retracked(run: Path, tracker: str, topic: str = TOPIC) -> list[list[str]]:
+    """The ids a new tracker gives the detector row's boxes of ``topic``, frame by frame."""
+    again = make_tracker(tracker)
+    ids = []
+    for dets in _written(run, 'hsv', topic):
+        found = again.update(
             np.array([(d.x0, d.y0, d.x1, d.y1) for d in dets]).reshape(-1, 4),
             np.array([d.score for d in dets]),
         )
-        assert [d.id for d in written] == [str(t.id) for t in found if t.detection is not None]
+        ids.append([str(t.id) for t in found if t.detection is not None])
+    return ids
+
+
+def test_the_written_ids_are_the_tracker_run_over_the_detector_rows_boxes_in_replay_order(
+    tracked: Path,
+) -> None:
+    tracks = _written(tracked, 'hsv+sort')
+    assert len(tracks) == 90
+    assert [[d.id for d in frame] for frame in tracks] == _retracked(tracked, 'sort')
     assert {d.id for frame in tracks for d in frame} >= {'1', '2', '3'}
+
+
+def test_each_camera_has_a_tracker_of_its_own(tmp_path: Path) -> None:
+    out = tmp_path / 'two'
+    done = _cli(
+        'run', str(FIXTURES / 'two_camera.mcap'), '--backend', 'hsv', '--tracker', 'bytetrack',
+        '--no-report', '--out', str(out),
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    for camera in ('/cam_left/image_raw/compressed', '/cam_right/image_raw/compressed'):
+        written = [[d.id for d in f] for f in _written(out, 'hsv+bytetrack', camera)]
+        assert written == _retracked(out, 'bytetrack', camera)
+        assert any(written)
 
 
 def test_frames_csv_has_the_track_time_of_every_tracked_frame(tracked: Path) -> None:

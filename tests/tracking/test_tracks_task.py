@@ -291,3 +291,72 @@ def test_the_reports_more_figures_hold_the_tracking_figures_of_the_tracked_rows(
     assert cells[0][idf1] == '–'  # hsv: no tracks
     assert float(cells[3][idf1]) == pytest.approx(rows[3].metric('idf1'), abs=5e-4)
     assert cells[3][headings.index('IDSW')].isdigit()
+
+
+def _mot_line(frame: int, det: Detection, cls: int, consider: int = 1) -> str:
+    w, h = det.x1 - det.x0, det.y1 - det.y0
+    return f'{frame},{det.id},{det.x0},{det.y0},{w},{h},{consider},{cls},1.0'
+
+
+def test_a_mot_truth_file_scores_the_pedestrians_and_drops_the_tracks_on_distractors(
+    tracked: Path, bag: Path, tmp_path: Path
+) -> None:
+    from replaybench.tasks.tracks.recording import figures_of, score_sequence
+
+    scene = TrackScene()
+    truth = [scene.render(i)[1] for i in range(90)]
+    # object 6 a static person (a distractor), object 5 a car, object 4 marked not to consider
+    classes = {'5': 3, '6': 7}
+    lines = [
+        _mot_line(i + 1, d, classes.get(d.id, 1), 0 if d.id == '4' else 1)
+        for i, frame in enumerate(truth)
+        for d in frame
+    ]
+    gt = tmp_path / 'gt.txt'
+    gt.write_text('\n'.join(lines) + '\n')
+    out = tmp_path / 'mot'
+    done = _cli(
+        'run', str(bag), '--backend', 'hsv+sort', '--ground-truth-file', str(gt),
+        '--no-report', '--out', str(out),
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    got = json.loads((out / 'run.json').read_text())['summary'][0]['task_metrics']
+
+    from replaybench.tracking.trackers import box_iou_xyxy
+
+    def scored(frame: tuple[Detection, ...]) -> tuple[Detection, ...]:
+        return tuple(d for d in frame if d.id in {'1', '2', '3'})
+
+    def kept(frame: tuple[Detection, ...], tracks: tuple[Detection, ...]) -> tuple[Detection, ...]:
+        on = [d for d in frame if d.id == '6']
+        if not on or not tracks:
+            return tracks
+        iou = box_iou_xyxy(
+            np.array([(d.x0, d.y0, d.x1, d.y1) for d in on]),
+            np.array([(d.x0, d.y0, d.x1, d.y1) for d in tracks]),
+        )
+        return tuple(t for j, t in enumerate(tracks) if iou[0, j] < 0.5)
+
+    tracks = _written(tracked, 'hsv+sort')  # the same tracker over the same frames
+    frames = [(scored(tuple(t)), kept(tuple(t), d)) for t, d in zip(truth, tracks, strict=True)]
+    expected = figures_of(score_sequence(frames))
+    for name in METRICS:
+        assert got[name] == pytest.approx(expected[name], abs=1e-12), name
+    # the tracks on the static person are not counted against the tracker
+    naive = figures_of(
+        score_sequence([(scored(tuple(t)), d) for t, d in zip(truth, tracks, strict=True)])
+    )
+    assert got['idp'] > naive['idp']
+
+
+def test_a_malformed_mot_line_is_refused_naming_it(bag: Path, tmp_path: Path) -> None:
+    gt = tmp_path / 'gt.txt'
+    gt.write_text('1,1,10,10,20,20,1,1,1.0\n2,1,ten,10,20,20,1,1,1.0\n')
+    done = _cli(
+        'run', str(bag), '--backend', 'hsv+sort', '--ground-truth-file', str(gt),
+        '--out', str(tmp_path / 'x'),
+    )  # fmt: skip
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        f"replaybench: error: {gt}:2: column 3 is not a number: 'ten'"
+    ]

@@ -36,6 +36,7 @@ __all__ = [
     'figures_of',
     'recording',
     'score_sequence',
+    'without_distractors',
 ]
 
 #: the tracking figures of a row (``figures_of``), in summary.csv's order
@@ -100,6 +101,39 @@ def score_sequence(
     return score_tracks(made)
 
 
+def without_distractors(
+    scored: Sequence[Detection], others: Sequence[Detection], tracks: tuple[Detection, ...]
+) -> tuple[Detection, ...]:
+    """The tracks less those matched to a distractor's box (``MOT_DISTRACTORS``): the tracks
+    and every truth box of the frame matched one to one (Hungarian on IoU, IoU >= 0.5), as
+    TrackEval's MOT17 preprocessing does."""
+    from replaybench.results.groundtruth import MOT_DISTRACTORS
+
+    if not tracks or not any(d.label in MOT_DISTRACTORS for d in others):
+        return tracks
+    import numpy as np
+
+    from replaybench.tracking import box_iou_xywh
+    from replaybench.tracking.metrics import _assign
+
+    def xywh(dets: Sequence[Detection]) -> Any:
+        return np.array(
+            [(d.x0, d.y0, d.x1 - d.x0, d.y1 - d.y0) for d in dets], dtype=np.float64
+        ).reshape(-1, 4)
+
+    truth = [*scored, *others]
+    iou = box_iou_xywh(xywh(truth), xywh(tracks))
+    eps = float(np.finfo('float').eps)
+    iou[iou < 0.5 - eps] = 0
+    rows, cols = _assign(-iou)
+    drop = {
+        int(c)
+        for r, c in zip(rows, cols, strict=True)
+        if iou[r, c] > eps and truth[r].label in MOT_DISTRACTORS
+    }
+    return tuple(d for i, d in enumerate(tracks) if i not in drop)
+
+
 class TracksRecording(TaskRecordingBase):
     """Each (backend label, topic)'s frames: the truth and the tracks of those with truth,
     and the tracker's times."""
@@ -126,7 +160,7 @@ class TracksRecording(TaskRecordingBase):
         from replaybench.backends.tracked import TrackStage
 
         del writer
-        topic, _, _, stamp_ns, frame_id = key
+        topic, seq, _, stamp_ns, frame_id = key
         stage = result.output
         if stage is not None and not isinstance(stage, TrackStage):
             msg = f'backend {label!r} declares task tracks but returned {type(stage).__name__}'
@@ -138,15 +172,22 @@ class TracksRecording(TaskRecordingBase):
         truth = cast('BoxTruth | None', inp.truth.get('detections'))
         if truth is None:
             return {'track_ms': track_ms}
-        if truth.external is not None:
-            self.refused[row] = 'a ground-truth file holds no object ids'
+        tracks = result.detections
+        external = truth.external
+        if external is not None and external.format != 'mot':
+            self.refused[row] = f'a {external.format} ground-truth file holds no object ids'
             return {'track_ms': track_ms}
-        boxes = truth.frames.get((frame_id, stamp_ns))
+        if external is not None:  # a MOTChallenge file: TrackEval's MOT17 preset
+            boxes = external.lookup(topic, seq, stamp_ns)
+            if boxes is not None:
+                tracks = without_distractors(boxes, external.others_of(topic, seq), tracks)
+        else:
+            boxes = truth.frames.get((frame_id, stamp_ns))
         if boxes is None:
             return {'track_ms': track_ms}
         if any(not d.id for d in boxes):
             self.refused.setdefault(row, 'its ground-truth boxes carry no ids (Detection2D.id)')
-        self.sequences.setdefault(row, []).append((boxes, result.detections))
+        self.sequences.setdefault(row, []).append((boxes, tracks))
         return {'track_ms': track_ms}
 
     def _scored(self) -> dict[tuple[str, str], dict[str, float | None]]:

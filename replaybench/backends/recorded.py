@@ -83,10 +83,11 @@ class RecordedBackend:
         (``Backend.task``); boxes for an input without a reader; tracks for boxes of which
         some carry an id."""
         reader = self._readers.get(input_index)
-        task = 'detections' if reader is None else reader.task
-        if task == 'detections' and input_index in self._tracked:
-            return 'tracks'  # boxes that carry ids are tracks (replaybench.tasks.tracks)
-        return task
+        if reader is None:
+            return 'detections'
+        if reader.identified_task is not None and input_index in self._tracked:
+            return reader.identified_task  # boxes that carry ids are tracks
+        return reader.task
 
     def open(self) -> None:
         """Nothing to load: ``prepare`` gave the recorded messages."""

@@ -8,6 +8,12 @@
   over ``--pairs`` (the pairs cycled), and the ratio of the two. The pairs and calibration are
   EuRoC's (``../shared/real/euroc_micro``: cam0/cam1, K, D, and R, P from ``cv2.stereoRectify``
   of ``T_BS``) where present, else the raw stereo fixture rendered at 752x480.
+* **replay against a bare loop**: ``replaybench run BAG --backend sgbm --rate max`` (in process,
+  kept in memory, 2 warm-up pairs) on the same pairs written into an MCAP with their CameraInfo,
+  against a bare loop of the same library calls on the pairs decoded beforehand (rectify, the
+  grey conversion, ``StereoSGBM.compute``, fixed point to float): the time per pair of each
+  (the replay's from its throughput, the loop's its mean), the ratio replay / bare per round,
+  ``--rounds`` rounds alternating which goes first, and their median (target <= 1.05x).
 * **sgbm accuracy**: ``Matcher('sgbm')`` at stereo_image_proc's defaults on the rectified stereo
   fixture (16 pairs of 320x240, the figures pooled over all pixels) and on Middlebury's
   Motorcycle (``../shared/real/stereo/motorcycle``, where present): EPE, bad-2, D1-all, density.
@@ -95,6 +101,78 @@ def rectification(pairs_wanted: int) -> dict[str, Any]:
     }
 
 
+def _pairs_bag(pairs: list[tuple[Any, Any]], infos: tuple[Any, Any], where: Path) -> Path:
+    from dataclasses import replace
+
+    from replaybench.fixtures.writer import FixtureMessage, write_ros2_mcap
+    from replaybench.msgs import CAMERA_INFO, IMAGE, serialize_camera_info, serialize_image
+
+    messages = []
+    for i, pair in enumerate(pairs):
+        stamp = 1_700_000_000_000_000_000 + i * 50_000_000
+        for side, info, image in zip(('left', 'right'), infos, pair, strict=True):
+            data = serialize_camera_info(replace(info, stamp_ns=stamp), seq=i)
+            messages.append(FixtureMessage(stamp, f'/cam/{side}/camera_info', CAMERA_INFO, data))
+            data = serialize_image(stamp, info.frame_id, image, 'mono8', seq=i)
+            messages.append(FixtureMessage(stamp, f'/cam/{side}/image_raw', IMAGE, data))
+    return write_ros2_mcap(where / 'pairs.mcap', messages)
+
+
+def replay_against_bare(rounds: int) -> dict[str, Any]:
+    import tempfile
+
+    import replaybench as rb
+    from replaybench.stereo import Matcher, stereo_pair, to_mono8
+    from replaybench.stereo.matchers import fixed_to_float
+
+    pairs, infos, source = _pairs_and_infos(95)
+    matcher = Matcher('sgbm')
+    rectifier = stereo_pair(*infos).rectifier()
+    warmup = 2
+
+    def bare() -> float:
+        for left, right in pairs[:warmup]:
+            matcher.compute(*rectifier.rectify(left, right))
+        t0 = time.perf_counter()
+        for left, right in pairs[warmup:]:
+            rect_left, rect_right = rectifier.rectify(left, right)
+            fixed = matcher.compute_fixed(
+                to_mono8(rect_left, 'mono8'), to_mono8(rect_right, 'mono8')
+            )
+            fixed_to_float(fixed, matcher.params.min_disparity)
+        return (time.perf_counter() - t0) * 1000 / (len(pairs) - warmup)
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        bag = _pairs_bag(pairs, infos, Path(tmp))
+
+        def replay() -> float:
+            result = rb.run(bag, backends=['sgbm'], out=None, warmup=warmup, report=False)
+            (row,) = result.summary_rows
+            assert row.throughput_fps is not None
+            return 1000.0 / row.throughput_fps
+
+        for r in range(rounds):
+            order = (('bare', bare), ('replay', replay)) if r % 2 == 0 else (
+                ('replay', replay), ('bare', bare))  # fmt: skip
+            times = {name: fn() for name, fn in order}
+            rows.append(
+                {
+                    'bare_ms_per_pair': round(times['bare'], 3),
+                    'replay_ms_per_pair': round(times['replay'], 3),
+                    'ratio': round(times['replay'] / times['bare'], 4),
+                }
+            )
+    return {
+        'source': source,
+        'pairs': len(pairs),
+        'warmup': warmup,
+        'rounds': rows,
+        'ratio_median': statistics.median(r['ratio'] for r in rows),
+        'target': 1.05,
+    }
+
+
 def _figures(counts: Any) -> dict[str, Any]:
     f = counts.figures()
     return {k: round(getattr(f, k), 4) for k in ('epe', 'bad2', 'd1_all', 'density')}
@@ -131,12 +209,14 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--pairs', type=int, default=300)
     parser.add_argument('--out', type=Path, default=OUT)
+    parser.add_argument('--rounds', type=int, default=5)
     args = parser.parse_args(argv)
     result = {
         'when': dt.datetime.now(dt.UTC).isoformat(timespec='seconds'),
         'load_average_1min_before': round(os.getloadavg()[0], 2),
         'cpus': os.cpu_count(),
         'rectification': rectification(args.pairs),
+        'replay_against_bare': replay_against_bare(args.rounds),
         'sgbm': accuracy(),
         'load_average_1min_after': round(os.getloadavg()[0], 2),
     }

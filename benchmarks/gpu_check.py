@@ -6,6 +6,8 @@ its own time limit, one after the other: nvidia-smi, the versions of the stack,
 ``replaybench doctor`` and ``backends``, runs of ``hsv`` / ``hsv-cuda``, ``onnx-cpu`` and
 ``cuda --engine torch`` (fp32, fp16; the bundled model and YOLOX-Nano; ``--rate max``; each DNN
 run holds ``onnx-cpu`` beside ``cuda``, so run.json's ``agreement`` compares them),
+``cuda-stereo --engine torch`` beside ``onnx-stereo`` on the stereo fixture (run.json's
+``stereo_agreement``: the GPU disparity against the CPU one; EPE and bad-2 against the truth),
 ``cuda --engine ort``, ``replaybench compare``, a ``peak`` search for ``cuda``,
 ``pytest tests/backends/gpu -rs``, one Ray sweep cell where Ray is installed, and the summary.
 
@@ -16,7 +18,8 @@ with copies of ``check.log``, ``steps.json`` and ``summary.md`` beside it: four 
 
 ``--dry-run`` is the same script on a machine without a GPU: small inputs, no wheels, each GPU
 step replaced by its CPU counterpart (``hsv`` beside ``null`` for ``hsv`` beside ``hsv-cuda``,
-``onnx-cpu`` alone for ``onnx-cpu`` beside ``cuda``, ``peak`` of ``null``) or skipped with the
+``onnx-cpu`` alone for ``onnx-cpu`` beside ``cuda``, ``onnx-stereo`` alone for it beside
+``cuda-stereo``, ``peak`` of ``null``) or skipped with the
 reason. ``--fail STEP`` and ``--hang STEP`` replace a step's command with one that fails or that
 outlasts its limit (2 s), so the test of the script can show both are logged and the rest runs.
 """
@@ -132,6 +135,8 @@ def plan(config: Config) -> list[Step]:
     runs = config.work / 'runs'
     bag = str(inputs / 'rgb8_raw.mcap')
     jpeg = str(inputs / 'jpeg.mcap')
+    stereo = str(inputs / 'stereo.mcap')
+    stereo_gpu = ('-b', 'onnx-stereo', '-b', 'cuda-stereo', '--engine', 'torch')
     yolox = config.models / 'yolox_nano.onnx'
     no_yolox = (
         None
@@ -219,6 +224,13 @@ def plan(config: Config) -> list[Step]:
             120,
             gpu=True,
             cpu_argv=run('hsv', bag, '-b', 'hsv', '-b', 'null'),
+        ),
+        Step(
+            'stereo-cuda-torch',
+            run('stereo-cuda-torch', stereo, *stereo_gpu),
+            90,
+            gpu=True,
+            cpu_argv=run('stereo-cuda-torch', stereo, '-b', 'onnx-stereo'),
         ),
         Step(
             'yolox-torch-fp16-jpeg',

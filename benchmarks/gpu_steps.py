@@ -2,13 +2,16 @@
 
 ``python -m benchmarks.gpu_steps inputs DIR --frames N --size WxH`` writes ``rgb8_raw.mcap`` and
 ``jpeg.mcap`` with the project's fixture writer (``replaybench.fixtures.writer.write_mcap``: the
-same scene, ground truth and camera as ``replaybench fixtures``, only those two bags).
+same scene, ground truth and camera as ``replaybench fixtures``, only those two bags), and
+``stereo.mcap``, the stereo fixture (``replaybench.fixtures.stereo.write_stereo_mcap``: rectified
+320x240 pairs with exact ground-truth disparity, at most ``STEREO_PAIRS`` of them).
 
 ``python -m benchmarks.gpu_steps summary WORK OUT`` reads the run folders under ``WORK/runs``
 and the peak folder ``WORK/peak`` and writes ``OUT/summary.json`` and ``OUT/summary.md``: per run
-and backend the throughput, latency percentiles, host stage means (summary.csv), device stage
-means and host minus device per frame (frames.csv, measured frames only), the engine facts of
-run.json, the agreement between the run's backends, and the peak rate. Only figures read from
+and backend the throughput, latency percentiles, host stage means, the stereo figures (summary.csv),
+device stage means and host minus device per frame (frames.csv, measured frames only), the engine
+facts of run.json, the agreement between the run's backends (detections, and disparities:
+run.json ``stereo_agreement``), and the peak rate. Only figures read from
 those files; a missing file or column is reported as missing, never filled in.
 """
 
@@ -25,6 +28,8 @@ from typing import Any
 __all__ = ['main', 'summarise', 'write_inputs']
 
 STAGES = ('h2d', 'preprocess', 'infer', 'postprocess', 'd2h')
+#: the stereo bag's pairs (320x240, the bundled stereo model's input size)
+STEREO_PAIRS = 60
 #: run.json backends[].info keys copied into the summary (docs/gpu.md, run.json info)
 INFO_KEYS = (
     'engine',
@@ -51,6 +56,21 @@ SUMMARY_KEYS = (
     'latency_ms_p95',
     'latency_ms_p99',
     'detections_per_frame',
+    'epe',
+    'bad2',
+    'density',
+)
+#: run.json stereo_agreement: the second backend's disparities against the first's
+STEREO_AGREEMENT_KEYS = (
+    'backend_a',
+    'backend_b',
+    'topic',
+    'frames',
+    'epe',
+    'bad1',
+    'bad2',
+    'bad3',
+    'density',
 )
 RESOURCE_KEYS = ('gpu_mem_mb_start', 'gpu_mem_mb_peak', 'gpu_mem_mb_pass_peak', 'gpu_match')
 AGREEMENT_KEYS = (
@@ -69,15 +89,23 @@ AGREEMENT_KEYS = (
 
 
 def write_inputs(out: Path, frames: int, size: tuple[int, int]) -> list[Path]:
-    """Write the check's two bags (raw rgb8, zstd JPEG) into ``out``, one process each (both
-    render the same frames; 300 at 1080p take tens of seconds); return their paths."""
+    """Write the check's bags (raw rgb8, zstd JPEG, and the stereo pairs) into ``out``, one
+    process each (the first two render the same frames; 300 at 1080p take tens of seconds);
+    return their paths."""
     from concurrent.futures import ProcessPoolExecutor
 
     out.mkdir(parents=True, exist_ok=True)
-    with ProcessPoolExecutor(max_workers=2) as pool:
+    with ProcessPoolExecutor(max_workers=3) as pool:
         raw = pool.submit(_write, out / 'rgb8_raw.mcap', frames, size, 'rgb8')
         jpeg = pool.submit(_write, out / 'jpeg.mcap', frames, size, 'jpeg')
-        return [raw.result(), jpeg.result()]
+        stereo = pool.submit(_write_stereo, out / 'stereo.mcap', min(frames, STEREO_PAIRS))
+        return [raw.result(), jpeg.result(), stereo.result()]
+
+
+def _write_stereo(path: Path, pairs: int) -> Path:
+    from replaybench.fixtures.stereo import write_stereo_mcap
+
+    return write_stereo_mcap(path, pairs)
 
 
 def _write(path: Path, frames: int, size: tuple[int, int], encoding: str) -> Path:
@@ -167,6 +195,10 @@ def _run_summary(folder: Path) -> dict[str, Any]:
     entry['agreement'] = [
         {key: pair.get(key) for key in AGREEMENT_KEYS} for pair in run.get('agreement') or []
     ]
+    entry['stereo_agreement'] = [
+        {key: pair.get(key) for key in STEREO_AGREEMENT_KEYS}
+        for pair in run.get('stereo_agreement') or []
+    ]
     return entry
 
 
@@ -244,6 +276,15 @@ def render_markdown(summary: dict[str, Any]) -> str:
             cells = [run['run'], *(_cell(pair.get(k)) for k in keys)]
             cells.append(_cell(pair.get('mean_abs_score_diff')))
             lines.append('| ' + ' | '.join(cells) + ' |')
+    lines += [
+        '',
+        '| run | a | b | topic | pairs | EPE (px) | bad-1 | bad-2 | bad-3 | density |',
+        '|---|---|---|---|---|---|---|---|---|---|',
+    ]
+    for run in summary['runs']:
+        for pair in run.get('stereo_agreement') or []:
+            cells = [run['run'], *(_cell(pair.get(k)) for k in STEREO_AGREEMENT_KEYS)]
+            lines.append('| ' + ' | '.join(cells) + ' |')
     peak = summary.get('peak')
     lines += ['', f'peak: {json.dumps(peak) if peak else "no peak.json"}', '']
     return '\n'.join(lines)
@@ -257,7 +298,7 @@ def _size(text: str) -> tuple[int, int]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='python -m benchmarks.gpu_steps')
     commands = parser.add_subparsers(dest='command', required=True)
-    inputs = commands.add_parser('inputs', help='write rgb8_raw.mcap and jpeg.mcap')
+    inputs = commands.add_parser('inputs', help='write rgb8_raw.mcap, jpeg.mcap and stereo.mcap')
     inputs.add_argument('out', type=Path)
     inputs.add_argument('--frames', type=int, default=300)
     inputs.add_argument('--size', type=_size, default=(1920, 1080))

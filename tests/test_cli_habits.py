@@ -353,6 +353,7 @@ def test_help_lists_the_commands_in_the_order_of_the_command_modules() -> None:
         'sweep',
         'compare',
         'report',
+        'quantize',
     ]
     package = Path(__file__).resolve().parents[1] / 'replaybench' / 'cli'
     modules = {p.stem for p in package.glob('*.py')} - {

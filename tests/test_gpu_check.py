@@ -84,7 +84,14 @@ def test_every_step_is_listed_in_order_with_its_status_and_why_it_was_skipped(dr
     for name in ('yolox-torch-fp16', 'yolox-torch-fp32', 'compare-yolox', 'yolox-ort-fp32'):
         assert steps[name]['status'] == 'skipped'
         assert 'yolox_nano.onnx not found' in steps[name]['reason']
-    for name in ('inputs', 'bundled-torch-fp32', 'hsv', 'compare-bundled', 'peak-cuda'):
+    for name in (
+        'inputs',
+        'bundled-torch-fp32',
+        'hsv',
+        'stereo-cuda-torch',
+        'compare-bundled',
+        'peak-cuda',
+    ):
         assert steps[name]['status'] == 'ok', name
     assert steps['pytest-gpu']['status'] == 'ok'
     assert steps['summary']['status'] == 'ok'
@@ -127,6 +134,12 @@ def test_the_summary_holds_the_figures_read_from_the_run_folders(dry_run):
     assert (pair['backend_a'], pair['backend_b'], pair['n_b']) == ('hsv', 'null', 0)
     assert pair['n_a'] > 0
     assert runs['bundled-torch-fp32']['backends']['onnx_cpu']['name'] == 'onnx-cpu'
+    # the stereo step's CPU counterpart: onnx-stereo alone, scored against the fixture's truth
+    (stereo,) = runs['stereo-cuda-torch']['backends']['onnx_stereo']['topics'].values()
+    assert 0 < stereo['epe'] < 5
+    assert 0 <= stereo['bad2'] <= 1
+    assert stereo['density'] == 1.0
+    assert runs['stereo-cuda-torch']['stereo_agreement'] == []
     assert summary['peak']['backend'] == 'null'
     assert summary['peak']['peak_hz'] > 0
 
@@ -159,6 +172,9 @@ def test_on_a_gpu_machine_the_steps_install_the_wheels_offline_and_run_the_gpu_b
     assert 'hsv-cuda' in steps['hsv'].argv
     assert '--rate' in steps['hsv'].argv
     assert 'cuda' in steps['peak-cuda'].argv
+    stereo = steps['stereo-cuda-torch']
+    assert {'onnx-stereo', 'cuda-stereo', 'torch', 'max'} <= set(stereo.argv)
+    assert stereo.argv[stereo.argv.index('run') + 1].endswith('stereo.mcap')
     assert steps['ray-sweep-cell'].requires == 'ray'
     assert steps['inputs'].argv[-4:] == ('--frames', '300', '--size', '1920x1080')
 

@@ -51,7 +51,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = [REPO / 'README.md', *sorted((REPO / 'docs').glob('*.md'))]
-GPU_BACKENDS = ('cuda', 'tensorrt', 'hsv-cuda')
+GPU_BACKENDS = ('cuda', 'tensorrt', 'hsv-cuda', 'cuda-stereo', 'tensorrt-stereo')
 COMMAND_TIMEOUT_S = 300
 _PLACEHOLDER_WORD = re.compile(r'(?<![\w.-])(?:[A-Z][A-Z0-9_]*)(?![\w-])')
 _VARIABLE = re.compile(r'\$\{?[A-Za-z_]')

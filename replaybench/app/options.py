@@ -86,6 +86,14 @@ class RunOptions:
     queue_depth: int = _opt(
         1, '--queue-depth', 'Per-topic queue depth in timed modes (newest kept).', low=1
     )
+    added_latency_ms: float | None = _opt(
+        None,
+        '--added-latency-ms',
+        'Testing aid: every detect waits MS more (a real wait, counted in its latency); '
+        'docs/streaming.md.',
+        low=0,
+        metavar='MS',
+    )
     warmup: int | None = _opt(
         None,
         '--warmup',
@@ -150,7 +158,10 @@ class RunOptions:
         'auto', '--engine', 'GPU engine for the cuda backend: auto, ort or torch.', peak=True
     )
     precision: str = _opt(
-        'fp32', '--precision', 'fp32 (TF32 off), tf32 or fp16 (GPU backends).', peak=True
+        'fp32',
+        '--precision',
+        'fp32 (TF32 off), tf32 or fp16 (GPU backends); int8 (tensorrt).',
+        peak=True,
     )
     recorded_topic: str | None = _opt(
         None,
@@ -180,6 +191,12 @@ class RunOptions:
         '--ground-truth-seq-offset',
         'Subtracted from image ids / frame numbers with --ground-truth-match seq (1 for COCO '
         'files whose ids start at 1).',
+    )
+    depth: bool = _opt(
+        False,
+        '--depth',
+        "Also write each stereo backend's depth in metres as a 32FC1 Image into outputs.mcap "
+        '(docs/stereo.md).',
     )
     annotations: bool = _opt(
         False,
@@ -234,6 +251,22 @@ class RunOptions:
         'Ground-truth label masks for segmentation backends: a mono8 Image topic or a folder of '
         '<stamp_ns>.png (default: /ground_truth/labels when present).',
         metavar='TOPIC|DIR',
+    )
+    ground_truth_disparity: str | None = _opt(
+        None,
+        '--ground-truth-disparity',
+        'Ground-truth disparity of the left image for stereo backends: a 32FC1 Image or '
+        'DisparityImage topic, or a folder of <stamp_ns>.pfm (Middlebury) / .png (KITTI) files '
+        '(default: /ground_truth/disparity when present; docs/stereo.md).',
+        metavar='TOPIC|DIR',
+    )
+    ground_truth_depth: str | None = _opt(
+        None,
+        '--ground-truth-depth',
+        'Ground-truth depth of the left rectified image for stereo backends, instead: a depth '
+        'Image topic (32FC1 metres or 16UC1 millimetres), converted to disparity with each '
+        "output's focal length and baseline.",
+        metavar='TOPIC',
     )
     stereo: str | None = _opt(
         None,

@@ -37,6 +37,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
     from replaybench.backends.base import BackendOptions
+    from replaybench.replay.instances import BackendInstance
     from replaybench.results.model import PeakResult as PeakRecord
 
 __all__ = [
@@ -108,12 +109,15 @@ class PeakConfig:
     #: --cameras: search the copies of the camera set sustained at the recorded rate
     cameras: bool = False
     max_copies: int = MAX_COPIES
+    #: the instance ``backend`` labels (``--backend LABEL=NAME``, ``--param LABEL.KEY=VALUE``)
+    instance: BackendInstance | None = None
 
 
 def peak_config(
     input: str | os.PathLike[str],
     *,
     backend: str = 'hsv',
+    params: Sequence[str] = (),
     out: str | os.PathLike[str] | None = None,
     max_drop: float = 0.05,
     p99_ms: float | None = None,
@@ -134,8 +138,10 @@ def peak_config(
     naming the option for a value out of range, before anything runs; ``TypeError`` for a
     keyword that is not an option of peak. ``cameras`` searches copies of the camera set at
     the recorded rate: the rate limits (``min_hz``, ``max_hz``, ``refine_steps``) are then
-    refused when not at their defaults."""
+    refused when not at their defaults. ``backend`` is ``NAME`` or ``LABEL=NAME`` and
+    ``params`` its ``--param LABEL.KEY=VALUE`` texts (``replaybench.replay.instances``)."""
     from replaybench.app.options import option_specs, run_options
+    from replaybench.replay.instances import parse_instances
 
     takes = {name for name, spec, _ in option_specs() if spec.peak}
     unknown = sorted(set(options) - takes)
@@ -166,9 +172,11 @@ def peak_config(
         msg = f'--max-copies must be at least 1, not {max_copies}'
         raise UsageError(msg)
     checked = run_options(**options)
+    (instance,) = parse_instances([backend], params)
     return PeakConfig(
         input=Path(input),
-        backend=backend,
+        backend=instance.label,
+        instance=instance if instance.label != instance.backend or instance.params else None,
         out=Path(out) if out is not None else None,
         options=checked.backend_options(),
         topics=checked.topics,
@@ -213,6 +221,7 @@ def run_peak(
             command=config.command,
             progress=progress,
             stop=stop,
+            instance=config.instance,
         )
     return find_peak_rate(
         config.input,
@@ -232,4 +241,5 @@ def run_peak(
         command=config.command,
         progress=progress,
         stop=stop,
+        instance=config.instance,
     )

@@ -75,6 +75,7 @@ def run_config(
     inputs: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     *,
     backends: str | Sequence[str] = ('hsv',),
+    params: Sequence[str] = (),
     out: str | os.PathLike[str] | None = None,
     force: bool = False,
     command: Sequence[str] = (),
@@ -85,10 +86,18 @@ def run_config(
     snake_case (``--max-frames`` is ``max_frames``, ``--topic`` is ``topics``, ``--format`` is
     ``detections_format``, ``--no-report`` is ``report=False``, ``--no-hash`` is
     ``hash_inputs=False``). ``rate`` is a ``--rate`` text or a number of Hz; ``out`` None runs
-    in memory. Raises ``UsageError`` naming the option for a value out of range, ``TypeError``
-    for a keyword that is no run option."""
+    in memory. ``backends`` are ``--backend`` texts, ``NAME`` or ``LABEL=NAME`` (an instance
+    of backend NAME called LABEL), and ``params`` ``--param LABEL.KEY=VALUE`` texts, each one
+    option of one instance (``replaybench.replay.instances``). Raises ``UsageError`` naming
+    the option for a value out of range, ``TypeError`` for a keyword that is no run option."""
     return config_of(
-        run_options(**options), inputs, backends=backends, out=out, force=force, command=command
+        run_options(**options),
+        inputs,
+        backends=backends,
+        params=params,
+        out=out,
+        force=force,
+        command=command,
     )
 
 
@@ -116,13 +125,17 @@ def config_of(
     force: bool = False,
     command: Sequence[str] = (),
     input_sha256: tuple[str | None, ...] | None = None,
+    params: Sequence[str] = (),
 ) -> RunConfig:
     """The ``RunConfig`` of checked ``options`` for ``inputs`` and ``backends`` (what
     ``run_config`` builds, and each cell of a sweep); ``input_sha256``: the inputs' digests
-    when already known (not computed again by the run)."""
+    when already known (not computed again by the run); ``backends`` and ``params``: the
+    instances' ``--backend`` and ``--param`` texts (``run_config``)."""
+    from replaybench.replay.instances import parse_instances
     from replaybench.replay.rate import Rate, parse_rate
     from replaybench.replay.sync import parse_sync
 
+    instances = parse_instances(name_list(backends), params)
     rate = options.rate
     if isinstance(rate, str):
         parsed = parse_rate(rate)
@@ -133,11 +146,13 @@ def config_of(
         raise UsageError(msg)
     return RunConfig(
         inputs=input_paths(inputs),
-        backends=name_list(backends),
+        backends=[inst.label for inst in instances],
+        instances={inst.label: inst for inst in instances},
         out_dir=Path(out) if out is not None else None,
         force=force,
         rate=parsed,
         queue_depth=options.queue_depth,
+        added_latency_ms=options.added_latency_ms,
         warmup=options.warmup,
         threads=options.threads,
         max_frames=options.max_frames,
@@ -155,6 +170,7 @@ def config_of(
         ground_truth_image_topic=options.ground_truth_image_topic,
         ground_truth_seq_offset=options.ground_truth_seq_offset,
         annotations=options.annotations,
+        depth=options.depth,
         copy_images=options.copy_images,
         detections_format=options.detections_format,
         hash_inputs=options.hash_inputs,
@@ -165,6 +181,8 @@ def config_of(
             None if options.ground_truth_masks is None else str(options.ground_truth_masks)
         ),
         sync=parse_sync(options.sync) if options.sync is not None else None,
+        ground_truth_disparity=options.ground_truth_disparity,
+        ground_truth_depth=options.ground_truth_depth,
     )
 
 

@@ -45,6 +45,8 @@ BUILTIN_BACKENDS: dict[str, str] = {
     'hsv-seg': 'replaybench.backends.hsv_seg:HsvSegBackend',
     'onnx-seg': 'replaybench.backends.onnx_seg:OnnxSegBackend',
     'onnx-stereo': 'replaybench.backends.onnx_stereo:OnnxStereoBackend',
+    'cuda-stereo': 'replaybench.backends.gpu.cuda_stereo:CudaStereoBackend',
+    'tensorrt-stereo': 'replaybench.backends.gpu.tensorrt_stereo:TensorrtStereoBackend',
     'apriltag': 'replaybench.backends.apriltag:AprilTagBackend',
     'aruco': 'replaybench.backends.aruco:ArucoBackend',
     'sgbm': 'replaybench.backends.sgbm:SgbmBackend',

@@ -65,6 +65,10 @@ def _read_toml(path: Path) -> dict[str, Any]:
 
 def _settings(options: BackendOptions) -> tuple[float, str]:
     given: dict[str, Any] = _read_toml(options.config) if options.config is not None else {}
+    unknown = sorted(set(options.extra) - set(_TOML_KEYS.values()))
+    if unknown:
+        msg = f'busy backend: unknown option {unknown[0]!r} (known: busy_clock, busy_ms)'
+        raise BackendError(msg)
     given.update(options.extra)
     ms = given.get('busy_ms', DEFAULT_MS)
     if isinstance(ms, str):

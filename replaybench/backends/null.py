@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from replaybench.backends.base import Availability, BackendOptions
+from replaybench.errors import BackendError
 from replaybench.types import BackendResult, StageTimes
 
 if TYPE_CHECKING:
@@ -31,6 +32,9 @@ class NullBackend:
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()
+        if self.options.extra:
+            msg = f'null: unknown option {sorted(self.options.extra)[0]!r} (it takes none)'
+            raise BackendError(msg)
 
     @classmethod
     def available(cls) -> Availability:

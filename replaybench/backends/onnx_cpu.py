@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from replaybench.backends.base import Availability, BackendOptions
 from replaybench.detector.decoders import NonfiniteTally
+from replaybench.detector.provenance import provenance
 from replaybench.detector.spec import DEFAULT_CONF, DEFAULT_IOU, DEFAULT_MODEL, FAMILIES, SPEC_KEYS
 from replaybench.errors import BackendError, BackendUnavailableError
 from replaybench.types import BackendResult, StageTimes
@@ -268,6 +269,19 @@ class OnnxCpuBackend:
             detections, StageTimes(preprocess_ns=t1 - t0, infer_ns=t2 - t1, postprocess_ns=t3 - t2)
         )
 
+    def inputs(self, frame: Frame) -> dict[str, Any]:
+        """The model's inputs for ``frame`` as ``detect`` prepares them (a copy): what
+        ``replaybench quantize`` calibrates on."""
+        if self._session is None:
+            self.open()
+        letterbox, spec = self._letterbox, self.spec
+        assert letterbox is not None
+        assert spec is not None
+        if frame.is_depth or frame.encoding == '32FC1':
+            raise self._refuse(frame)
+        tensor, _ = letterbox(frame.image, frame.encoding)
+        return {spec.input_name: tensor.copy()}
+
     def forget_warmup(self) -> None:
         """Leave the untimed warm-up detects out of the counts ``info()`` reports."""
         self.nonfinite.reset()
@@ -317,6 +331,7 @@ class OnnxCpuBackend:
                 if spec.family == 'nms'
                 else 'class-aware greedy (numpy), multi-label candidates',
                 'metadata': {k: v[:_META_VALUE_CHARS] for k, v in sorted(spec.metadata.items())},
+                'quantization': provenance(spec.metadata),
                 'engine': 'onnxruntime',
                 'onnxruntime': self._ort_version,
                 'providers': list(self._providers_used),

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from replaybench.backends.base import Availability, BackendOptions
 from replaybench.backends.onnx_cpu import onnx_cpu_available, session_options
+from replaybench.detector.provenance import provenance
 from replaybench.detector.spec import SPEC_KEYS
 from replaybench.errors import BackendError, BackendUnavailableError
 from replaybench.segmentation.decoder import LAYOUTS, decode_labels, parse_layout
@@ -189,6 +190,23 @@ class OnnxSegBackend:
             LabelMask(labels, spec.class_names),
         )
 
+    def inputs(self, frame: Frame) -> dict[str, Any]:
+        """The model's inputs for ``frame`` as ``detect`` prepares them (a copy): what
+        ``replaybench quantize`` calibrates on."""
+        if self._session is None:
+            self.open()
+        letterbox, spec = self._letterbox, self.spec
+        assert letterbox is not None
+        assert spec is not None
+        if frame.is_depth or frame.encoding == '32FC1':
+            msg = (
+                f'{self.name}: frame {frame.topic}#{frame.seq} is a depth image '
+                f'({frame.source_encoding}); replay colour or mono topics only'
+            )
+            raise BackendError(msg)
+        tensor, _ = letterbox(frame.image, frame.encoding)
+        return {spec.input_name: tensor.copy()}
+
     def info(self) -> dict[str, Any]:
         facts: dict[str, Any] = {
             'task': 'segmentation',
@@ -210,6 +228,7 @@ class OnnxSegBackend:
                 'precision': spec.precision,
                 'class_names': list(spec.class_names),
                 'labels_source': spec.labels_source,
+                'quantization': provenance(spec.metadata),
                 'preprocess': {
                     'letterbox': pre.letterbox,
                     'align': pre.align,

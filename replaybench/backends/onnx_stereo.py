@@ -50,6 +50,8 @@ from replaybench.errors import BackendError, BackendUnavailableError, StereoErro
 from replaybench.types import BackendResult, StageTimes
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     import numpy.typing as npt
 
     from replaybench.stereo import Rectifier
@@ -244,6 +246,15 @@ class OnnxStereoBackend:
     reads_camera_info: ClassVar[bool] = True
     #: without --sync, a pair's images are paired by equal stamps (``--sync exact``)
     default_sync: ClassVar[str] = 'exact'
+
+    @staticmethod
+    def frame_set_topics(topics: Sequence[str]) -> tuple[tuple[str, ...], str | None]:
+        """Without --topic or --stereo: the stereo pair the names of an input's camera topics
+        make, left first (``replaybench.stereo.pair_by_name``)."""
+        from replaybench.stereo.topics import pair_by_name
+
+        return pair_by_name(topics)
+
     #: before the replay: a left and a right topic, CameraInfo of one size and a baseline
     check_frame_set = StereoMatcherBackend.check_frame_set
 
@@ -430,6 +441,19 @@ class OnnxStereoBackend:
             StageTimes(preprocess_ns=t1 - t0, infer_ns=t2 - t1, postprocess_ns=t3 - t2),
             output=result,
         )
+
+    def inputs(self, frame_set: FrameSet) -> dict[str, Any]:
+        """The model's inputs for a left/right set as ``detect`` prepares them (rectified,
+        converted, resized and scaled; a copy): what ``replaybench quantize`` calibrates on."""
+        if self._session is None:
+            self.open()
+        left, right = frame_set.frames
+        rectifier = self.rectifier(left, right)
+        rect_left, rect_right = rectifier.rectify(left.image, right.image)
+        self._fill(
+            (self._channels(rect_left, left.encoding), self._channels(rect_right, right.encoding))
+        )
+        return {name: buffer.copy() for name, buffer in self._feed.items()}
 
     def info(self) -> dict[str, Any]:
         facts: dict[str, Any] = {

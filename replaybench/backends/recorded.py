@@ -51,6 +51,9 @@ class RecordedBackend:
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()
+        if self.options.extra:
+            msg = f'recorded: unknown option {sorted(self.options.extra)[0]!r} (it takes none)'
+            raise BackendError(msg)
         self.topic = ''
         self._table: Mapping[tuple[int, str, int], RecordedOutput] = {}
         self._readers: Mapping[int, OutputReader] = {}

@@ -25,7 +25,7 @@ from replaybench.errors import StereoError, UsageError
 from replaybench.types import BackendResult, StageTimes
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
+    from collections.abc import Mapping, Sequence
 
     from replaybench.stereo import Matcher, Rectifier
     from replaybench.stereo.matchers import MatcherKind
@@ -78,6 +78,14 @@ class StereoMatcherBackend:
     reads_camera_info: ClassVar[bool] = True
     #: without --sync, a pair's images are paired by equal stamps (``--sync exact``)
     default_sync: ClassVar[str] = 'exact'
+
+    @staticmethod
+    def frame_set_topics(topics: Sequence[str]) -> tuple[tuple[str, ...], str | None]:
+        """Without --topic or --stereo: the stereo pair the names of an input's camera topics
+        make, left first (``replaybench.stereo.pair_by_name``)."""
+        from replaybench.stereo.topics import pair_by_name
+
+        return pair_by_name(topics)
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         from replaybench.stereo import Matcher

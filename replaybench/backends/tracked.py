@@ -82,13 +82,21 @@ def split_name(name: str) -> tuple[str, str] | None:
 
 def with_trackers(backends: Sequence[str], trackers: Sequence[str]) -> list[str]:
     """``run --backend B --tracker T``'s backends: each backend, then ``B+T`` for each tracker
-    (``UsageError`` for an unknown tracker or one given twice)."""
+    (``UsageError`` for an unknown tracker, one given twice, or an instance ``LABEL=NAME``
+    among the backends: labels hold no ``+``)."""
     for tracker in trackers:
         if tracker not in TRACKERS:
             msg = f'--tracker {tracker!r}: unknown tracker; known: {", ".join(TRACKERS)}'
             raise UsageError(msg)
     if len(set(trackers)) != len(trackers):
         msg = '--tracker: a tracker is given twice'
+        raise UsageError(msg)
+    instances = [b for b in backends if '=' in b]
+    if trackers and instances:
+        msg = (
+            f'--tracker over the instance --backend {instances[0]!r}: give its tracked row as an '
+            'instance of its own, --backend LABEL=NAME+TRACKER (docs/tracking.md)'
+        )
         raise UsageError(msg)
     return [name for b in backends for name in (b, *(f'{b}+{t}' for t in trackers))]
 

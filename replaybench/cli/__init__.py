@@ -18,7 +18,17 @@ __all__ = ['app', 'main']
 
 #: the command modules; each registers its commands on ``app`` when imported, and
 #: ``replaybench --help`` lists them in this order
-COMMAND_MODULES = ('run', 'info', 'backends', 'fixtures', 'peak', 'sweep', 'compare', 'report')
+COMMAND_MODULES = (
+    'run',
+    'info',
+    'backends',
+    'fixtures',
+    'peak',
+    'sweep',
+    'compare',
+    'report',
+    'quantize',
+)
 for _name in COMMAND_MODULES:
     importlib.import_module(f'replaybench.cli.{_name}')
 

@@ -1,7 +1,8 @@
 """The command group and what every command shares: placeholders in help, two-line usage
 errors, ``--debug``, the one-line error output (``fail``) and the run options
 (``with_run_options``: ``replaybench.app.options.RunOptions`` as typer options of ``run``,
-``sweep`` and ``peak``, declared once)."""
+``sweep`` and ``peak``, declared once) and the instance options of the same three
+(``with_instance_options``: ``--backend [LABEL=]NAME`` and ``--param LABEL.KEY=VALUE``)."""
 
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ __all__ = [
     'fail',
     'fmt',
     'run_option_names',
+    'with_instance_options',
     'with_run_options',
 ]
 
@@ -56,6 +58,8 @@ _METAVARS = {
     'recorded_topic': 'TOPIC',
     'ground_truth_image_topic': 'TOPIC',
     'ground_truth_masks': 'TOPIC|DIR',
+    'ground_truth_disparity': 'TOPIC|DIR',
+    'ground_truth_depth': 'TOPIC',
     'ground_truth_match': 'stamp|seq',
     'model_family': 'FAMILY',
     'labels': 'coco|PATH',
@@ -68,7 +72,7 @@ _METAVARS = {
     'fail_if': 'CONDITION',
     'baseline': 'INDEX',
     'baseline_backend': 'NAME',
-    'param': 'BACKEND.KEY=V,...',
+    'param': 'LABEL.KEY=VALUE',
     'address': 'HOST:PORT',
     'max_drop': 'FRACTION',
     'p99_ms': 'MS',
@@ -356,5 +360,54 @@ def with_run_options(command: str) -> Callable[[_Function], _Function]:
         wrapper.__signature__ = inspect.Signature(parameters)  # type: ignore[attr-defined]
         wrapper.__annotations__ = {p.name: p.annotation for p in parameters}
         return typing.cast('_Function', wrapper)
+
+    return decorate
+
+
+#: ``--param``'s help by command: a run's instance takes one value, a sweep's an axis of several
+_PARAM_HELP = {
+    'run': 'One option of one --backend instance: LABEL.KEY=VALUE (repeat), e.g. '
+    'int8.threads=1 (docs/cli.md).',
+    'peak': 'One option of the --backend instance: LABEL.KEY=VALUE (repeat), e.g. '
+    'onnx-cpu.threads=1 (docs/cli.md).',
+    'sweep': 'Grid of one option of one --backend instance: LABEL.KEY=V1,V2,... (repeat; one '
+    "cell per combination; one value: that instance's fixed setting), e.g. "
+    'hsv.min_area=50,100,200.',
+}
+_BACKEND_HELP = {
+    'run': 'Backend to run, as NAME or LABEL=NAME (an instance called LABEL; repeat for several, '
+    'also of one backend; see `replaybench backends`).',
+    'peak': 'Backend to search, as NAME or LABEL=NAME.',
+    'sweep': 'Backend to sweep, as NAME or LABEL=NAME (repeat for several).',
+}
+
+
+def with_instance_options(command: str) -> Callable[[_Function], _Function]:
+    """Give a command's keyword parameters ``backend`` and ``param`` their options, declared
+    here once for ``run``, ``sweep`` and ``peak``: ``--backend/-b [LABEL=]NAME`` (repeated; in
+    ``peak`` once, and required) and ``--param LABEL.KEY=VALUE`` (repeated; in ``sweep``
+    several values separated by commas)."""
+
+    def decorate(func: _Function) -> _Function:
+        signature = inspect.signature(func, eval_str=True)
+        backend_option = typer.Option('--backend', '-b', help=_BACKEND_HELP[command])
+        param_option = typer.Option(
+            '--param',
+            help=_PARAM_HELP[command],
+            metavar='LABEL.KEY=V1,V2,...' if command == 'sweep' else 'LABEL.KEY=VALUE',
+        )
+        changed = []
+        for p in signature.parameters.values():
+            if p.name == 'backend':
+                if command == 'peak':
+                    p = p.replace(annotation=Annotated[str, backend_option], default=p.empty)
+                else:
+                    p = p.replace(annotation=Annotated[list[str], backend_option], default=[])
+            elif p.name == 'param':
+                p = p.replace(annotation=Annotated[list[str], param_option], default=[])
+            changed.append(p)
+        func.__signature__ = signature.replace(parameters=changed)  # type: ignore[attr-defined]
+        func.__annotations__ = {p.name: p.annotation for p in changed}
+        return func
 
     return decorate

@@ -9,7 +9,15 @@ from typing import Annotated, Any
 
 import typer
 
-from replaybench.cli._common import EXIT_INTERRUPTED, app, echo, fail, fmt, with_run_options
+from replaybench.cli._common import (
+    EXIT_INTERRUPTED,
+    app,
+    echo,
+    fail,
+    fmt,
+    with_instance_options,
+    with_run_options,
+)
 from replaybench.errors import ReplaybenchError
 
 __all__: list[str] = []
@@ -17,9 +25,9 @@ __all__: list[str] = []
 
 @app.command()
 @with_run_options('peak')
+@with_instance_options('peak')
 def peak(
     bag: Annotated[Path, typer.Argument(help='Bag file or rosbag2 folder.', show_default=False)],
-    backend: Annotated[str, typer.Option('--backend', '-b', help='Backend to sweep.')],
     out: Annotated[
         Path | None,
         typer.Option('--out', '-o', help='Folder for peak.json, peak.html and the trial runs.'),
@@ -57,6 +65,8 @@ def peak(
         int, typer.Option('--max-copies', min=1, help='With --cameras: the most copies tried.')
     ] = 32,
     *,
+    backend: str,
+    param: list[str],
     options: dict[str, Any],
 ) -> None:
     """Find the highest replay rate a backend sustains without dropping frames.
@@ -83,6 +93,7 @@ def peak(
         settings = peak_config(
             bag,
             backend=backend,
+            params=param,
             out=out if out is not None else new_run_dir(),
             max_drop=max_drop,
             p99_ms=p99_ms,
@@ -103,9 +114,9 @@ def peak(
     folder = settings.out
     assert folder is not None  # the command line always writes a folder
     if settings.cameras:
-        _show_cameras(backend, result)
+        _show_cameras(settings.backend, result)
     else:
-        _show_rates(backend, result)
+        _show_rates(settings.backend, result)
     for warning in result.warnings:
         echo(f'replaybench: warning: {warning}', err=True)
     echo(f'Peak folder: {folder}')

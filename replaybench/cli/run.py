@@ -16,6 +16,7 @@ from replaybench.cli._common import (
     echo,
     fail,
     fmt,
+    with_instance_options,
     with_run_options,
 )
 from replaybench.cli.progress import RunProgress
@@ -132,6 +133,7 @@ def _print_summary(summaries: list[Summary]) -> None:
 
 @app.command()
 @with_run_options('run')
+@with_instance_options('run')
 def run(
     bags: Annotated[
         list[Path],
@@ -139,23 +141,6 @@ def run(
             help='Bag files or rosbag2 folders, replayed one after another.', show_default=False
         ),
     ],
-    backend: Annotated[
-        list[str],
-        typer.Option(
-            '--backend',
-            '-b',
-            help='Backend to run (repeat for several; see `replaybench backends`).',
-        ),
-    ] = [],  # noqa: B006
-    tracker: Annotated[
-        list[str],
-        typer.Option(
-            '--tracker',
-            metavar='NAME',
-            help='Tracker over every backend: a row DETECTOR+TRACKER beside each (iou, sort, '
-            'bytetrack; repeat for several; docs/tracking.md).',
-        ),
-    ] = [],  # noqa: B006
     out: Annotated[
         Path | None,
         typer.Option(
@@ -168,7 +153,18 @@ def run(
             '--force', help='Replace the run folder --out, once the new run has finished.'
         ),
     ] = False,
+    tracker: Annotated[
+        list[str],
+        typer.Option(
+            '--tracker',
+            metavar='NAME',
+            help='Tracker over every backend: a row DETECTOR+TRACKER beside each (iou, sort, '
+            'bytetrack; repeat for several; docs/tracking.md).',
+        ),
+    ] = [],  # noqa: B006
     *,
+    backend: list[str],
+    param: list[str],
     options: dict[str, Any],
 ) -> None:
     """Replay bags through backends and write detections, CSVs, run.json and a report.
@@ -184,6 +180,7 @@ def run(
         settings = run_config(
             bags,
             backends=with_trackers(backend, tracker),
+            params=param,
             out=out if out is not None else new_run_dir(),
             force=force,
             command=['replaybench', *sys.argv[1:]],
@@ -219,6 +216,30 @@ def _task_lines(run: RunResult) -> list[str]:
         target = task_views(task).terminal_lines
         if target is not None:
             lines += load_view(task, target)(run)
+    return lines
+
+
+def _streaming_lines(outcome: RunOutcome) -> list[str]:
+    """Per (backend, topic) with streaming scores: each beside its offline figure with the
+    difference, and the output age's median and 90th percentile (docs/streaming.md)."""
+    from replaybench.results.streaming import output_ages, streaming_pairs
+    from replaybench.tasks import streaming_offline
+
+    offline_of = streaming_offline()
+    ages = output_ages(outcome.records)
+    lines = []
+    for s in outcome.summaries:
+        pairs = streaming_pairs(s, offline_of)
+        if not pairs:
+            continue
+        shown = ', '.join(
+            f'{p.label.removeprefix("streaming ")} {p.offline_value:.3f} -> {p.value:.3f} '
+            f'({p.change:+.3f})'
+            for p in pairs
+        )
+        age = ages.get((s.backend, s.topic))
+        aged = f'; output age p50 {age.p50_ms:.1f} ms, p90 {age.p90_ms:.1f} ms' if age else ''
+        lines.append(f'streaming {visible(s.backend)} {visible(s.topic)}: {shown}{aged}')
     return lines
 
 
@@ -274,10 +295,13 @@ def _rig_lines(run: RunResult) -> list[str]:
 def _show_run(outcome: RunOutcome) -> int:
     """Print a finished run (the table, its warnings, the folder); its exit status."""
     from replaybench.backends.gpu import engine_lines
+    from replaybench.detector.provenance import quantization_line
     from replaybench.report.recorded import recorded_latency_lines
 
     _print_summary(outcome.summaries)
     for line in _rig_lines(outcome.run):
+        echo(line)
+    for line in _streaming_lines(outcome):
         echo(line)
     for line, is_warning in recorded_latency_lines(outcome.summaries):
         echo(f'replaybench: warning: {line}' if is_warning else line, err=is_warning)
@@ -304,6 +328,10 @@ def _show_run(outcome: RunOutcome) -> int:
             )
     for line in engine_lines(outcome.run):
         echo(line)
+    for entry in outcome.run.backends:
+        quantized = quantization_line(entry.name, entry.info)
+        if quantized is not None:
+            echo(quantized)
     for line in _task_lines(outcome.run):
         echo(line)
     assert outcome.run_dir is not None  # the command line always writes a folder

@@ -9,7 +9,7 @@ from typing import Annotated, Any
 
 import typer
 
-from replaybench.cli._common import app, echo, fail, with_run_options
+from replaybench.cli._common import app, echo, fail, with_instance_options, with_run_options
 from replaybench.errors import ReplaybenchError
 
 __all__: list[str] = []
@@ -17,6 +17,7 @@ __all__: list[str] = []
 
 @app.command()
 @with_run_options('sweep')
+@with_instance_options('sweep')
 def sweep(
     bags: Annotated[
         list[Path],
@@ -30,17 +31,6 @@ def sweep(
             '--out', '-o', help='Sweep folder; running the same command again resumes it.'
         ),
     ],
-    backend: Annotated[
-        list[str], typer.Option('--backend', '-b', help='Backend to sweep (repeat for several).')
-    ] = [],  # noqa: B006
-    param: Annotated[
-        list[str],
-        typer.Option(
-            '--param',
-            help='Grid of one backend option: BACKEND.KEY=V1,V2,... (repeat; one cell per '
-            'combination), e.g. hsv.min_area=50,100,200.',
-        ),
-    ] = [],  # noqa: B006
     address: Annotated[
         str | None,
         typer.Option(
@@ -60,6 +50,8 @@ def sweep(
         ),
     ] = 3,
     *,
+    backend: list[str],
+    param: list[str],
     options: dict[str, Any],
 ) -> None:
     """Run every bag x backend x --param combination as one run, on a Ray cluster (docs/sweep.md).

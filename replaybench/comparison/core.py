@@ -43,6 +43,7 @@ if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
 
+    from replaybench.comparison.paired import Paired
     from replaybench.comparison.runs import RunInfo
     from replaybench.results.blocks import ChangeInterval
     from replaybench.results.folder import RunData
@@ -130,6 +131,9 @@ class Row:
     #: summary.csv's ``recorded_latency_note`` (why a recorded figure is not reported; '' when
     #: nothing is said); None for a row that replays
     recorded_note: str | None = None
+    #: a candidate row of boxes against its baseline row frame by frame (``comparison.paired``:
+    #: the paired mAP@0.5 change and interval, the agreement of the two); None for other rows
+    paired: Paired | None = None
 
     @property
     def name(self) -> str:
@@ -336,6 +340,7 @@ def compare_runs(
     seed: int = 0,
     n_boot: int = DEFAULT_RESAMPLES,
     confidence: float = CONFIDENCE,
+    paired_resamples: int | None = None,
 ) -> Comparison:
     """Compare every (run, backend, topic) of ``run_dirs`` with the baseline run.
 
@@ -343,6 +348,12 @@ def compare_runs(
     (default: the same backend; when the baseline run has no such backend but exactly one on
     that topic, that one). With a single run folder the baseline backend defaults to its first
     backend, so the backends of one run are compared with each other.
+
+    A candidate row over the same frames as its baseline row (the same run, or runs of the
+    same inputs) is also compared frame by frame (``comparison.paired``), boxes on mAP@0.5
+    and label masks on mIoU: the change gets the paired bootstrap interval
+    (``paired_resamples`` draws, default ``PAIRED_RESAMPLES``) and the row the agreement of
+    the two backends' outputs.
 
     Raises UsageError for bad arguments and SourceError for unreadable run folders.
     """
@@ -495,6 +506,14 @@ def compare_runs(
             extra = [f for f in flags if f not in flags_of_run[run.index]]
             if extra:
                 warnings.append(f'{row.name}: ' + '; '.join(extra))
+    from replaybench.comparison.paired import with_paired
+
+    rows = with_paired(
+        rows, runs, baseline, seed=seed, confidence=confidence, resamples=paired_resamples
+    )
+    warnings.extend(
+        f'{row.name}: {flag}' for row in rows for flag in row.flags if flag.startswith('paired')
+    )
     candidates = [r for r in runs if r.index != baseline]
     matches = [inputs_match(r, base_run) for r in candidates]
     if any(m is False for m in matches):

@@ -276,12 +276,14 @@ def _judge(
     past_text = 'past' if point_past else 'not past'
     if strict or accuracy:
         verdict = decide(est, ci, condition.op, condition.threshold, point=True)
-        why = (
-            f'strict: the point estimate is {past_text} {threshold}'
-            if strict
-            else f'{"a drop rate" if condition.metric in RIG_POINT_METRICS else "accuracy"} '
-            f'has no CI: the point estimate is {past_text} {threshold}'
-        )
+        if strict:
+            why = f'strict: the point estimate is {past_text} {threshold}'
+        elif ci is not None:
+            # the paired interval over frames (comparison.paired) is shown, not judged
+            why = f'accuracy is judged on the point estimate: it is {past_text} {threshold}'
+        else:
+            what = 'a drop rate' if condition.metric in RIG_POINT_METRICS else 'accuracy'
+            why = f'{what} has no CI: the point estimate is {past_text} {threshold}'
     else:
         verdict = decide(est, ci, condition.op, condition.threshold)
         if ci is None:

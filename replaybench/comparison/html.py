@@ -13,6 +13,7 @@ from replaybench.comparison.core import (
     TIMING_METRICS,
 )
 from replaybench.comparison.gate import gate_verdict, method_text
+from replaybench.comparison.paired_html import paired_html
 from replaybench.comparison.runs import CV_LIMIT, engine_text, inputs_match
 from replaybench.report.markup import escaped, number_text
 from replaybench.report.svg import Label, colour, fit_label, nice_ticks, step_cdf
@@ -38,6 +39,9 @@ h1{font-size:22px;margin:0 0 4px}
 h2{font-size:18px;margin:28px 0 10px;padding-bottom:4px;border-bottom:1px solid var(--line)}
 h3{font-size:15px;margin:18px 0 8px}
 .meta{color:var(--muted);margin:0 0 12px}
+.thumbs{display:flex;flex-wrap:wrap;gap:10px}.thumbs figure{margin:0;max-width:100%}
+.thumbs img{display:block;max-width:100%;height:auto;border:1px solid var(--line)}
+.thumbs figcaption{color:var(--muted);font-size:12px}
 .badge{display:inline-block;padding:1px 8px;border-radius:10px;font-weight:600;font-size:12px;
 color:#fff;background:#777;white-space:nowrap}
 .badge.pass,.badge.match{background:#2e7d32}.badge.fail,.badge.mismatch{background:#c62828}
@@ -276,7 +280,11 @@ def _accuracy_cell(m: MetricComparison, role: str) -> str:
     value = escaped(number_text(m.value, '.4g'))
     if role != 'candidate' or m.diff is None:
         return f'<td class="n">{value}</td>'
-    return f'<td class="n">{value}<span class="ci">Δ {m.diff:+.4f} (no CI)</span></td>'
+    if m.diff_ci is None:
+        return f'<td class="n">{value}<span class="ci">Δ {m.diff:+.4f} (no CI)</span></td>'
+    lo, hi = m.diff_ci
+    interval = f'Δ {m.diff:+.4f} [{lo:+.4f}, {hi:+.4f}] paired'
+    return f'<td class="n">{value}<span class="ci">{escaped(interval)}</span></td>'
 
 
 #: The main accuracy figure of each task, read first (``MetricSpec.main``), in registry order.
@@ -581,6 +589,7 @@ def render_comparison_html(
         _banner(comparison),
         _gate(gate, conditions, strict, allow_inconclusive),
         _summary(comparison),
+        paired_html(comparison),
         _charts(comparison),
         _runs(comparison),
         _footer(comparison),

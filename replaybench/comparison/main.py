@@ -13,12 +13,15 @@ if TYPE_CHECKING:
 
     from replaybench.comparison.core import Comparison, MetricComparison, Row
     from replaybench.comparison.gate import GateResult
+    from replaybench.comparison.paired import Paired
 
 __all__ = [
     'EXIT_GATE_FAILED',
     'EXIT_INCONCLUSIVE',
     'RECORDED_SHORT',
+    'agreement_text',
     'format_summary',
+    'paired_text',
     'ratio_text',
     'recorded_parts',
 ]
@@ -36,6 +39,30 @@ RECORDED_SHORT: dict[str, str] = {
     'recorded_pipeline_ms': 'recorded pipeline',
     'recorded_capture_ms': 'recorded capture-to-output',
 }
+
+
+def paired_text(row: Row) -> str:
+    """The interval of a row's paired change (map50 or miou): the paired bootstrap's, or
+    ``(no CI)``."""
+    paired = row.paired
+    if paired is None or paired.ci is None:
+        return '(no CI)'
+    lo, hi = paired.ci
+    level = round(paired.confidence * 100)
+    return f'[{lo:+.4f}, {hi:+.4f}] ({level}% paired bootstrap, {paired.frames} frames)'
+
+
+def agreement_text(paired: Paired) -> str:
+    """The agreement of a row's outputs with its baseline's, in a few words."""
+    if paired.metric == 'miou':
+        return (
+            f'masks agree: pixels {paired.matched_mean:.4f}, mIoU {paired.iou_mean:.3f} '
+            f'(lowest frame {paired.matched_min:.4f})'
+        )
+    return (
+        f'boxes agree: matched {paired.matched_mean:.3f}, IoU {paired.iou_mean:.3f} '
+        f'(lowest frame {paired.matched_min:.3f})'
+    )
 
 
 def ratio_text(m: MetricComparison) -> str:
@@ -98,7 +125,12 @@ def format_summary(
         parts = [f'{_SHORT[k]} {ratio_text(row.metrics[k])}' for k in _SHORT]
         acc = row.metrics['map50']
         if acc.diff is not None:
-            parts.append(f'map50 {acc.diff:+.4f} (no CI)')
+            parts.append(f'map50 {acc.diff:+.4f} {paired_text(row)}')
+        masks = row.metrics['miou']
+        if row.paired is not None and row.paired.metric == 'miou' and masks.diff is not None:
+            parts.append(f'miou {masks.diff:+.4f} {paired_text(row)}')
+        if row.paired is not None and row.paired.matched_mean is not None:
+            parts.append(agreement_text(row.paired))
         parts += recorded_parts(row)
         # a recording's row: the method of its recorded latency (its replay is not timed)
         timed = 'median_ms' if row.recorded_outputs is None else 'recorded_pipeline_ms'

@@ -14,6 +14,7 @@ from __future__ import annotations
 import html
 from typing import TYPE_CHECKING
 
+from replaybench.comparison.core import ACCURACY_METRICS
 from replaybench.comparison.gate import gate_verdict, method_text
 from replaybench.comparison.main import RECORDED_SHORT, ratio_text
 
@@ -69,7 +70,21 @@ def _row_line(row: Row, recorded: bool = False) -> str:
     cells = [_cell(row.run_label), _cell(row.backend), _cell(row.topic)]
     cells += [_cell(ratio_text(row.metrics[k])) for k, _ in _METRICS]
     acc = row.metrics['map50']
-    cells.append(_cell(f'{acc.diff:+.4f}') if acc.diff is not None else '')
+    text = ''
+    if acc.diff is not None:
+        text = f'{acc.diff:+.4f}'
+        if acc.diff_ci is not None:
+            text += f' [{acc.diff_ci[0]:+.4f}, {acc.diff_ci[1]:+.4f}] paired'
+    paired = row.paired
+    masks = row.metrics['miou']
+    if paired is not None and paired.metric == 'miou' and masks.diff is not None:
+        text = f'mIoU {masks.diff:+.4f}'
+        if masks.diff_ci is not None:
+            text += f' [{masks.diff_ci[0]:+.4f}, {masks.diff_ci[1]:+.4f}] paired'
+    if paired is not None and paired.matched_mean is not None:
+        what = 'pixels agree' if paired.metric == 'miou' else 'boxes agree'
+        text += f'; {what} {paired.matched_mean:.3f}'
+    cells.append(_cell(text))
     if recorded:
         cells += [_cell(_recorded_text(row, k)) for k in RECORDED_SHORT]
     # a recording's row: the method of its recorded latency (its replay is not timed)
@@ -81,9 +96,11 @@ def _row_line(row: Row, recorded: bool = False) -> str:
 
 def _gate_line(result: GateResult) -> str:
     unit = '%' if result.condition.rstrip().endswith('%') else ''
-    estimate = f'{result.estimate:+.1f}{unit}' if result.estimate is not None else 'n/a'
+    # an accuracy difference is a fraction: four decimals, not one
+    digits = 4 if not unit and result.condition.split()[0] in ACCURACY_METRICS else 1
+    estimate = f'{result.estimate:+.{digits}f}{unit}' if result.estimate is not None else 'n/a'
     if result.ci_low is not None and result.ci_high is not None:
-        interval = f'{result.ci_low:+.1f}{unit} … {result.ci_high:+.1f}{unit}'
+        interval = f'{result.ci_low:+.{digits}f}{unit} … {result.ci_high:+.{digits}f}{unit}'
     else:
         interval = 'none'
     cells = [

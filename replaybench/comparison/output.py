@@ -34,10 +34,12 @@ if TYPE_CHECKING:
 
     from replaybench.comparison.core import Comparison, MetricComparison, Row
     from replaybench.comparison.gate import GateResult
+    from replaybench.comparison.paired import Paired
 
 __all__ = [
     'COMPARISON_SCHEMA_VERSION',
     'CSV_COLUMNS',
+    'PAIRED_COLUMNS',
     'comparison_json',
     'csv_rows',
     'write_comparison',
@@ -53,6 +55,24 @@ _TIMING_SUFFIXES = (
     '_significant',
 )
 _ACCURACY_SUFFIXES = ('', '_baseline', '_delta')
+
+#: comparison.csv's paired columns (appended last): the metric paired (``map50`` for boxes,
+#: ``miou`` for label masks), its change over the frames both backends output, its paired
+#: bootstrap interval, and the agreement of their outputs.
+PAIRED_COLUMNS: tuple[str, ...] = (
+    'paired_metric',
+    'paired_frames',
+    'paired_delta',
+    'paired_ci_low',
+    'paired_ci_high',
+    'paired_resamples',
+    'paired_confidence',
+    'agreement_matched',
+    'agreement_iou',
+    'agreement_matched_min',
+    'agreement_full_frames',
+    'paired_note',
+)
 
 #: Columns of comparison.csv, in order.
 CSV_COLUMNS: tuple[str, ...] = (
@@ -87,6 +107,8 @@ CSV_COLUMNS: tuple[str, ...] = (
         for m in RIG_METRICS
         for s in (_ACCURACY_SUFFIXES if m in RIG_POINT_METRICS else _TIMING_SUFFIXES)
     ),
+    # a candidate row of boxes against its baseline frame by frame (comparison.paired)
+    *PAIRED_COLUMNS,
 )
 
 
@@ -147,8 +169,31 @@ def csv_rows(comparison: Comparison, gate: Sequence[GateResult] = ()) -> list[di
             record[metric] = m.value
             record[f'{metric}_baseline'] = m.baseline
             record[f'{metric}_delta'] = m.diff
+        record.update(_paired_cells(row.paired))
         out.append(record)
     return out
+
+
+def _paired_cells(paired: Paired | None) -> dict[str, Any]:
+    if paired is None:
+        return dict.fromkeys(PAIRED_COLUMNS)
+    ci = paired.ci
+    return {
+        'paired_metric': paired.metric,
+        'paired_frames': paired.frames,
+        'paired_delta': paired.change,
+        'paired_ci_low': ci[0] if ci else None,
+        'paired_ci_high': ci[1] if ci else None,
+        'paired_resamples': paired.resamples or None,
+        'paired_confidence': paired.confidence if ci else None,
+        'agreement_matched': paired.matched_mean,
+        'agreement_iou': paired.iou_mean,
+        'agreement_matched_min': paired.matched_min,
+        'agreement_full_frames': paired.agreeing_frames
+        if paired.matched_mean is not None
+        else None,
+        'paired_note': paired.note or None,
+    }
 
 
 def _cell(value: Any) -> str:
@@ -205,6 +250,28 @@ def _row_json(row: Row) -> dict[str, Any]:
         'inputs_match': row.inputs_match,
         'flags': list(row.flags),
         'metrics': {name: _metric_json(m) for name, m in row.metrics.items()},
+        'paired': _paired_json(row.paired) if row.paired is not None else None,
+    }
+
+
+def _paired_json(paired: Paired) -> dict[str, Any]:
+    return {
+        'metric': paired.metric,
+        'frames': paired.frames,
+        'baseline': paired.baseline,
+        'candidate': paired.candidate,
+        'change': paired.change,
+        'ci': _interval(paired.ci),
+        'resamples': paired.resamples,
+        'undefined': paired.undefined,
+        'confidence': paired.confidence,
+        'seed': paired.seed,
+        'matched_mean': paired.matched_mean,
+        'iou_mean': paired.iou_mean,
+        'matched_min': paired.matched_min,
+        'agreeing_frames': paired.agreeing_frames,
+        'worst': [f._asdict() for f in paired.worst],
+        'note': paired.note,
     }
 
 
@@ -276,7 +343,15 @@ def comparison_json(
             'interval': 'percentile',
             'min_frames': MIN_FRAMES,
             'cv_limit': CV_LIMIT,
-            'accuracy': 'point estimates from run.json, no CI',
+            'accuracy': (
+                'point estimates from run.json; a candidate row of boxes over its baseline '
+                "row's frames (one run, or runs of the same inputs) also gets the map50 "
+                'change over the frames both output with a bootstrap interval paired by frame '
+                '(rows[].paired: the same resampled frames scored for both backends by the '
+                "run's own scoring, numpy default_rng(seed), percentile interval) and the "
+                "agreement of the two backends' boxes per frame; the gate judges accuracy on "
+                'the point estimate'
+            ),
             'recorded': (
                 "recorded_* metrics (recorded backend rows): the recorded outputs' pipeline "
                 '(output log time - image log time) and capture-to-output (output log time - '

@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 
     from replaybench.types import RawMessage
 
-__all__ = ['decode_image', 'image_stamp', 'raw_image_array', 'to_bgr8']
+__all__ = ['decode_image', 'image_header', 'image_stamp', 'raw_image_array', 'to_bgr8']
 
 
 def raw_image_array(
@@ -171,6 +171,32 @@ def image_stamp(msg: RawMessage) -> int:
 
         return wire_timestamp(msg.data)
     return parse_stamp(as_bytes_view(msg.data), msg.serialization)
+
+
+def image_header(msg: RawMessage) -> tuple[int, str]:
+    """The header stamp (ns) and frame_id of an image message, as ``decode_image`` reads them,
+    without decoding its pixels (a Foxglove message is parsed whole). DecodeError when it has
+    none."""
+    kind = message_kind(msg.msgtype)
+    if kind not in {'image', 'compressed_image'}:
+        err = f'{msg.msgtype} is not an image message'
+        raise DecodeError(err)
+    if msg.msgtype.startswith('foxglove.'):
+        from replaybench.decode._protobuf import parse_protobuf, stamp_ns
+
+        pb = parse_protobuf(msg)
+        return stamp_ns(pb.timestamp), str(pb.frame_id)
+    buf = as_bytes_view(msg.data)
+    try:
+        fields = (
+            parse_compressed(buf, msg.serialization)
+            if kind == 'compressed_image'
+            else parse_image(buf, msg.serialization)
+        )
+    except (IndexError, ValueError) as exc:
+        err = f'truncated message: no header in {len(buf)} bytes'
+        raise DecodeError(err) from exc
+    return fields.stamp_ns, fields.frame_id
 
 
 _TO_BGR = {

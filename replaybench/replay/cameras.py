@@ -54,6 +54,7 @@ if TYPE_CHECKING:
     from replaybench.backends.base import Backend, BackendOptions
     from replaybench.replay.clock import Clock
     from replaybench.replay.copies import CameraSet
+    from replaybench.replay.instances import BackendInstance
     from replaybench.replay.runner import RunOutcome
 
 __all__ = ['MAX_COPIES', 'find_peak_cameras', 'predicted_copies', 'service_time_s']
@@ -287,6 +288,7 @@ def find_peak_cameras(
     progress: Callable[[Trial], None] | None = None,
     stop: threading.Event | None = None,
     render_report: Callable[[Path, PeakRecord], object] | None = None,
+    instance: BackendInstance | None = None,
 ) -> PeakResult:
     """Find the most copies of ``bag``'s camera set that ``backend`` sustains at the recorded
     rate; write peak.json (its ``cameras`` section) into ``out_dir``.
@@ -300,7 +302,8 @@ def find_peak_cameras(
     300), written beside the trials and deleted after each. A trial passes as a rate trial
     does (``trial_verdict``: drops within ``max_drop`` and, with a bound, p99 within
     ``p99_bound_ms``, counted from the end of each camera's warm-up). ``out_dir`` None: in
-    memory. ``stop`` ends the search as interrupted.
+    memory. ``stop`` ends the search as interrupted. ``instance``: what ``backend`` is when
+    it is the label of an instance (``--backend LABEL=NAME``), as in ``find_peak_rate``.
     """
     bag = Path(bag)
     out_dir = Path(out_dir) if out_dir is not None else None
@@ -331,6 +334,7 @@ def find_peak_cameras(
     base = RunConfig(
         inputs=[bag],
         backends=[backend],
+        instances={backend: instance} if instance is not None else {},
         out_dir=None,
         rate=Rate('recorded'),
         queue_depth=1,

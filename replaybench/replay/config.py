@@ -15,10 +15,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from replaybench.backends.base import BackendOptions
+from replaybench.replay.instances import BackendInstance, backend_label
 from replaybench.replay.rate import Rate
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Mapping, Sequence
 
     from replaybench.replay.sync import SyncSpec
 
@@ -57,6 +58,8 @@ class RunConfig:
     """Everything one ``replaybench run`` needs; the CLI builds it from its options."""
 
     inputs: Sequence[Path]
+    #: the backends' instances by label (``--backend LABEL=NAME``; a registered name alone is
+    #: an instance of that backend under its own name, unless ``instances`` says otherwise)
     backends: Sequence[str]
     out_dir: Path | None  # None: in memory, no file written
     force: bool = False
@@ -68,6 +71,9 @@ class RunConfig:
     start_s: float | None = None
     duration_s: float | None = None
     topics: Sequence[str] | None = None
+    #: ``--added-latency-ms``: every backend's ``detect`` waits this long more
+    #: (``replaybench.replay.latency``, a testing aid); None: nothing added
+    added_latency_ms: float | None = None
     ground_truth_topic: str | None = DEFAULT_GROUND_TRUTH_TOPIC
     ground_truth_explicit: bool = False
     options: BackendOptions = field(default_factory=BackendOptions)
@@ -80,6 +86,8 @@ class RunConfig:
     ground_truth_image_topic: str | None = None
     ground_truth_seq_offset: int = 0
     annotations: bool = False
+    #: --depth: stereo outputs also as depth Images in metres
+    depth: bool = False
     copy_images: bool = False
     detections_format: str = 'mcap'  # 'rosbag2': also a metadata.yaml, the run folder is a bag
     #: False (--no-hash): the inputs' sha256 is not computed; run.json records null and says so
@@ -91,12 +99,25 @@ class RunConfig:
     #: ground-truth label masks of segmentation backends: a topic, or a folder of
     #: <stamp_ns>.png files; None: /ground_truth/labels when present (tasks/segmentation/)
     ground_truth_masks: str | None = None
+    #: the stereo task's truth: a disparity topic or folder of .pfm/.png files, or a depth
+    #: topic (tasks/stereo/); None: /ground_truth/disparity when present
+    ground_truth_disparity: str | None = None
+    ground_truth_depth: str | None = None
     #: --sync: the replayed topics' frames grouped into synchronised sets by header stamp
     #: (``replaybench.replay.sync``); None: no pairing
     sync: SyncSpec | None = None
     #: --pipelines: 'shared' (one backend instance serves every camera topic's queue in turn)
     #: or 'per-topic' (one instance per camera topic, each in a worker thread of its own)
     pipelines: str = 'shared'
+    #: the instances of ``backends`` by label (``replaybench.replay.instances``): the backend
+    #: each is made of and its own ``--param`` values; a label not here is the backend of
+    #: that name with no parameter of its own
+    instances: Mapping[str, BackendInstance] = field(default_factory=dict)
+
+    def instance(self, label: str) -> BackendInstance:
+        """The instance labelled ``label``: its backend and its own parameters."""
+        found = self.instances.get(label)
+        return found if found is not None else BackendInstance(label, label)
 
     def input_options(self) -> InputOptions:
         """The part of the config that opens and reads the inputs."""
@@ -111,6 +132,8 @@ class RunConfig:
             hash_inputs=self.hash_inputs,
             input_sha256=self.input_sha256,
             ground_truth_masks=self.ground_truth_masks,
+            ground_truth_disparity=self.ground_truth_disparity,
+            ground_truth_depth=self.ground_truth_depth,
         )
 
     def pass_options(self) -> PassOptions:
@@ -131,15 +154,11 @@ class RunConfig:
             out=out,
             backend_labels=tuple(backend_label(name) for name in self.backends),
             annotations=self.annotations,
+            depth=self.depth,
             copy_images=self.copy_images,
             detections_format=self.detections_format,
             report=self.report,
         )
-
-
-def backend_label(name: str) -> str:
-    """The label a backend carries in frames.csv, summary.csv and outputs.mcap's topics."""
-    return name.replace('-', '_')
 
 
 @dataclass(frozen=True, slots=True)
@@ -158,6 +177,13 @@ class InputOptions:
     input_sha256: tuple[str | None, ...] | None = None
     #: the ground-truth mask topic (not replayed) or folder (``RunConfig.ground_truth_masks``)
     ground_truth_masks: str | None = None
+    #: the stereo task's truth (``RunConfig.ground_truth_disparity``, ``ground_truth_depth``)
+    ground_truth_disparity: str | None = None
+    ground_truth_depth: str | None = None
+    #: no topic was named and a backend of the run chooses the topics of its frame sets
+    #: (``Backend.frame_set_topics``, a stereo pair by name): each input's camera topics ->
+    #: (those to replay, a note or None)
+    choose_topics: Callable[[Sequence[str]], tuple[Sequence[str], str | None]] | None = None
 
     @property
     def windowed(self) -> bool:
@@ -187,6 +213,8 @@ class OutputOptions:
     out: Path | None
     backend_labels: tuple[str, ...] = ()
     annotations: bool = False
+    #: --depth: stereo outputs also as depth Images in metres
+    depth: bool = False
     copy_images: bool = False
     detections_format: str = 'mcap'
     report: bool = True

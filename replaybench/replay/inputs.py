@@ -132,6 +132,21 @@ def _select_topics(
     return colour
 
 
+def _chosen(
+    path: Path,
+    topics: list[CameraTopic],
+    choose: Callable[[Sequence[str]], tuple[Sequence[str], str | None]],
+    notes: list[str],
+) -> list[CameraTopic]:
+    """The camera topics a backend's ``frame_set_topics`` chooses of ``topics`` (a stereo
+    pair by name, left first), its note among the input's warnings."""
+    by_name = {t.name: t for t in topics}
+    chosen, note = choose(list(by_name))
+    if note is not None:
+        notes.append(f'{path.name}: {note}')
+    return [by_name[name] for name in chosen]
+
+
 def open_input(
     index: int,
     path: Path,
@@ -156,6 +171,8 @@ def open_input(
         found = [t for t in images if t.name not in truth_topics]  # the truth is no camera
         topics = _select_topics(path, found, options.topics, unreadable_image_topics(source))
         notes: list[str] = []
+        if options.choose_topics is not None and not options.topics:
+            topics = _chosen(path, topics, options.choose_topics, notes)
         truth = _open_truths(
             truths,
             options,

@@ -80,6 +80,7 @@ class Discard:
     #: what it is given is dropped (``OutputWriter.keeps``), and it writes no annotations
     keeps: bool = False
     annotations: bool = False
+    depth: bool = False
 
     def __enter__(self) -> Discard:
         return self
@@ -131,6 +132,7 @@ def writers(options: OutputOptions) -> Iterator[tuple[FrameSink, DetectionsSink]
             DetectionsWriter(
                 out / OUTPUTS_MCAP,
                 annotations=options.annotations,
+                depth=options.depth,
                 backends=list(options.backend_labels),
             ) as detections_out,
         ):

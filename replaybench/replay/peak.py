@@ -42,6 +42,7 @@ if TYPE_CHECKING:
 
     from replaybench.backends.base import Backend, BackendOptions
     from replaybench.replay.clock import Clock
+    from replaybench.replay.instances import BackendInstance
     from replaybench.replay.runner import RunOutcome
 
 __all__ = [
@@ -410,6 +411,7 @@ def find_peak_rate(
     progress: Callable[[Trial], None] | None = None,
     stop: threading.Event | None = None,
     render_report: Callable[[Path, PeakRecord], object] | None = None,
+    instance: BackendInstance | None = None,
 ) -> PeakResult:
     """Find the highest fixed rate at which ``backend`` keeps up with ``bag``; write peak.json.
 
@@ -425,7 +427,9 @@ def find_peak_rate(
     application's, ``replaybench.app.peak``).
     ``out_dir`` None: every trial runs in memory and nothing is written. Setting
     ``stop`` (a cancellation token) ends the trial under way and the search (status
-    ``interrupted``).
+    ``interrupted``). ``instance``: what ``backend`` is when it is the label of an instance
+    (``--backend LABEL=NAME``, ``replaybench.replay.instances``): the registered backend the
+    trials make and its own parameters.
     """
     bag = Path(bag)
     out_dir = Path(out_dir) if out_dir is not None else None
@@ -447,6 +451,7 @@ def find_peak_rate(
     base = RunConfig(
         inputs=[bag],
         backends=[backend],
+        instances={backend: instance} if instance is not None else {},
         out_dir=out_dir,
         queue_depth=1,
         warmup=warmup,

@@ -87,6 +87,7 @@ def summaries(recorder: Recorder, resources: Mapping[str, Mapping[str, Any]]) ->
                 gpu_power_w_mean=_number(used.get('gpu_power_w_mean')),
             )
         s = _with_tasks(s, recorder)
+        s = _with_streaming(s, recorder)
         out.append(s)
     rows = with_intervals(out, recorder.records, resources=resources)
     rows = with_recorded_latency(rows, recorder.records)
@@ -139,6 +140,18 @@ def _with_tasks(row: Summary, recorder: Recorder) -> Summary:
     if metrics:
         fields['task_metrics'] = metrics
     return dataclasses.replace(row, **fields) if fields else row
+
+
+def _with_streaming(row: Summary, recorder: Recorder) -> Summary:
+    """``row`` with its streaming metrics in ``task_metrics`` (``replaybench.replay.streaming``:
+    None where refused at ``--rate max``), after the task's own."""
+    from replaybench.replay.streaming import streaming_scores
+
+    found = streaming_scores(recorder, row)
+    if not found:
+        return row
+    metrics = {**(row.task_metrics or {}), **{k: _number(v) for k, v in found.items()}}
+    return dataclasses.replace(row, task_metrics=metrics)
 
 
 def _task_fields(recorder: Recorder) -> dict[str, Any]:
@@ -283,6 +296,7 @@ def run_result(
             agreement_iou=AGREEMENT_IOU,
             repeat=config.repeat,
             pipelines=pipelines,
+            added_latency_ms=config.added_latency_ms or None,
         ),
         inputs=tuple(inputs),
         environment=environment,

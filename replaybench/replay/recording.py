@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any, Protocol, cast
 
 from replaybench.errors import TaskUnavailableError
 from replaybench.replay.recorded import NOT_RECORDED, frame_recorded_times, recorded_note
+from replaybench.replay.streaming import Pick, StreamFrame, pick_outputs
 from replaybench.results.records import FrameRecord
 from replaybench.tasks.base import TaskRecording
 from replaybench.types import BackendResult, StageTimes
@@ -98,6 +99,9 @@ class DetectionsSink(Protocol):
     @property
     def annotations(self) -> bool: ...
 
+    @property
+    def depth(self) -> bool: ...
+
     def colour(self, backend: str, /) -> str: ...
 
     def add_message(
@@ -148,6 +152,8 @@ class Recorder:
     ) -> None:
         #: backends in the run (a task's recording may keep outputs to compare them)
         self.backends = backends
+        #: the run's inputs, by number (their truth, read again for streaming scores)
+        self.inputs = tuple(inputs)
         self.warmups = warmups
         self.frames_csv = frames_csv
         self.detections_out = detections_out
@@ -169,6 +175,12 @@ class Recorder:
         self._taken: dict[tuple[str, int, str], int] = {}
         #: each declared task's part of recording a frame (None: boxes only), by task name
         self._recordings: dict[str, TaskRecording | None] = {}
+        #: the streaming picks of each (backend label, topic), over its first pass of every
+        #: input (``replaybench.replay.streaming``), and the task of its results
+        self.picks: dict[tuple[str, str], list[Pick]] = {}
+        self.stream_tasks: dict[tuple[str, str], str] = {}
+        #: the backend labels whose streaming scores were refused (``--rate max``)
+        self.streaming_refused: set[str] = set()
 
     def task_recording(self, name: str) -> TaskRecording | None:
         """The ``TaskRecording`` of the registered task ``name``, made on the first call
@@ -203,12 +215,52 @@ class Recorder:
         began = time.perf_counter()
         entries, done.log = done.log, []
         recording = self.task_recording(done.task)
-        for entry in entries:
+        ages = self._stream(done, entries) if done.repeat == 0 else None
+        for index, entry in enumerate(entries):
+            age = None if ages is None else ages[index]
             if isinstance(entry.outcome, BackendResult):
-                self._processed(done, entry, entry.outcome, recording)
+                self._processed(done, entry, entry.outcome, recording, age)
             else:
-                self._unprocessed(done, entry, entry.outcome)
+                self._unprocessed(done, entry, entry.outcome, age)
         return time.perf_counter() - began
+
+    def _stream(self, done: Pass, entries: Sequence[LogEntry]) -> list[float | None] | None:
+        """The pass's streaming picks (``replaybench.replay.streaming``), kept by (backend
+        label, topic) for the scores after the passes; the output age of each entry (ms, None
+        before the first output). None at ``--rate max`` for a timed backend: refused."""
+        timed = done.measures_latency
+        if timed and not done.replay.options.rate.timed:
+            self.streaming_refused.add(done.label)
+            for entry in entries:
+                self.stream_tasks[done.label, entry.key[0]] = done.task
+            return None
+        by_topic: dict[str, list[tuple[int, StreamFrame]]] = {}
+        base = entries[0].key[2] if entries else 0
+        for index, entry in enumerate(entries):
+            topic, _, log_time_ns, stamp_ns, frame_id = entry.key
+            available: float | None = None
+            if timed:
+                released = entry.release - done.t0
+                if isinstance(entry.outcome, BackendResult):
+                    available = entry.done - done.t0
+            else:  # recorded outputs: on the recording's clock, from its log times
+                released = (log_time_ns - base) / 1e9
+                if isinstance(entry.outcome, BackendResult) and stamp_ns is not None:
+                    out_ns = frame_recorded_times(
+                        done.inp.recorded, frame_id, stamp_ns, log_time_ns
+                    ).output_log_time_ns
+                    available = None if out_ns is None else (out_ns - base) / 1e9
+            by_topic.setdefault(topic, []).append(
+                (index, StreamFrame(entry.key, released, available))
+            )
+        ages: list[float | None] = [None] * len(entries)
+        for topic, frames in by_topic.items():
+            picks = pick_outputs(done.inp.number, [f for _, f in frames])
+            self.picks.setdefault((done.label, topic), []).extend(picks)
+            self.stream_tasks[done.label, topic] = done.task
+            for (index, _), pick in zip(frames, picks, strict=True):
+                ages[index] = None if pick.age_s is None else pick.age_s * 1e3
+        return ages
 
     def _record(self, record: FrameRecord) -> None:
         self.records.append(record)
@@ -218,7 +270,9 @@ class Recorder:
         short = reason.split(':', 1)[0] if len(reason) > 80 else reason
         self.skipped[short] = self.skipped.get(short, 0) + 1
 
-    def _unprocessed(self, done: Pass, entry: LogEntry, error: Exception | None) -> None:
+    def _unprocessed(
+        self, done: Pass, entry: LogEntry, error: Exception | None, age_ms: float | None = None
+    ) -> None:
         """A frame the backend never saw: pushed out of its queue (``error`` None) or skipped
         because it did not decode (its times up to the failed decode are kept)."""
         topic, seq, log_time_ns, _, _ = entry.key
@@ -246,6 +300,7 @@ class Recorder:
                 read_decode_ms=None if dropped else entry.read_decode_s * 1e3,
                 repeat=done.repeat,
                 pipeline=done.pipeline_of.get(topic, 0),
+                output_age_ms=age_ms,
             )
         )
 
@@ -255,6 +310,7 @@ class Recorder:
         entry: LogEntry,
         result: BackendResult,
         recording: TaskRecording | None = None,
+        age_ms: float | None = None,
     ) -> None:
         """``latency = queue wait + read/decode + backend``: the backend part runs from the
         detector's call to its detections; read/decode was measured where it ran. A backend
@@ -316,6 +372,7 @@ class Recorder:
                 capture_to_output_ms=recorded.capture_to_output_ms,
                 pipeline_ms=recorded.pipeline_ms,
                 pipeline=done.pipeline_of.get(topic, 0),
+                output_age_ms=age_ms,
                 **task_columns,
             )
         )

@@ -55,6 +55,8 @@ from replaybench.replay.inputs import (
     open_input,
     settle_hash,
 )
+from replaybench.replay.instances import check_label, instance_options
+from replaybench.replay.latency import with_added_latency
 from replaybench.replay.output import (
     Renderer,
     SampleImage,
@@ -86,9 +88,10 @@ from replaybench.results.runfolder import RunFolder, check_out_dir
 
 if TYPE_CHECKING:
     import threading
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Mapping, Sequence
 
     from replaybench.backends.base import Backend, BackendOptions
+    from replaybench.replay.config import InputOptions
     from replaybench.replay.hashing import InputHash
     from replaybench.replay.inputs import OpenedInput
     from replaybench.replay.pairing import Pairing
@@ -174,6 +177,8 @@ def run_benchmark(
     started = dt.datetime.now(dt.UTC)
     t_start = time.perf_counter()
     calls = _Calls(clock or MonotonicClock(), progress, stop, render, notice)
+    if config.added_latency_ms:  # every instance made, per-topic pipelines' too
+        factory = _slower(factory, config.added_latency_ms, calls.clock)
     input_options = config.input_options()
     # in memory (no out_dir): no folder, no file
     folder = RunFolder(config.out_dir, force=config.force) if config.out_dir is not None else None
@@ -183,8 +188,12 @@ def run_benchmark(
     limits.enter_context(thread_limits(config.threads))
     try:
         with folder if folder is not None else contextlib.nullcontext():
-            made = make_backends(config.backends, _with_bag_sizes(config), factory)
+            base = _with_bag_sizes(config)
+            made = make_backends(
+                [config.instance(label) for label in config.backends], base, factory
+            )
             config = _frame_set_sync(made, config, notice)
+            input_options = _chosen_topics(made, config, input_options)
             recorded = any(backend_traits(b).uses_recorded_detections for _, b in made)
             for index, path in enumerate(config.inputs):
                 inp = open_input(
@@ -197,12 +206,13 @@ def run_benchmark(
                 pair_inputs(inputs, config.sync, config.topics) if config.sync is not None else None
             )
             opened = open_backends(made, inputs, notice)
+            for entry in opened:
+                entry.instance = config.instance(entry.name)
             if pairing is not None:
                 hand_frame_sets(opened, pairing, inputs)
             topics = _camera_topics(inputs)
             if config.pipelines == 'per-topic' and len(topics) > 1:
-                options = _with_bag_sizes(config)
-                open_pipelines(opened, topics, inputs, factory, options)
+                open_pipelines(opened, topics, inputs, factory, base)
             outcome = _execute(
                 config,
                 calls,
@@ -237,6 +247,24 @@ def _task_columns(opened: Sequence[OpenBackend], inputs: Sequence[OpenedInput]) 
     from replaybench.tasks import frame_columns
 
     return frame_columns({entry.task(inp.number) for entry in opened for inp in inputs})
+
+
+def _slower(
+    factory: Callable[[str, BackendOptions], Backend], added_ms: float, clock: Clock
+) -> Callable[[str, BackendOptions], Backend]:
+    """``factory`` whose backends wait ``added_ms`` after each detect (``--added-latency-ms``,
+    ``replaybench.replay.latency``)."""
+
+    def made(name: str, options: BackendOptions) -> Backend:
+        return with_added_latency(factory(name, options), added_ms, clock)
+
+    return made
+
+
+def _refused(metrics: Mapping[str, float | None]) -> bool:
+    """Whether a row's streaming metrics are there and empty (refused at --rate max)."""
+    streaming = [v for k, v in metrics.items() if k.startswith('streaming_')]
+    return bool(streaming) and all(v is None for v in streaming)
 
 
 def _with_bag_sizes(config: RunConfig) -> BackendOptions:
@@ -295,9 +323,20 @@ def _check_config(config: RunConfig, *, check_available: bool) -> None:
     if not config.backends:
         msg = 'no backend given: add --backend NAME (see `replaybench backends`)'
         raise UsageError(msg)
-    if len(set(config.backends)) != len(config.backends):
-        msg = 'each --backend may be given once'
-        raise UsageError(msg)
+    labels: dict[str, str] = {}
+    for label in config.backends:
+        written = backend_label(label)
+        if written in labels:
+            first = labels[written]
+            msg = (
+                f'two --backend instances have the label {label!r}'
+                + (f' ({first!r} is written the same)' if first != label else '')
+                + ': give each its own, --backend LABEL=NAME'
+            )
+            raise UsageError(msg)
+        labels[written] = label
+        if label != config.instance(label).backend:
+            check_label(label, f'{label}={config.instance(label).backend}')
     if config.repeat < 1:
         msg = f'--repeat must be at least 1, not {config.repeat}'
         raise UsageError(msg)
@@ -312,7 +351,7 @@ def _check_config(config: RunConfig, *, check_available: bool) -> None:
             msg = f'{bag}: no such file or directory'
             raise SourceError(msg)
     if check_available:
-        for name in config.backends:
+        for name in dict.fromkeys(config.instance(label).backend for label in config.backends):
             status = get_backend(name).available()
             if not status.ok:
                 msg = f'backend {name!r} is not available here: {status.reason}'
@@ -380,7 +419,7 @@ def _execute(
                     recorder,
                     opened,
                     inputs,
-                    gpu_index=lambda backend: _gpu_index(backend, config.options),
+                    gpu_index=lambda entry: _gpu_index(entry, config.options),
                     warnings=warnings,
                     runs=backend_runs,
                 )
@@ -392,7 +431,7 @@ def _execute(
                         entry,
                         backend_label(entry.name),
                         inputs,
-                        gpu_index=_gpu_index(entry.backend, config.options),
+                        gpu_index=_gpu_index(entry, config.options),
                         warnings=warnings,
                         runs=backend_runs,
                     )
@@ -448,6 +487,13 @@ def _execute(
     for recording in recorder.task_recordings():
         warnings.extend(recording.warnings())
     summary = summaries(recorder, resources)
+    if any(
+        r.backend in recorder.streaming_refused and r.task_metrics and _refused(r.task_metrics)
+        for r in summary
+    ):
+        from replaybench.replay.streaming import REFUSED_AT_MAX
+
+        warnings.append(REFUSED_AT_MAX)
     agreements = (
         agreement_table(recorder.detections, iou=AGREEMENT_IOU) if len(config.backends) > 1 else []
     )
@@ -486,6 +532,21 @@ def _execute(
     return RunOutcome(out, status, summary, record, tuple(recorder.records))
 
 
+def _chosen_topics(
+    made: Sequence[tuple[str, Backend]], config: RunConfig, options: InputOptions
+) -> InputOptions:
+    """``options`` with ``choose_topics`` where no topic was named (``--topic``, ``--stereo``)
+    and a backend of the run chooses the topics of its frame sets (``frame_set_topics``: a
+    stereo matcher, the pair the names make); the first such backend's."""
+    if config.topics:
+        return options
+    for _, backend in made:
+        choose = getattr(backend, 'frame_set_topics', None)
+        if backend_traits(backend).takes_frame_sets and callable(choose):
+            return replace(options, choose_topics=choose)
+    return options
+
+
 def _frame_set_sync(
     made: Sequence[tuple[str, Backend]],
     config: RunConfig,
@@ -517,9 +578,12 @@ def _frame_set_sync(
     return config
 
 
-def _gpu_index(backend: Backend, options: BackendOptions) -> int | None:
-    """The GPU whose utilisation is sampled: --device for the GPU backends, none otherwise."""
-    return options.device if backend_traits(backend).device == 'cuda' else None
+def _gpu_index(entry: OpenBackend, options: BackendOptions) -> int | None:
+    """The GPU whose utilisation is sampled: --device (the instance's own, if it has one) for
+    the GPU backends, none otherwise."""
+    if backend_traits(entry.backend).device != 'cuda':
+        return None
+    return instance_options(options, entry.instance).device
 
 
 def _failures(failed: Sequence[BackendRun]) -> str:

@@ -24,8 +24,9 @@ from replaybench.backends.base import (
     backend_task,
     backend_traits,
 )
-from replaybench.errors import BackendError, ReplaybenchError, one_line
+from replaybench.errors import BackendError, ReplaybenchError, UsageError, one_line
 from replaybench.replay.config import backend_label
+from replaybench.replay.instances import BackendInstance, instance_options
 from replaybench.replay.passes import DetectFailed, Pass
 from replaybench.replay.resources import ResourceSampler
 from replaybench.replay.setpass import SetPass
@@ -62,11 +63,14 @@ class OpenBackend:
     (``--pipelines per-topic``): an opened instance per camera topic, ``backend`` the first
     topic's; empty for one shared instance. ``frame_sets`` (a backend that takes frame sets,
     with ``--sync``): each input's synchronised sets by input number (``hand_frame_sets``),
-    each handed to it as one ``FrameSet``; empty: single frames."""
+    each handed to it as one ``FrameSet``; empty: single frames. ``instance``: the instance it
+    is (``name`` is its label), the registered backend it was made of and its own ``--param``
+    values."""
 
     def __init__(self, name: str, backend: Backend, tasks: Mapping[int, str] | None = None) -> None:
         self.name = name
         self.backend = backend
+        self.instance = BackendInstance(name, name)
         self.tasks: Mapping[int, str] = tasks if tasks is not None else {}
         self.pipelines: dict[str, Backend] = {}
         self.frame_sets: Mapping[int, InputPairing] = {}
@@ -102,19 +106,30 @@ def _could_not_open(name: str, err: Exception) -> BackendError:
     return BackendError(f'backend {name!r} could not be opened: {one_line(err)}')
 
 
+def _params_text(instance: BackendInstance) -> str:
+    return ' '.join(f'--param {instance.label}.{k}={v}' for k, v in instance.params)
+
+
 def make_backends(
-    names: Sequence[str],
+    instances: Sequence[BackendInstance],
     options: BackendOptions,
     factory: Callable[[str, BackendOptions], Backend],
 ) -> list[tuple[str, Backend]]:
-    """Every backend made (not opened yet), with its traits checked (``backend_traits``)."""
+    """Every instance's backend made (not opened yet) by label, of its registered backend with
+    ``options`` and its own parameters (``instance_options``), its traits checked
+    (``backend_traits``). An instance with parameters that its backend refuses (an unknown
+    key, a bad value): ``UsageError`` in one line naming the instance and its parameters."""
     made: list[tuple[str, Backend]] = []
-    for name in names:
+    for instance in instances:
+        name = instance.label
         try:
-            backend = factory(name, options)
+            backend = factory(instance.backend, instance_options(options, instance))
             backend_traits(backend)
-        except ReplaybenchError:
-            raise
+        except ReplaybenchError as err:
+            if not instance.params or err.exit_code != UsageError.exit_code:
+                raise
+            msg = f'backend {name!r} ({instance.backend} {_params_text(instance)}): {err}'
+            raise UsageError(msg) from err
         except Exception as err:  # a plugin's own error: one line
             raise _could_not_open(name, err) from err
         made.append((name, backend))
@@ -227,7 +242,7 @@ def open_pipelines(
         entry.pipelines = {topics[0]: entry.backend}
         for topic in topics[1:]:
             try:
-                backend = factory(entry.name, options)
+                backend = factory(entry.instance.backend, instance_options(options, entry.instance))
                 backend_traits(backend)
             except ReplaybenchError:
                 raise
@@ -308,7 +323,7 @@ def run_repeated(
     opened: Sequence[OpenBackend],
     inputs: Sequence[OpenedInput],
     *,
-    gpu_index: Callable[[Backend], int | None],
+    gpu_index: Callable[[OpenBackend], int | None],
     warnings: list[str],
     runs: list[BackendRun],
 ) -> None:
@@ -328,7 +343,7 @@ def run_repeated(
                 if mine.error is not None:
                     continue
                 label = backend_label(entry.name)
-                with ResourceSampler(gpu_index=gpu_index(entry.backend)) as sampler:
+                with ResourceSampler(gpu_index=gpu_index(entry)) as sampler:
                     try:
                         mine.run(replay, recorder, entry, label, inputs, repeat=repeat)
                     finally:
@@ -411,6 +426,8 @@ class _BackendPasses:
         return BackendRun(
             name=entry.name,
             label=label,
+            backend=entry.instance.backend,
+            params=dict(entry.instance.params),
             status='ok' if self.error is None else 'failed',
             error=self.error,
             info=to_json(info),

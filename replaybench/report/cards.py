@@ -131,7 +131,13 @@ def settings_html(run: RunResult) -> str:
     backends = []
     for entry in run.backends:
         name, label = entry.name or '?', entry.label
-        backends.append(f'{label} ({name})' if label and label != name else name)
+        # an instance (--backend LABEL=NAME): its backend and its own --param values
+        made_of = [entry.backend] if entry.backend and entry.backend != name else []
+        made_of += [f'{key}={value}' for key, value in entry.params.items()]
+        if made_of:
+            backends.append(f'{label or name} ({" ".join(made_of)})')
+        else:
+            backends.append(f'{label} ({name})' if label and label != name else name)
     items: list[tuple[str, Any]] = [('backends', ', '.join(backends) or None)]
     items += list(to_json(run.settings).items())
     return f'<div class="card"><h3>Settings</h3>{definition_list(items)}</div>'

@@ -81,6 +81,16 @@ def _summary_rows(run: RunResult, frames: Sequence[FrameRecord]) -> list[Summary
     return with_rig_rows(rows, frames)
 
 
+def _streaming(rows: Sequence[SummaryRow], frames: Sequence[FrameRecord]) -> str:
+    """The "Streaming scores" section (``replaybench.report.streaming``); '' without any."""
+    if not any(r.task_metrics for r in rows):
+        return ''
+    from replaybench.report.streaming import streaming_html
+    from replaybench.tasks import streaming_offline
+
+    return streaming_html(rows, frames, streaming_offline())
+
+
 # --------------------------------------------------------------------------- header
 
 
@@ -113,6 +123,7 @@ def render_html(data: RunData) -> str:
         summary_html(rows, colours, parts),
         *(panel(cameras) for panel in parts.summary_panels),
         recorded_latency_html(cameras, frames, colours),
+        _streaming(cameras, frames),
         *(section(cameras) for section in parts.sections),
         plots_html(frames, cameras, backends, topics, colours),
         rig_html(run, frames),

@@ -15,7 +15,7 @@ if TYPE_CHECKING:
 
     from replaybench.types import Detection
 
-__all__ = ['JPEG_QUALITY', 'MAX_WIDTH', 'sample_relpath', 'write_sample']
+__all__ = ['JPEG_QUALITY', 'MAX_WIDTH', 'sample_canvas', 'sample_relpath', 'write_sample']
 
 #: Largest thumbnail width in pixels.
 MAX_WIDTH = 480
@@ -45,19 +45,13 @@ def _ascii(text: str) -> str:
     return ''.join(c if 32 <= ord(c) < 127 else '?' for c in text)
 
 
-def write_sample(
-    path: str | Path,
+def sample_canvas(
     image_bgr: Any,
     detections_by_backend: Mapping[str, Sequence[Detection]],
     title: str,
-) -> None:
-    """Write a thumbnail (at most ``MAX_WIDTH`` px wide) with each backend's boxes and labels.
-
-    The n-th backend of ``detections_by_backend`` is drawn in palette colour n (the report uses
-    the same order). A title bar on top and a legend bar at the bottom are added. ``.png``
-    paths are written as PNG, anything else as JPEG (quality ``JPEG_QUALITY``); the file is
-    replaced atomically.
-    """
+) -> Any:
+    """The thumbnail ``write_sample`` writes, as a BGR uint8 array (at most ``MAX_WIDTH`` px
+    wide, a title bar on top, a legend bar at the bottom)."""
     import cv2
     import numpy as np
 
@@ -104,7 +98,25 @@ def write_sample(
         cv2.rectangle(footer, (x, 5), (x + 10, 15), _bgr(colour(index)), -1)
         cv2.putText(footer, text, (x + 14, 14), font, font_scale, (40, 40, 40), 1, cv2.LINE_AA)
         x += 14 + cv2.getTextSize(text, font, font_scale, 1)[0][0] + 12
-    canvas = np.vstack([header, thumb, footer])
+    return np.vstack([header, thumb, footer])
+
+
+def write_sample(
+    path: str | Path,
+    image_bgr: Any,
+    detections_by_backend: Mapping[str, Sequence[Detection]],
+    title: str,
+) -> None:
+    """Write a thumbnail (at most ``MAX_WIDTH`` px wide) with each backend's boxes and labels.
+
+    The n-th backend of ``detections_by_backend`` is drawn in palette colour n (the report uses
+    the same order). A title bar on top and a legend bar at the bottom are added. ``.png``
+    paths are written as PNG, anything else as JPEG (quality ``JPEG_QUALITY``); the file is
+    replaced atomically.
+    """
+    import cv2
+
+    canvas = sample_canvas(image_bgr, detections_by_backend, title)
     path = Path(path)
     ext = '.png' if path.suffix.lower() == '.png' else '.jpg'
     params = [] if ext == '.png' else [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]

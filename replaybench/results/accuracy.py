@@ -38,7 +38,10 @@ __all__ = [
     'MAX_DETECTIONS',
     'RECALL_POINTS',
     'AccuracyResult',
+    'FrameScores',
     'evaluate',
+    'frame_scores',
+    'resampled_map50',
 ]
 
 #: 0.50, 0.55, ..., 0.95, computed exactly as pycocotools does.
@@ -270,3 +273,80 @@ def evaluate(
         n_gt=n_gt,
         n_det=n_det,
     )
+
+
+class FrameScores(NamedTuple):
+    """Each detection's part of mAP@0.5, made once so that resampled sets of frames score fast
+    (``resampled_map50``): matching is per frame and class, so a frame's true positives do not
+    depend on which other frames are scored."""
+
+    #: per detection, in frame order then the order ``evaluate`` ranks a frame's boxes in
+    frame: npt.NDArray[np.int64]
+    cls: npt.NDArray[np.int64]
+    score: npt.NDArray[np.float64]
+    #: a true positive at IoU 0.5 (among the first ``MAX_DETECTIONS`` of its frame and class)
+    tp: npt.NDArray[np.bool_]
+    #: among the first ``MAX_DETECTIONS`` of its frame and class (the rest are not ranked)
+    top: npt.NDArray[np.bool_]
+    #: (frames, classes) ground-truth boxes
+    gt_count: npt.NDArray[np.int64]
+    #: detections of each frame: ``starts[f]`` .. ``starts[f] + counts[f]``
+    starts: npt.NDArray[np.int64]
+    counts: npt.NDArray[np.int64]
+
+
+def frame_scores(
+    gt: Mapping[K, Sequence[Detection]], dets: Mapping[K, Sequence[Detection]]
+) -> FrameScores:
+    """``dets`` matched against ``gt`` frame by frame as ``evaluate`` matches them; frames are
+    the keys of ``gt`` in its order (frame ``f`` is the ``f``-th key)."""
+    frame_index = {key: i for i, key in enumerate(gt)}
+    labels = {det.label for items in gt.values() for det in items}
+    labels |= {det.label for key, items in dets.items() if key in frame_index for det in items}
+    label_index = {name: i for i, name in enumerate(sorted(labels))}
+    n_frames, n_classes = len(frame_index), len(label_index)
+    gts = _flatten(gt, frame_index, label_index, by_score=False)
+    found = _flatten(dets, frame_index, label_index, by_score=True)
+    starts, lengths = _runs(found.key)
+    rank = np.arange(len(found.key)) - np.repeat(starts, lengths)
+    top = rank < MAX_DETECTIONS
+    tp = _match(found, top, gts, IOU_THRESHOLDS[:1])[:, 0]
+    frame = found.key - found.cls * max(n_frames, 1)
+    # frame order, then the (class, score) order _flatten gave inside the frame
+    order = np.argsort(frame, kind='stable')
+    gt_frame = gts.key - gts.cls * max(n_frames, 1)
+    gt_count = np.zeros((n_frames, max(n_classes, 1)), dtype=np.int64)
+    np.add.at(gt_count, (gt_frame, gts.cls), 1)
+    counts = np.bincount(frame, minlength=n_frames).astype(np.int64)
+    return FrameScores(
+        frame[order],
+        found.cls[order],
+        found.score[order],
+        tp[order] & top[order],
+        top[order],
+        gt_count,
+        (np.cumsum(counts) - counts).astype(np.int64),
+        counts,
+    )
+
+
+def resampled_map50(scores: FrameScores, picks: npt.NDArray[np.int64]) -> float:
+    """mAP@0.5 that ``evaluate`` gives for the frames ``picks`` (indices into ``scores``' frames,
+    repeats allowed: each pick a frame of its own, in pick order); -1 without ground truth."""
+    counts = scores.counts[picks]
+    total = int(counts.sum())
+    offsets = np.repeat(scores.starts[picks] - (np.cumsum(counts) - counts), counts)
+    rows = np.arange(total, dtype=np.int64) + offsets
+    position = np.repeat(np.arange(len(picks), dtype=np.int64), counts)
+    keep = scores.top[rows]
+    rows, position = rows[keep], position[keep]
+    cls = scores.cls[rows]
+    # evaluate's rank: by class, score descending, then frame (pick) order, then its own order
+    order = np.lexsort((np.arange(len(rows)), position, -scores.score[rows], cls))
+    rows, cls = rows[order], cls[order]
+    n_gt = scores.gt_count[picks].sum(axis=0)
+    aps = []
+    for c in np.flatnonzero(n_gt > 0).tolist():
+        tp = scores.tp[rows[cls == c]]
+        aps.append(float(_average_precision(tp[None, :], int(n_gt[c]))[0]))
+    return float(np.mean(aps)) if aps else -1.0

@@ -94,6 +94,11 @@ class FrameRecord(NamedTuple):
     #: serves every camera topic); with ``--pipelines per-topic`` the index of the camera
     #: topic's instance, in the order of the run's camera topics (run.json's ``rig`` section)
     pipeline: int = 0
+    #: at a timed rate (or from a recording's output log times), the age of the output in use
+    #: when the frame was released: its release time minus the release time of the frame that
+    #: output came from (``replaybench.replay.streaming``); empty before the first output, at
+    #: ``--rate max`` and in later passes of ``--repeat``
+    output_age_ms: float | None = None
     #: the frame's values of a task that has no fields of its own here (a task from an entry
     #: point, ``Task.frame_columns``), by column name; None for the built-in tasks. frames.csv
     #: writes them after ``pipeline``, in the columns its writer was given.
@@ -147,6 +152,7 @@ _OPTIONAL_FIELDS = frozenset(
         'output_log_time_ns',
         'capture_to_output_ms',
         'pipeline_ms',
+        'output_age_ms',
     },
 )
 _OPTIONAL_FIELDS |= _TAG_FIELDS
@@ -157,8 +163,11 @@ _COLUMNS_BEFORE_DEVICE_TIMES = FRAMES_CSV_COLUMNS[:22]
 _COLUMNS_BEFORE_REPEAT = FRAMES_CSV_COLUMNS[:27]
 #: The columns of frames.csv files written before the ``pipeline`` column.
 _COLUMNS_BEFORE_PIPELINE = FRAMES_CSV_COLUMNS[: FRAMES_CSV_COLUMNS.index('pipeline')]
+#: The columns of frames.csv files written before the ``output_age_ms`` column.
+_COLUMNS_BEFORE_OUTPUT_AGE = FRAMES_CSV_COLUMNS[: FRAMES_CSV_COLUMNS.index('output_age_ms')]
 _KNOWN_HEADERS = (
     FRAMES_CSV_COLUMNS,
+    _COLUMNS_BEFORE_OUTPUT_AGE,
     _COLUMNS_BEFORE_DEVICE_TIMES,
     _COLUMNS_BEFORE_REPEAT,
     _COLUMNS_BEFORE_PIPELINE,
@@ -242,6 +251,7 @@ _SCORE_CELLS = _CELLS[28:30]
 _QUOTED: dict[str, str] = {}
 _NO_STAGES = [None] * 5
 _NO_RECORDED = [None] * 3
+_AGE_CELL = _CELLS[FRAMES_CSV_COLUMNS.index('output_age_ms')]
 
 
 def _quote(text: str) -> str:
@@ -308,7 +318,8 @@ def _line(record: FrameRecord) -> str:
         *rest,
     ) = record
     device, repeat, scores, recorded = rest[:5], rest[5], rest[6:8], rest[8:11]
-    tagged, pipeline = rest[11:19], rest[19]  # rest[20]: task_values, not a cell of its own
+    tagged, pipeline, age = rest[11:19], rest[19], rest[20]
+    # rest[21]: task_values, not a cell of its own
     stages = [preprocess_ms, infer_ms, postprocess_ms, h2d_ms, d2h_ms]
     if (
         latency_ms is not None
@@ -345,7 +356,7 @@ def _line(record: FrameRecord) -> str:
                     f'{quoted.get(status) or _quote(status)},{quoted.get(note) or _quote(note)},'
                     f'{"1" if warmup else "0"},{"1" if dropped else "0"},{times},{staged},'
                     f'{latency},{detections:d},{on_device},{repeat:d},{_scores(scores)},,,'
-                    f'{_tag_cells(tagged)},{pipeline:d}\r\n'
+                    f'{_tag_cells(tagged)},{pipeline:d},{"" if age is None else _AGE_CELL(age)}\r\n'
                 )
             except ValueError:  # an int cell holding something else
                 pass

@@ -218,13 +218,19 @@ class DetectionsWriter:
     keeps: bool = True
 
     def __init__(
-        self, path: Path, *, annotations: bool = False, backends: Sequence[str] = ()
+        self,
+        path: Path,
+        *,
+        annotations: bool = False,
+        depth: bool = False,
+        backends: Sequence[str] = (),
     ) -> None:
         """Open ``<path>.stage`` for the messages; ``finish`` writes ``path``."""
         self.path = Path(path)
         self.part_path = self.path.with_name(f'{self.path.name}.part')
         self.stage_path = self.path.with_name(f'{self.path.name}.stage')
         self.annotations = bool(annotations)
+        self.depth = bool(depth)
         self.message_count = 0
         # (topic, msgtype) -> channel id (from 1); _specs[id - 1] describes it
         self._channels: dict[tuple[str, str], int] = {}

@@ -28,6 +28,11 @@ class OutputWriter(Protocol):
         """Whether it writes annotations (``--annotations``): pictures and outlines."""
         ...
 
+    @property
+    def depth(self) -> bool:
+        """Whether it writes depth Images beside disparities (``--depth``)."""
+        ...
+
     def colour(self, backend: str) -> str:
         """The backend's colour in annotations (``#rrggbb``)."""
         ...

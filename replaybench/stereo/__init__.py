@@ -16,7 +16,7 @@ from replaybench.stereo.calibration import Rectifier, StereoPair, stereo_pair
 from replaybench.stereo.matchers import DELTA_D, Matcher, StereoParams, to_mono8
 from replaybench.stereo.metrics import DisparityCounts, StereoFigures, score_disparity
 from replaybench.stereo.output import Disparity
-from replaybench.stereo.topics import StereoTopics, find_pairs, parse_stereo
+from replaybench.stereo.topics import StereoTopics, find_pairs, pair_by_name, parse_stereo
 
 __all__ = [
     'DELTA_D',
@@ -29,6 +29,7 @@ __all__ = [
     'StereoParams',
     'StereoTopics',
     'find_pairs',
+    'pair_by_name',
     'parse_stereo',
     'score_disparity',
     'stereo_pair',

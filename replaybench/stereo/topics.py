@@ -18,7 +18,14 @@ from replaybench.errors import StereoError
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
-__all__ = ['STEREO_IMAGE_NAMES', 'StereoTopics', 'camera_info_topic', 'find_pairs', 'parse_stereo']
+__all__ = [
+    'STEREO_IMAGE_NAMES',
+    'StereoTopics',
+    'camera_info_topic',
+    'find_pairs',
+    'pair_by_name',
+    'parse_stereo',
+]
 
 #: The image names of stereo_image_proc, best first: whether each is rectified.
 STEREO_IMAGE_NAMES: dict[str, bool] = {
@@ -87,6 +94,28 @@ def find_pairs(topics: Iterable[str]) -> list[StereoTopics]:
                 found[namespace] = StereoTopics(left, right, rectified)
                 break
     return list(found.values())
+
+
+def pair_by_name(topics: Iterable[str]) -> tuple[tuple[str, ...], str | None]:
+    """The stereo pair to replay of an input's camera ``topics`` by their names (left, right),
+    the first of several with a note naming the others; ``topics`` as they are, without a
+    note, where the names make no pair (a stereo backend's ``frame_set_topics``).
+
+    >>> pair_by_name(['/front/image_raw', '/s/right/image_rect', '/s/left/image_rect'])
+    (('/s/left/image_rect', '/s/right/image_rect'), None)
+    """
+    names = tuple(dict.fromkeys(topics))
+    pairs = find_pairs(names)
+    if not pairs:
+        return names, None
+    pair, note = pairs[0], None
+    if len(pairs) > 1:
+        others = '; '.join(f'{p.left},{p.right}' for p in pairs[1:])
+        note = (
+            f'{len(pairs)} stereo pairs by name; replayed {pair.left},{pair.right} (the '
+            f'first), not {others}: --stereo LEFT,RIGHT chooses'
+        )
+    return (pair.left, pair.right), note
 
 
 def parse_stereo(text: str, topics: Iterable[str] | None = None) -> StereoTopics:

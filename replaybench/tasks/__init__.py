@@ -60,6 +60,7 @@ __all__ = [
     'get_task',
     'load_view',
     'require_task',
+    'streaming_offline',
     'task_names',
     'task_recording',
     'task_truth',
@@ -168,14 +169,22 @@ def require_task(name: str) -> None:
 
 
 def all_metrics() -> tuple[MetricSpec, ...]:
-    """``COMMON_METRICS``, then each task's metrics in ``task_names`` order.
+    """``COMMON_METRICS``, then each task's metrics in ``task_names`` order, then each task's
+    streaming metrics (``Task.streaming_metrics``, ``replaybench.replay.streaming``).
 
     ``TaskUnavailableError`` when a task cannot be loaded or a metric name (or alias) is
     declared twice.
     """
     declared: list[tuple[str, MetricSpec]] = [('the common metrics', m) for m in COMMON_METRICS]
+    streaming: list[tuple[str, MetricSpec]] = []
     for name in task_names():
-        declared += [(f'task {name!r}', m) for m in get_task(name).metrics]
+        task = get_task(name)
+        later = set(getattr(task, 'streaming_metrics', ()))
+        declared += [(f'task {name!r}', m) for m in task.metrics if m.name not in later]
+        streaming += [(f'task {name!r}', m) for m in task.metrics if m.name in later]
+    # every task's streaming metrics (``Task.streaming_metrics``) after the other metrics: the
+    # columns of comparison.csv and sweep.csv that were there before them keep their places
+    declared += streaming
     owner: dict[str, str] = {}
     for where, spec in declared:
         for known in (spec.name, *spec.aliases):
@@ -187,6 +196,19 @@ def all_metrics() -> tuple[MetricSpec, ...]:
 
 
 _NO_VIEWS = TaskViews()
+
+
+def streaming_offline() -> dict[str, tuple[str, str]]:
+    """Every task's streaming metrics (``Task.streaming_metrics``, in ``task_names`` order):
+    name -> (its label, the name of the offline figure it is the streaming form of)."""
+    found: dict[str, tuple[str, str]] = {}
+    for name in task_names():
+        task = get_task(name)
+        labels = {m.name: m.label for m in task.metrics}
+        pairs: Mapping[str, str] = getattr(task, 'streaming_metrics', {})
+        for streaming, offline in pairs.items():
+            found[streaming] = (labels.get(streaming, streaming), str(offline))
+    return found
 
 
 def task_views(task: Task) -> TaskViews:

@@ -23,6 +23,7 @@ BAG = REPO / 'fixtures' / 'bags' / 'jpeg.mcap'
 CHANGED: dict[str, Any] = {
     'rate': '30hz',
     'queue_depth': 2,
+    'added_latency_ms': 50.0,
     'warmup': 3,
     'threads': 1,
     'max_frames': 7,

@@ -17,8 +17,8 @@ from replaybench.app.sweep import (
     plan_cells,
     sweep_config,
 )
-from replaybench.backends.base import BackendOptions
 from replaybench.errors import UsageError
+from replaybench.replay.instances import instance_options
 
 REPO = Path(__file__).resolve().parents[2]
 BAG = REPO / 'fixtures' / 'bags' / 'rgb8_raw.mcap'
@@ -78,9 +78,11 @@ def test_a_cell_runs_with_the_run_commands_config_and_its_param_values(tmp_path:
     )
     (cell,) = plan_cells([input_identity(BAG)], ['hsv'], config.axes, config.options)
     made = cell_run_config(cell, config.options, tmp_path / 'cell', ['replaybench', 'sweep'])
+    # the cell is `replaybench run BAG --backend hsv --param hsv.min_area=77` with the options
     expected = run_config(
         [BAG],
         backends=['hsv'],
+        params=['hsv.min_area=77'],
         out=tmp_path / 'cell',
         rate='30hz',
         max_frames=5,
@@ -88,11 +90,10 @@ def test_a_cell_runs_with_the_run_commands_config_and_its_param_values(tmp_path:
         threads=1,
         command=['replaybench', 'sweep'],
     )
-    assert dataclasses.replace(
-        made, options=BackendOptions(), input_sha256=None
-    ) == dataclasses.replace(expected, options=BackendOptions())
+    assert dataclasses.replace(made, input_sha256=None) == expected
     assert made.options.threads == 1
-    assert made.options.extra == {'min_area': '77'}
+    assert made.instance('hsv').params == (('min_area', '77'),)
+    assert instance_options(made.options, made.instance('hsv')).extra == {'min_area': '77'}
     # the driver's digest goes with the cell: the run on the node does not hash the input
     assert made.input_sha256 == (cell.input.sha256,)
     assert made.hash_inputs is True

@@ -350,3 +350,68 @@ def test_a_cell_measured_on_another_cpu_is_flagged(bags: dict[str, Path], tmp_pa
     assert again.cells['flags'].tolist() == ['', flags[1][0], '']
     html = (out / 'sweep.html').read_text(encoding='utf-8')
     assert '1 cell(s) measured under different conditions' in html
+
+
+def test_a_stereo_sweep_sets_the_matchers_disparities_and_shows_its_figures(
+    tmp_path: Path,
+) -> None:
+    from replaybench.fixtures.stereo import write_stereo_mcap
+    from replaybench.stereo import DisparityCounts, Matcher, score_disparity
+
+    bag = write_stereo_mcap(tmp_path / 'stereo.mcap', 3)
+    result = _sweep([bag], tmp_path / 'sw', backends=['sgbm'], params=['sgbm.disparities=32,64'])
+    assert result.status == 'complete'
+    rows = _csv(tmp_path / 'sw' / 'sweep.csv')
+    assert [r['params'] for r in rows] == ['disparities=32', 'disparities=64']
+    from replaybench.fixtures.stereo import render_stereo
+
+    for row, cell in zip(rows, result.record['cells'], strict=True):
+        run = json.loads((tmp_path / 'sw' / cell['run_dir'] / 'run.json').read_text())
+        wanted = int(cell['params']['disparities'])
+        assert run['backends'][0]['info']['parameters']['disparity_range'] == wanted
+        # the cell's figures are the bare matcher's at that range on the same pairs
+        matcher = Matcher.from_mapping('sgbm', {'disparities': wanted})
+        total = DisparityCounts()
+        for i in range(3):
+            view = render_stereo((320, 240), i)
+            total += score_disparity(matcher.compute(view.left, view.right), view.disparity)
+        figures = total.figures()
+        assert float(row['bad2']) == pytest.approx(figures.bad2, abs=1e-9)
+        assert float(row['epe']) == pytest.approx(figures.epe, abs=1e-9)
+        assert row['map50'] == ''
+    assert rows[0]['bad2'] != rows[1]['bad2']
+
+
+def test_labelled_instances_of_one_backend_sweep_their_axes_with_their_fixed_params(
+    bags: dict[str, Path], tmp_path: Path
+) -> None:
+    result = _sweep(
+        [bags['a']],
+        tmp_path / 'sw',
+        backends=['small=hsv', 'big=hsv'],
+        params=['small.min_area=10', 'big.min_area=100000', 'big.kernel=3,5'],
+        max_frames=12,
+    )
+    assert result.status == 'complete'
+    cells = result.record['cells']
+    assert [(c['backend'], c['params']) for c in cells] == [
+        ('small', {'min_area': '10'}),
+        ('big', {'min_area': '100000', 'kernel': '3'}),
+        ('big', {'min_area': '100000', 'kernel': '5'}),
+    ]
+    assert result.record['settings']['backends'] == ['small=hsv', 'big=hsv']
+    detections = []
+    for cell in cells:
+        run = json.loads((tmp_path / 'sw' / cell['run_dir'] / 'run.json').read_text())
+        (entry,) = run['backends']
+        assert (entry['name'], entry['backend'], entry['params']) == (
+            cell['backend'],
+            'hsv',
+            cell['params'],
+        )
+        assert entry['info']['detector']['min_area'] == float(cell['params']['min_area'])
+        assert run['summary'][0]['backend'] == cell['backend']
+        detections.append(run['summary'][0]['detections_per_frame'])
+    assert detections[0] > 0
+    assert detections[1:] == [0, 0]
+    _valid(result.record)

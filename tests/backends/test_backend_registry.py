@@ -107,6 +107,8 @@ BUILTINS = [
     'hsv-seg',
     'onnx-seg',
     'onnx-stereo',
+    'cuda-stereo',
+    'tensorrt-stereo',
     'apriltag',
     'aruco',
     'sgbm',

@@ -38,6 +38,8 @@ def test_each_built_in_backend_declares_the_task_of_its_results():
         'sgbm': 'stereo',
         'bm': 'stereo',
         'onnx-stereo': 'stereo',
+        'cuda-stereo': 'stereo',
+        'tensorrt-stereo': 'stereo',
     }
     # cuda and tensorrt know theirs from the model they open: boxes until then
     assert declared['cuda'] == declared['tensorrt'] == 'detections'

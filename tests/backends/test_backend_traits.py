@@ -37,7 +37,13 @@ def test_a_backend_that_declares_nothing_gets_the_defaults():
 
 def test_the_builtin_backends_state_their_device_and_whether_they_are_timed():
     traits = {name: backend_traits(get_backend(name)) for name in BUILTIN_BACKENDS}
-    assert {n for n, t in traits.items() if t.device == 'cuda'} == {'cuda', 'tensorrt', 'hsv-cuda'}
+    assert {n for n, t in traits.items() if t.device == 'cuda'} == {
+        'cuda',
+        'tensorrt',
+        'hsv-cuda',
+        'cuda-stereo',
+        'tensorrt-stereo',
+    }
     assert {n for n, t in traits.items() if not t.measures_latency} == {'recorded'}
     assert {n for n, t in traits.items() if t.uses_recorded_detections} == {'recorded'}
     assert backend_traits(_OnTheGpu).device == 'cuda'

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import replaybench as rb
-from replaybench.comparison.output import CSV_COLUMNS
+from replaybench.comparison.output import CSV_COLUMNS, PAIRED_COLUMNS
 from replaybench.fixtures.live import live_timings, write_live_mcap
 
 if TYPE_CHECKING:
@@ -272,7 +272,13 @@ def test_every_exporter_carries_the_recorded_metrics(runs: dict[str, Path], tmp_
         'recorded_outputs',
         'recorded_latency_note',
     ]
-    assert header[-3:] == ['rig_drop_rate', 'rig_drop_rate_baseline', 'rig_drop_rate_delta']
+    paired = len(PAIRED_COLUMNS)  # the paired columns appended last
+    assert header[-3 - paired : -paired] == [
+        'rig_drop_rate',
+        'rig_drop_rate_baseline',
+        'rig_drop_rate_delta',
+    ]
+    assert header[-paired:] == list(PAIRED_COLUMNS)
     [record] = [r for r in rows if r['role'] == 'candidate' and r['backend'] == 'recorded']
     assert float(record['recorded_pipeline_ms_ratio']) == pytest.approx(pipe.ratio, rel=1e-5)
     assert pipe.ratio_ci is not None

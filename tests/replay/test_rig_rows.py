@@ -137,9 +137,10 @@ def test_a_per_topic_run_has_one_rig_row_holding_the_sums_and_names_the_worst_ca
         'topic': SLOW,
         'value': pytest.approx(dropped[SLOW] / frames[SLOW]),
     }
-    # frames.csv: each camera's frames served by its own pipeline, the column last
+    # frames.csv: each camera's frames served by its own pipeline, the column before the
+    # output age (docs/streaming.md)
     framed = _csv(tmp_path / 'run' / 'frames.csv')
-    assert list(framed[0])[-1] == 'pipeline'
+    assert list(framed[0])[-2:] == ['pipeline', 'output_age_ms']
     assert {(r['topic'], r['pipeline']) for r in framed} == {
         (c, str(i)) for i, c in enumerate(CAMERAS)
     }

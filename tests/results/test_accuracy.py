@@ -10,7 +10,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from replaybench.results.accuracy import AccuracyResult, evaluate
+from replaybench.results.accuracy import (
+    MAX_DETECTIONS,
+    AccuracyResult,
+    evaluate,
+    frame_scores,
+    resampled_map50,
+)
 from replaybench.types import Detection
 
 LABELS = ('red', 'green', 'blue', 'yellow')
@@ -290,3 +296,37 @@ def test_bag_sized_input_evaluates_well_under_a_second() -> None:
     assert result.n_gt > 15000
     assert result.map50 > 0.5
     assert elapsed < 1.0, f'{elapsed:.3f} s'
+
+
+def test_resampled_map50_equals_evaluate_on_the_drawn_frames_ties_and_the_100_limit_included() -> (
+    None
+):
+    rng = np.random.default_rng(7)
+    labels = ('red', 'green', 'blue')
+    gt: dict[int, tuple[Detection, ...]] = {}
+    dets: dict[int, tuple[Detection, ...]] = {}
+    for frame in range(8):
+        boxes = []
+        for _ in range(int(rng.integers(0, 5))):
+            x, y = rng.uniform(0, 200, 2)
+            boxes.append(Detection(0, str(rng.choice(labels)), 1.0, x, y, x + 30, y + 20))
+        gt[frame] = tuple(boxes)
+        found = [
+            Detection(0, b.label, float(rng.choice([0.5, 0.7, 0.9])), b.x0 + 3, b.y0, b.x1, b.y1)
+            for b in boxes
+            if rng.random() < 0.8
+        ]
+        many = MAX_DETECTIONS + 5 if frame == 3 else int(rng.integers(0, 4))
+        for _ in range(many):  # phantoms (frame 3: more than the limit of one class)
+            x, y = rng.uniform(0, 200, 2)
+            label = 'red' if frame == 3 else str(rng.choice(labels))
+            found.append(Detection(0, label, float(rng.choice([0.5, 0.7])), x, y, x + 10, y + 10))
+        dets[frame] = tuple(found)
+    scores = frame_scores(gt, dets)
+    keys = list(gt)
+    for _ in range(200):
+        picks = rng.integers(0, len(keys), len(keys))
+        drawn_gt = {i: gt[keys[j]] for i, j in enumerate(picks.tolist())}
+        drawn = {i: dets[keys[j]] for i, j in enumerate(picks.tolist())}
+        assert resampled_map50(scores, picks) == evaluate(drawn_gt, drawn).map50
+    assert resampled_map50(scores, np.arange(len(keys))) == evaluate(gt, dets).map50

@@ -63,7 +63,7 @@ def test_columns_are_in_the_documented_order() -> None:
         'postprocess_device_ms', 'h2d_device_ms', 'd2h_device_ms', 'repeat', 'miou',
         'pixel_accuracy', 'output_log_time_ns', 'capture_to_output_ms', 'pipeline_ms',
         'tags', 'tag_truth', 'tag_matched', 'tag_wrong_ids', 'tag_phantoms', 'tag_corner_rmse_px',
-        'tag_trans_err_m', 'tag_rot_err_deg', 'pipeline',
+        'tag_trans_err_m', 'tag_rot_err_deg', 'pipeline', 'output_age_ms',
     )  # fmt: skip
 
 
@@ -255,9 +255,10 @@ def test_a_plain_ok_row_takes_the_one_format_path() -> None:
     )
     assert _line(record) == (
         '0,hsv,/cam/image_raw,3,10,10,ok,,0,0,0.500000,0.500000,0.510000,0.0000,1.2500,'
-        ',2.5000,,,,3.7500,2,,,,,,0,,,,,,,,,,,,,,0\r\n'
+        ',2.5000,,,,3.7500,2,,,,,,0,,,,,,,,,,,,,,0,\r\n'
     )
-    assert _line(record._replace(pipeline=3)).endswith(',,,,,,,,,3\r\n')
+    assert _line(record._replace(pipeline=3)).endswith(',,,,,,,,,3,\r\n')
+    assert _line(record._replace(output_age_ms=66.66667)).endswith(',,,,,,,,,0,66.6667\r\n')
     buffer = io.StringIO()
     csv_writer(buffer).writerow(_row(record._replace(pipeline=3)))
     assert _line(record._replace(pipeline=3)) == buffer.getvalue()
@@ -270,10 +271,26 @@ def test_a_frames_csv_without_the_pipeline_column_reads_as_pipeline_0(tmp_path: 
     assert [r.pipeline for r in read_frames_csv(path)] == [2, 1]
     with path.open(newline='', encoding='utf-8') as file:
         rows = list(csv.reader(file))
-    assert rows[0][-1] == 'pipeline'
+    assert rows[0][-2:] == ['pipeline', 'output_age_ms']
     older = tmp_path / 'older.csv'
     with older.open('w', newline='', encoding='utf-8') as file:
-        csv_writer(file).writerows([row[:-1] for row in rows])
+        csv_writer(file).writerows([row[:-2] for row in rows])
     read = read_frames_csv(older)
     assert [r.pipeline for r in read] == [0, 0]
     assert [r._replace(pipeline=0) for r in read_frames_csv(path)] == read
+
+
+def test_the_output_age_round_trips_and_a_file_without_its_column_reads_it_empty(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / 'frames.csv'
+    with FramesCsvWriter(path) as writer:
+        writer.write_many([_ok(0), _ok(1, output_age_ms=33.3333)])
+    assert [r.output_age_ms for r in read_frames_csv(path)] == [None, 33.3333]
+    with path.open(newline='', encoding='utf-8') as file:
+        rows = list(csv.reader(file))
+    assert [row[-1] for row in rows] == ['output_age_ms', '', '33.3333']
+    older = tmp_path / 'older.csv'
+    with older.open('w', newline='', encoding='utf-8') as file:
+        csv_writer(file).writerows([row[:-1] for row in rows])
+    assert [r.output_age_ms for r in read_frames_csv(older)] == [None, None]

@@ -286,3 +286,170 @@ def test_sgbm_replayed_on_middlebury_motorcycle_scores_as_the_bare_library_call(
     )
     assert row.metric('epe') == pytest.approx(figures.epe)
     assert row.metric('bad2') == pytest.approx(figures.bad2)
+
+
+def _renamed(bag: Path, names: dict[str, str]) -> list[FixtureMessage]:
+    """The messages of ``bag``'s topics in ``names``, under their new names."""
+    from mcap.reader import make_reader
+
+    found = []
+    with bag.open('rb') as f:
+        for schema, channel, message in make_reader(f).iter_messages(topics=list(names)):
+            assert schema is not None
+            found.append(
+                FixtureMessage(message.log_time, names[channel.topic], schema.name, message.data)
+            )
+    return found
+
+
+def test_a_stereo_backend_replays_the_pair_its_names_make_among_other_cameras(
+    bags: dict[str, Path], both: Path, tmp_path: Path
+) -> None:
+    front = _renamed(bags['rect'], {'/stereo/left/image_rect': '/front/image_raw'})
+    bag = _copy(bags['rect'], tmp_path / 'three.mcap', extra=front)
+    out = tmp_path / 'run'
+    rb.run(bag, backends=['sgbm'], out=out, report=False)
+    document = json.loads((out / 'run.json').read_text())
+    (row,) = (r for r in document['summary'] if r['backend'] == 'sgbm')
+    (alone,) = (r for r in json.loads((both / 'run.json').read_text())['summary']
+                if r['backend'] == 'sgbm')  # fmt: skip
+    assert row['topic'] == '/stereo/left/image_rect'
+    assert row['frames'] == FRAMES
+    assert row['task_metrics'] == alone['task_metrics']
+    assert [t['name'] for t in document['inputs'][0]['topics']] == [
+        '/stereo/left/image_rect',
+        '/stereo/right/image_rect',
+    ]
+
+
+def test_of_two_pairs_by_name_the_first_is_replayed_and_the_other_named(
+    bags: dict[str, Path], tmp_path: Path
+) -> None:
+    wide = _renamed(
+        bags['rect'],
+        {
+            '/stereo/left/image_rect': '/wide/left/image_rect',
+            '/stereo/right/image_rect': '/wide/right/image_rect',
+            '/stereo/left/camera_info': '/wide/left/camera_info',
+            '/stereo/right/camera_info': '/wide/right/camera_info',
+        },
+    )
+    bag = _copy(bags['rect'], tmp_path / 'two.mcap', extra=wide)
+    out = tmp_path / 'run'
+    rb.run(bag, backends=['bm'], out=out, report=False)
+    document = json.loads((out / 'run.json').read_text())
+    replayed = [t['name'] for t in document['inputs'][0]['topics']]
+    assert len(replayed) == 2
+    other = next(ns for ns in ('/stereo', '/wide') if not replayed[0].startswith(ns))
+    note = next(w for w in document['inputs'][0]['warnings'] if 'stereo pairs by name' in w)
+    assert f'{other}/left/image_rect,{other}/right/image_rect' in note
+    assert replayed[1] == replayed[0].replace('/left/', '/right/')
+
+
+def test_with_depth_each_pair_also_has_a_32fc1_depth_image_in_metres_of_its_disparity(
+    bags: dict[str, Path], tmp_path: Path
+) -> None:
+    from mcap.reader import make_reader
+
+    from replaybench.stereo.msgs import parse_disparity_image
+
+    out = tmp_path / 'depth'
+    rb.run(bags['rect'], backends=['sgbm'], out=out, report=False, depth=True)
+    store = typestore(False)
+    found: dict[str, dict[int, Any]] = {'disparity': {}, 'depth': {}}
+    with (out / 'outputs.mcap').open('rb') as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            kind = channel.topic.rsplit('/', 1)[-1]
+            if channel.topic.startswith('/replaybench/sgbm/') and kind in found:
+                assert schema is not None
+                found[kind][message.log_time] = (schema.name, message.data)
+    assert len(found['depth']) == FRAMES
+    assert found['depth'].keys() == found['disparity'].keys()
+    for log_time, (schema_name, data) in found['depth'].items():
+        assert schema_name == 'sensor_msgs/msg/Image'
+        image: Any = store.deserialize_cdr(data, 'sensor_msgs/msg/Image')
+        assert image.encoding == '32FC1'
+        depth = np.frombuffer(image.data, np.float32).reshape(image.height, image.width)
+        disparity = parse_disparity_image(found['disparity'][log_time][1])
+        estimated = disparity.disparity >= disparity.min_disparity
+        with np.errstate(divide='ignore', invalid='ignore'):
+            expected = np.where(
+                estimated & (disparity.disparity > 0),
+                disparity.f * disparity.t / disparity.disparity.astype(np.float64),
+                np.nan,
+            )
+        assert image.header.stamp.sec * 10**9 + image.header.stamp.nanosec == disparity.stamp_ns
+        np.testing.assert_allclose(depth, expected, rtol=1e-6, equal_nan=True)
+        assert 0.1 < np.nanmedian(depth) < 10.0  # metres: a 0.12 m baseline at 256 px focal
+
+
+def test_without_depth_no_depth_image_is_written(both: Path) -> None:
+    from mcap.reader import make_reader
+
+    with (both / 'outputs.mcap').open('rb') as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    topics = {c.topic for c in summary.channels.values()}
+    assert not any(t.endswith('/depth') for t in topics)
+    assert any(t.endswith('/disparity') for t in topics)
+
+
+def _written(run: Path, backend: str) -> list[npt.NDArray[np.float32]]:
+    """A backend's disparities as written in outputs.mcap, NaN where it has no estimate."""
+    found = []
+    for message in _disparity_messages(
+        run, f'/replaybench/{backend}/stereo/left/image_rect/disparity'
+    ):
+        image = message.image
+        d = np.frombuffer(bytes(image.data), '<f4').reshape(image.height, image.width)
+        found.append(np.where(d >= message.min_disparity, d, np.nan).astype(np.float32))
+    return found
+
+
+def test_two_stereo_backends_agreement_is_the_seconds_disparity_against_the_firsts(
+    both: Path, bags: dict[str, Path], tmp_path: Path
+) -> None:
+    document = json.loads((both / 'run.json').read_text())
+    (row,) = document['stereo_agreement']
+    assert (row['backend_a'], row['backend_b'], row['topic'], row['frames']) == (
+        'sgbm',
+        'bm',
+        '/stereo/left/image_rect',
+        FRAMES,
+    )
+    a, b = np.stack(_written(both, 'sgbm')), np.stack(_written(both, 'bm'))
+    known = np.isfinite(a) & (a != 0)
+    estimated = known & np.isfinite(b)
+    error = np.abs(b - a)
+    assert row['epe'] == pytest.approx(float(error[estimated].mean()), rel=1e-5)
+    for n in (1, 2, 3):
+        bad = known & ~(estimated & (error <= n))
+        assert row[f'bad{n}'] == pytest.approx(bad.sum() / known.sum(), rel=1e-6)
+    assert row['density'] == pytest.approx(estimated.sum() / known.sum(), rel=1e-6)
+    assert 0 < row['bad2'] < 1
+    loaded = rb.load_run(both)
+    assert loaded.stereo_agreement is not None
+    assert loaded.stereo_agreement[0].bad2 == row['bad2']
+    one = tmp_path / 'one'
+    rb.run(bags['rect'], backends=['sgbm'], out=one, report=False)
+    assert 'stereo_agreement' not in json.loads((one / 'run.json').read_text())
+
+
+def test_peak_finds_a_stereo_backends_rate_over_pairs_each_trial_scored(tmp_path: Path) -> None:
+    bag = write_stereo_mcap(tmp_path / 'stereo.mcap', 8)
+    out = tmp_path / 'peak'
+    done = subprocess.run(
+        [sys.executable, '-m', 'replaybench', 'peak', str(bag), '--backend', 'bm', '--out',
+         str(out), '--max-hz', '400', '--refine-steps', '1', '--no-report'],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    document = json.loads((out / 'peak.json').read_text())
+    assert document['peak_hz'] > 0
+    assert document['trials']
+    for trial in document['trials']:
+        assert trial['frames'] == 8  # pairs: one row per frame set
+        run = json.loads((out / trial['run_dir'] / 'run.json').read_text())
+        (row,) = run['summary']
+        assert row['topic'] == '/stereo/left/image_rect'
+        assert row['task_metrics']['bad2'] is not None

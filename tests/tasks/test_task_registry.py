@@ -137,12 +137,23 @@ def test_an_installed_distribution_registers_a_task_through_the_entry_point_grou
     assert type(task).__module__ == plugin_module
     assert [m.name for m in task.metrics] == ['toy_score']
     names = [m.name for m in all_metrics()]
-    assert names[-1] == 'toy_score'  # after the built-in tasks' metrics
-    assert names[:-1] == [m.name for m in registry_metrics_without_plugins()]
+    # after the built-in tasks' metrics, before every task's streaming metrics
+    streaming = [n for n in names if n.startswith('streaming_')]
+    assert names[-len(streaming) - 1 :] == ['toy_score', *streaming]
+    assert [n for n in names if n != 'toy_score'] == [
+        m.name for m in registry_metrics_without_plugins()
+    ]
 
 
 def registry_metrics_without_plugins() -> list[MetricSpec]:
-    return [*COMMON_METRICS, *(m for name in TASKS for m in get_task(name).metrics)]
+    """The common metrics, the built-in tasks' and then their streaming metrics."""
+    specs = [m for name in TASKS for m in get_task(name).metrics]
+    streaming = {n for name in TASKS for n in getattr(get_task(name), 'streaming_metrics', ())}
+    return [
+        *COMMON_METRICS,
+        *(m for m in specs if m.name not in streaming),
+        *(m for m in specs if m.name in streaming),
+    ]
 
 
 def test_broken_entry_points_are_refused_with_one_line_naming_them(
@@ -213,7 +224,9 @@ def test_every_metric_compare_knows_comes_from_a_spec_in_table_order() -> None:
 
 
 def test_the_tag_task_declares_the_summary_csv_tag_columns_in_their_order() -> None:
-    assert tuple(m.name for m in get_task('tags').metrics) == TAG_SUMMARY_COLUMNS
+    streaming = set(get_task('tags').streaming_metrics)  # type: ignore[attr-defined]
+    names = tuple(m.name for m in get_task('tags').metrics if m.name not in streaming)
+    assert names == TAG_SUMMARY_COLUMNS
 
 
 def test_every_accuracy_metric_is_a_summary_row_field_or_of_a_task_without_fields() -> None:
@@ -224,7 +237,11 @@ def test_every_accuracy_metric_is_a_summary_row_field_or_of_a_task_without_field
     assert not own & fields
     assert get_task('stereo').frame_columns  # type: ignore[attr-defined]
     assert get_task('tracks').frame_columns == ('track_ms',)  # type: ignore[attr-defined]
-    assert {m.name for m in all_metrics() if m.accuracy} - own <= fields
+    # every task's streaming metrics (replaybench.replay.streaming) are in task_metrics too
+    streaming = {n for t in task_names() for n in getattr(get_task(t), 'streaming_metrics', ())}
+    assert streaming
+    assert not streaming & fields
+    assert {m.name for m in all_metrics() if m.accuracy} - own - streaming <= fields
 
 
 def test_the_sweep_shows_the_metrics_whose_spec_says_so() -> None:
@@ -243,6 +260,7 @@ def test_the_sweep_shows_the_metrics_whose_spec_says_so() -> None:
         'assa',
         'idf1',
         'mota',
+        'streaming_map50',
     )
     start = SWEEP_CSV_COLUMNS.index('p99_high') + 1
     assert SWEEP_CSV_COLUMNS[start : start + len(SWEEP_METRICS)] == SWEEP_METRICS

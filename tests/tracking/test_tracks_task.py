@@ -234,6 +234,13 @@ def test_truth_without_ids_gives_box_figures_and_a_warning_but_no_tracking_figur
             ['--backend', 'hsv+kalman'],
             "backend 'hsv+kalman': unknown tracker 'kalman'; known: iou, sort, bytetrack",
         ),
+        (
+            ['--backend', 'fast=hsv', '--tracker', 'sort'],
+            (
+                "--tracker over the instance --backend 'fast=hsv': give its tracked row as an "
+                'instance of its own, --backend LABEL=NAME+TRACKER (docs/tracking.md)'
+            ),
+        ),
     ],
 )
 def test_a_tracker_that_cannot_run_is_refused_in_one_line(

@@ -41,15 +41,17 @@ def cell_run_config(
 
     made = cell_options(options.backend_options(), dict(cell.params))
     known = (cell.input.sha256,) if cell.input.sha256 is not None else None
+    # the cell's values as its instance's own parameters: run.json records them
     config = config_of(
         options,
         [cell.input.path],
-        backends=[cell.backend],
+        backends=[cell.backend_text],
+        params=[f'{cell.backend}.{k}={v}' for k, v in cell.params],
         out=out_dir,
         command=command,
         input_sha256=known if options.hash_inputs else None,
     )
-    return replace(config, options=made, threads=made.threads)
+    return replace(config, threads=made.threads)
 
 
 def check_input(inp: InputId, host: str) -> None:

@@ -53,9 +53,15 @@ def sweep_config(
     if not backends:
         msg = 'no backend given: add --backend NAME (see `replaybench backends`)'
         raise UsageError(msg)
+    from replaybench.replay.instances import parse_backend, parse_instances
+
     if len(set(backends)) != len(backends):
         msg = 'each --backend may be given once'
         raise UsageError(msg)
+    # labels checked as a run checks them (one label each, no '+', '=' or '.')
+    parse_instances(backends)
+    instances = [parse_backend(text) for text in backends]
+    labels = tuple(label for label, _ in instances)
     if max_retries < 0:
         msg = f'--max-retries must be >= 0, not {max_retries}'
         raise UsageError(msg)
@@ -70,9 +76,10 @@ def sweep_config(
     }
     return SweepConfig(
         inputs=tuple(Path(i) for i in inputs),
-        backends=tuple(backends),
+        backends=labels,
+        kinds={label: name for label, name in instances if label != name},
         out=Path(out),
-        axes=parse_params(params, backends),
+        axes=parse_params(params, labels),
         address=address,
         pack=pack,
         max_retries=max_retries,
@@ -120,7 +127,7 @@ def run_sweep(
             msg = f'{given} is given twice'
             raise UsageError(msg)
         ids.append(identity)
-    cells = plan_cells(ids, config.backends, config.axes, config.options)
+    cells = plan_cells(ids, config.backends, config.axes, config.options, config.kinds)
     check_backend_options(cells, config.options)
     driver = Driver(config, cells, ids, progress, stop)
     todo = driver.prepare()

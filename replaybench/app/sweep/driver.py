@@ -436,7 +436,7 @@ class Driver:
             finished_at=dt.datetime.now(dt.UTC).isoformat(),
             wall_s=time.perf_counter() - self.t0,
             settings=SweepSettings(
-                backends=tuple(config.backends),
+                backends=config.backend_texts,
                 params=tuple(SweepAxis(a.backend, a.key, a.values) for a in config.axes),
                 pack=config.pack,
                 max_retries=config.max_retries,

@@ -14,13 +14,14 @@ import itertools
 import json
 import re
 import stat
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from replaybench import _version
 from replaybench.app.options import RunOptions
 from replaybench.errors import ReplaybenchError, SourceError, UsageError
+from replaybench.replay.instances import PATH_KEYS, split_param, with_params
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -41,14 +42,12 @@ __all__ = [
     'plan_cells',
 ]
 
-_FLOAT_KEYS = ('conf', 'iou')
-_PATH_KEYS = ('config', 'model')
-_STR_KEYS = ('model_family', 'labels', 'engine', 'precision')
 _UNSAFE = re.compile(r'[^A-Za-z0-9._=+-]+')
 
 
 class ParamAxis(NamedTuple):
-    """One ``--param BACKEND.KEY=V1,V2,...``: the values one option of one backend takes."""
+    """One ``--param LABEL.KEY=V1,V2,...``: the values one option of one backend instance
+    takes (``backend``: the instance's label); one value: that instance's fixed setting."""
 
     backend: str
     key: str
@@ -60,12 +59,7 @@ def parse_params(texts: Sequence[str], backends: Sequence[str]) -> tuple[ParamAx
     axes: list[ParamAxis] = []
     seen: set[tuple[str, str]] = set()
     for text in texts:
-        spec, eq, values = text.partition('=')
-        backend, dot, key = spec.strip().partition('.')
-        backend, key = backend.strip(), key.strip()
-        if not (eq and dot and backend and key):
-            msg = f'invalid --param {text!r}: use BACKEND.KEY=V1,V2,... e.g. hsv.min_area=50,100'
-            raise UsageError(msg)
+        backend, key, values = split_param(text, 'BACKEND.KEY=V1,V2,... e.g. hsv.min_area=50,100')
         if backend not in backends:
             msg = f'--param {text!r}: backend {backend!r} is not swept (add --backend {backend})'
             raise UsageError(msg)
@@ -96,6 +90,7 @@ class SweepConfig:
     """``replaybench sweep``'s options, checked (``sweep_config``): what ``run_sweep`` runs."""
 
     inputs: tuple[Path, ...]
+    #: the backend instances by label (``--backend LABEL=NAME``, or a registered name)
     backends: tuple[str, ...]
     #: the sweep folder (the same one resumes)
     out: Path
@@ -109,32 +104,20 @@ class SweepConfig:
     options: RunOptions = field(default_factory=RunOptions)
     #: the command line recorded in sweep.json
     command: tuple[str, ...] = ()
+    #: the registered backend of each instance of a label of its own (``--backend LABEL=NAME``)
+    kinds: Mapping[str, str] = field(default_factory=dict)
+
+    @property
+    def backend_texts(self) -> tuple[str, ...]:
+        """The ``--backend`` texts: ``LABEL=NAME`` for an instance of a label of its own."""
+        return tuple(f'{b}={self.kinds[b]}' if b in self.kinds else b for b in self.backends)
 
 
 def cell_options(base: BackendOptions, params: Mapping[str, str]) -> BackendOptions:
     """``base`` with a cell's parameters: typed ``BackendOptions`` fields (conf, iou, threads,
-    config, model, model_family, labels, engine, precision) or else ``extra`` keys."""
-    changes: dict[str, Any] = {}
-    extra = dict(base.extra)
-    for key, text in params.items():
-        if key in _FLOAT_KEYS:
-            try:
-                changes[key] = float(text)
-            except ValueError as err:
-                msg = f'--param {key}={text!r}: expected a number'
-                raise UsageError(msg) from err
-        elif key == 'threads':
-            if not text.isdigit() or int(text) < 1:
-                msg = f'--param threads={text!r}: expected an integer >= 1'
-                raise UsageError(msg)
-            changes[key] = int(text)
-        elif key in _PATH_KEYS:
-            changes[key] = Path(text)
-        elif key in _STR_KEYS:
-            changes[key] = text
-        else:
-            extra[key] = text
-    return replace(base, extra=extra, **changes)
+    config, model, model_family, labels, engine, precision) or else ``extra`` keys (the
+    parsing ``replaybench run``'s instances share: ``replaybench.replay.instances``)."""
+    return with_params(base, params)
 
 
 @dataclass(frozen=True, slots=True)
@@ -202,11 +185,24 @@ class Cell:
     params: tuple[tuple[str, str], ...]
     key: str
     name: str
+    #: the registered backend of the instance ``backend`` names (``--backend LABEL=NAME``);
+    #: '' : ``backend`` is the registered name
+    kind: str = ''
+
+    @property
+    def registered(self) -> str:
+        """The registered backend the cell runs (``kind``, or else ``backend``)."""
+        return self.kind or self.backend
+
+    @property
+    def backend_text(self) -> str:
+        """The cell's ``--backend``: ``LABEL=NAME`` for an instance of its own label."""
+        return f'{self.backend}={self.kind}' if self.kind else self.backend
 
     @property
     def gpu(self) -> bool:
         """Whether the cell holds a GPU: its backend runs on one (``Backend.device``)."""
-        return _on_gpu(self.backend)
+        return _on_gpu(self.registered)
 
     @property
     def params_text(self) -> str:
@@ -226,14 +222,18 @@ def _file_sha256(path: Path | None) -> str | None:
 
 
 def _cell_key(
-    inp: InputId, backend: str, params: Sequence[tuple[str, str]], options: RunOptions
+    inp: InputId,
+    backend: str,
+    params: Sequence[tuple[str, str]],
+    options: RunOptions,
+    kind: str = '',
 ) -> str:
     files = {
         'config': options.config,
         'model': options.model,
         'ground_truth_file': options.ground_truth_file,
     }
-    files |= {k: Path(v) for k, v in params if k in _PATH_KEYS}
+    files |= {k: Path(v) for k, v in params if k in PATH_KEYS}
     labels = options.labels if options.labels and options.labels != 'coco' else None
     label_param = dict(params).get('labels', labels)
     # without a digest (--no-hash) the input is known by its files' sizes and times
@@ -245,6 +245,7 @@ def _cell_key(
         'input': identity,
         'backend': backend,
         'params': [list(p) for p in params],
+        **({'kind': kind} if kind else {}),
         'settings': options.as_dict(),
         'files': {
             **{k: _file_sha256(v) for k, v in files.items()},
@@ -266,17 +267,22 @@ def plan_cells(
     backends: Sequence[str],
     axes: Sequence[ParamAxis],
     options: RunOptions,
+    kinds: Mapping[str, str] | None = None,
 ) -> list[Cell]:
-    """Every cell, input-major: for each input, each backend with each parameter combination."""
+    """Every cell, input-major: for each input, each backend with each parameter combination.
+    ``kinds``: the registered backend of each labelled instance (``--backend LABEL=NAME``);
+    a backend not in it is the registered backend of its name."""
     cells: list[Cell] = []
     for number, inp in enumerate(inputs):
         for backend in backends:
+            kind = (kinds or {}).get(backend, backend)
+            kind = '' if kind == backend else kind
             mine = [a for a in axes if a.backend == backend]
             for combo in itertools.product(*(a.values for a in mine)):
                 params = tuple((a.key, v) for a, v in zip(mine, combo, strict=True))
-                key = _cell_key(inp, backend, params, options)
+                key = _cell_key(inp, backend, params, options, kind)
                 name = _cell_name(inp, backend, params, key)
-                cells.append(Cell(len(cells), number, inp, backend, params, key, name))
+                cells.append(Cell(len(cells), number, inp, backend, params, key, name, kind))
     return cells
 
 
@@ -286,10 +292,10 @@ def check_backend_options(cells: Sequence[Cell], options: RunOptions) -> None:
 
     checked: set[tuple[str, tuple[tuple[str, str], ...]]] = set()
     for cell in cells:
-        if (cell.backend, cell.params) in checked:
+        if (cell.registered, cell.params) in checked:
             continue
-        checked.add((cell.backend, cell.params))
-        cls = get_backend(cell.backend)
+        checked.add((cell.registered, cell.params))
+        cls = get_backend(cell.registered)
         made = cell_options(options.backend_options(), dict(cell.params))
         try:
             if not cls.available().ok:

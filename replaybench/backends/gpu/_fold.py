@@ -90,21 +90,26 @@ def _static_dims(value_type: Any) -> tuple[int, ...] | None:
     return tuple(dims)
 
 
-def _fix_input(graph: Any, initializers: set[str], shape: Sequence[int]) -> None:
+def _fix_input(graph: Any, initializers: set[str], shapes: Sequence[Sequence[int]]) -> None:
+    """Fix the graph inputs (in graph order) at ``shapes``, one shape per input."""
     inputs = [i for i in graph.input if i.name not in initializers]
-    if len(inputs) != 1:
-        msg = f'expected one graph input, the model has {len(inputs)}'
+    if len(inputs) != len(shapes):
+        count = 'one graph input' if len(shapes) == 1 else f'{len(shapes)} graph inputs'
+        msg = f'expected {count}, the model has {len(inputs)}'
         raise BackendError(msg)
-    dims = inputs[0].type.tensor_type.shape.dim
-    if len(dims) != len(shape):
-        msg = f'input {inputs[0].name!r} has {len(dims)} dimensions, not {len(shape)}'
-        raise BackendError(msg)
-    for dim, size in zip(dims, shape, strict=True):
-        if dim.HasField('dim_value') and int(dim.dim_value) != int(size):
-            msg = f'input {inputs[0].name!r} is fixed at {_dims_text(dims)}, not {list(shape)}'
+    for graph_input, shape in zip(inputs, shapes, strict=True):
+        dims = graph_input.type.tensor_type.shape.dim
+        if len(dims) != len(shape):
+            msg = f'input {graph_input.name!r} has {len(dims)} dimensions, not {len(shape)}'
             raise BackendError(msg)
-        dim.Clear()
-        dim.dim_value = int(size)
+        for dim, size in zip(dims, shape, strict=True):
+            if dim.HasField('dim_value') and int(dim.dim_value) != int(size):
+                msg = (
+                    f'input {graph_input.name!r} is fixed at {_dims_text(dims)}, not {list(shape)}'
+                )
+                raise BackendError(msg)
+            dim.Clear()
+            dim.dim_value = int(size)
 
 
 def _dims_text(dims: Any) -> str:
@@ -136,16 +141,17 @@ def _evaluate(node: Any, feeds: dict[str, np.ndarray], opset: int) -> list[Any] 
     return values
 
 
-def fold_shapes(onnx: Any, model: Any, input_shape: Sequence[int]) -> tuple[Any, FoldReport]:
-    """A copy of ``model`` with its one input fixed at ``input_shape`` and its shape arithmetic
-    (and any other all-constant node) folded into initializers."""
+def fold_shapes(onnx: Any, model: Any, *input_shapes: Sequence[int]) -> tuple[Any, FoldReport]:
+    """A copy of ``model`` with its inputs fixed at ``input_shapes`` (one per graph input, in
+    graph order: a detector's one, a stereo model's two) and its shape arithmetic (and any
+    other all-constant node) folded into initializers."""
     from onnx import numpy_helper, shape_inference
 
     folded_model = onnx.ModelProto()
     folded_model.CopyFrom(model)
     graph = folded_model.graph
     constants = {init.name: numpy_helper.to_array(init) for init in graph.initializer}
-    _fix_input(graph, set(constants), input_shape)
+    _fix_input(graph, set(constants), input_shapes)
     opset = next((o.version for o in folded_model.opset_import if o.domain in ('', 'ai.onnx')), 0)
     if opset == 0:
         msg = 'the model imports no default ONNX opset'

@@ -163,8 +163,8 @@ class CudaBackend:
         opts = self.options
         _unit(self.name, 'conf', opts.conf)
         _unit(self.name, 'iou', opts.iou)
-        if opts.model_family is not None and opts.model_family not in (*FAMILIES, *LAYOUTS):
-            known = ', '.join((*FAMILIES, *LAYOUTS))
+        if opts.model_family is not None and opts.model_family not in self._model_families():
+            known = ', '.join(self._model_families())
             msg = f'{self.name}: unknown --model-family {opts.model_family!r}; known: {known}'
             raise BackendError(msg)
         if opts.engine not in ENGINES:
@@ -178,12 +178,18 @@ class CudaBackend:
             known = ', '.join(PRECISIONS)
             msg = f'{self.name}: unknown --precision {opts.precision!r}; known: {known}'
             raise BackendError(msg)
+        if opts.precision == 'int8' and not self._int8:
+            msg = (
+                f"{self.name}: --precision int8 is the tensorrt backend's (docs/quantize.md); "
+                f'{self.name} runs fp32, tf32 or fp16'
+            )
+            raise BackendError(msg)
         if opts.device < 0:
             msg = f'{self.name}: --device must be >= 0, got {opts.device}'
             raise BackendError(msg)
-        unknown = sorted(set(opts.extra) - set(EXTRA_KEYS) - set(self._extra_keys()))
+        unknown = sorted(set(opts.extra) - set(self._accepted_extra_keys()))
         if unknown:
-            known = ', '.join((*EXTRA_KEYS, *self._extra_keys()))
+            known = ', '.join(self._accepted_extra_keys())
             msg = f'{self.name}: unknown option {unknown[0]!r} (known: {known})'
             raise BackendError(msg)
         self.max_det = 300
@@ -198,7 +204,7 @@ class CudaBackend:
             msg = f'{self.name}: cuda_graph must be on or off, got {opts.extra["cuda_graph"]!r}'
             raise BackendError(msg)
         self.cuda_graph = graph in ('on', '1', 'true')
-        self.model_path: Path = opts.model if opts.model is not None else DEFAULT_MODEL
+        self.model_path: Path = opts.model if opts.model is not None else self._default_model()
         self.iou = opts.iou if opts.iou is not None else DEFAULT_IOU
         self.spec: ModelSpec | SegModelSpec | None = None
         self.engine_name = ''
@@ -213,9 +219,27 @@ class CudaBackend:
         self._tf32: Tf32Hold | None = None
         self._facts: dict[str, Any] = {}
 
+    #: Whether ``--precision int8`` is offered (``tensorrt``).
+    _int8: ClassVar[bool] = False
+
     @classmethod
     def _extra_keys(cls) -> tuple[str, ...]:
         return ()
+
+    @classmethod
+    def _accepted_extra_keys(cls) -> tuple[str, ...]:
+        """Every key ``options.extra`` may hold (``cuda-stereo`` takes others)."""
+        return (*EXTRA_KEYS, *cls._extra_keys())
+
+    @classmethod
+    def _model_families(cls) -> tuple[str, ...]:
+        """What ``--model-family`` may name: detector families and segmentation layouts."""
+        return (*FAMILIES, *LAYOUTS)
+
+    @classmethod
+    def _default_model(cls) -> Path:
+        """The model without ``--model``: the bundled detector."""
+        return DEFAULT_MODEL
 
     @classmethod
     def available(cls) -> Availability:
@@ -459,17 +483,7 @@ class CudaBackend:
         self.engine_name = engine
         self.precision = self._precision_name(half)
         gpu = device_facts(self.options.device)
-        self._facts = {
-            'device': self.options.device,
-            'device_name': gpu.name,
-            'device_uuid': gpu.uuid,
-            'device_pci_bus_id': gpu.pci_bus_id,
-            'compute_capability': gpu.compute_capability,
-            'driver': gpu.driver,
-            'cuda_version': str(torch.version.cuda),
-            'device_memory_bytes': gpu.total_memory_bytes,
-            **facts,
-        }
+        self._facts = {**self._device_record(torch, gpu), **facts}
         self._facts.update(self._precision_facts(gpu))
         self._warm_up()
         if engine == 'ort':
@@ -485,6 +499,19 @@ class CudaBackend:
             return SegPipeline(torch, spec, device, half)
         conf = self.options.conf if self.options.conf is not None else DEFAULT_CONF[spec.family]
         return DnnPipeline(torch, spec, device, half, conf, self.iou, self.max_det)
+
+    def _device_record(self, torch: Any, gpu: DeviceFacts) -> dict[str, Any]:
+        """What ``info()`` records of the GPU the backend opened on."""
+        return {
+            'device': self.options.device,
+            'device_name': gpu.name,
+            'device_uuid': gpu.uuid,
+            'device_pci_bus_id': gpu.pci_bus_id,
+            'compute_capability': gpu.compute_capability,
+            'driver': gpu.driver,
+            'cuda_version': str(torch.version.cuda),
+            'device_memory_bytes': gpu.total_memory_bytes,
+        }
 
     def _precision_facts(self, gpu: DeviceFacts) -> dict[str, Any]:  # noqa: ARG002  tensorrt.py's override uses gpu
         return {'precision_requested': self.options.precision, 'tf32': self.precision == 'tf32'}

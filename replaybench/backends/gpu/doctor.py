@@ -42,6 +42,8 @@ BACKEND_NEEDS: dict[str, str] = {
         f'an NVIDIA GPU, driver R{_cuda.MIN_DRIVER_RELEASE}+, cupy-cuda{_libs.CUDA_MAJOR}x '
         f'(and NVRTC {_libs.CUDA_MAJOR} to compile its kernels)'
     ),
+    'cuda-stereo': 'what cuda needs (a stereo model on its engines)',
+    'tensorrt-stereo': 'what tensorrt needs (a stereo model on its engine)',
 }
 _LIBRARY_TOPICS = (
     ('CUDA runtime', _libs.ORT_CUDA_LIBRARIES[0]),

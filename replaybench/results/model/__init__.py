@@ -76,6 +76,7 @@ from replaybench.results.model.run import (
     RunSettings,
 )
 from replaybench.results.model.segmentation import SegmentationAgreementRow, SegmentationSummary
+from replaybench.results.model.stereo import StereoAgreementRow
 from replaybench.results.model.summary import RepeatStats, SummaryRow
 from replaybench.results.model.sync import SyncInput, SyncReport, SyncTopic
 
@@ -128,6 +129,7 @@ __all__ = [
     'RunSettings',
     'SegmentationAgreementRow',
     'SegmentationSummary',
+    'StereoAgreementRow',
     'SummaryRow',
     'SyncInput',
     'SyncReport',

@@ -5,7 +5,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from replaybench.results.model.common import NOT_IN_FILE, Tool, empty_mapping
+from replaybench.results.model.common import NOT_IN_FILE, OMIT_NONE, Tool, empty_mapping
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -22,6 +22,8 @@ __all__ = [
     'ComparisonStatistics',
     'GateCheck',
     'MetricResult',
+    'PairedFrame',
+    'PairedResult',
 ]
 
 #: Version of the comparison.json layout.
@@ -119,6 +121,41 @@ class MetricResult:
 
 
 @dataclass(frozen=True, slots=True)
+class PairedFrame:
+    """One frame where the two backends' boxes agree least."""
+
+    frame_id: str = ''
+    stamp_ns: int = 0
+    matched: float = 0.0
+    iou: float = 0.0
+    n_baseline: int = 0
+    n_candidate: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class PairedResult:
+    """The paired accuracy change and the agreement of a row with its baseline row
+    (``replaybench.comparison.paired``)."""
+
+    metric: str = 'map50'
+    frames: int = 0
+    baseline: float | None = None
+    candidate: float | None = None
+    change: float | None = None
+    ci: tuple[float, float] | None = None
+    resamples: int = 0
+    undefined: int = 0
+    confidence: float = 0.95
+    seed: int = 0
+    matched_mean: float | None = None
+    iou_mean: float | None = None
+    matched_min: float | None = None
+    agreeing_frames: int = 0
+    worst: tuple[PairedFrame, ...] = ()
+    note: str = ''
+
+
+@dataclass(frozen=True, slots=True)
 class ComparisonRow:
     """One (run, backend, topic) and its metrics."""
 
@@ -134,6 +171,8 @@ class ComparisonRow:
     inputs_match: bool | None = None
     flags: tuple[str, ...] = ()
     metrics: Mapping[str, MetricResult] = field(default_factory=empty_mapping)
+    #: a candidate row of boxes against its baseline row frame by frame (left out otherwise)
+    paired: PairedResult | None = field(default=None, metadata=OMIT_NONE)
 
 
 @dataclass(frozen=True, slots=True)

@@ -16,6 +16,7 @@ from replaybench.results.model.common import (
 from replaybench.results.model.detections import AgreementRow
 from replaybench.results.model.rig import RigReport
 from replaybench.results.model.segmentation import SegmentationAgreementRow
+from replaybench.results.model.stereo import StereoAgreementRow
 from replaybench.results.model.summary import RepeatStats, SummaryRow
 from replaybench.results.model.sync import SyncReport
 from replaybench.results.records import FrameRecord
@@ -88,6 +89,9 @@ class RunSettings:
     #: ``--pipelines per-topic``: the pipelines and the cores they had; None: one shared
     #: backend instance per backend (``--pipelines shared``, and every run before it existed)
     pipelines: Pipelines | None = None
+    #: ``--added-latency-ms``: waited after every detect (a testing aid, docs/streaming.md);
+    #: absent where nothing was added
+    added_latency_ms: float | None = field(default=None, metadata=OMIT_NONE)
 
 
 @dataclass(frozen=True, slots=True)
@@ -188,8 +192,13 @@ class ReadAhead:
 class BackendRun:
     """One backend of the run: its status, what it reported and what it cost."""
 
+    #: the instance's name: ``--backend LABEL=NAME``'s label, or the backend's name
     name: str = ''
     label: str = ''
+    #: the registered backend the instance is made of ('' in run folders written before it)
+    backend: str = ''
+    #: the instance's own ``--param`` values (key: text), applied on top of the run's options
+    params: Mapping[str, str] = field(default_factory=empty_mapping)
     status: str = 'ok'
     error: BackendFailure | None = None
     info: Mapping[str, Any] = field(default_factory=empty_mapping)
@@ -247,6 +256,10 @@ class RunResult:
     agreement: tuple[AgreementRow, ...] = ()
     #: with two or more segmentation backends: their masks compared
     segmentation_agreement: tuple[SegmentationAgreementRow, ...] = ()
+    #: with two or more stereo backends: their disparities compared; absent otherwise
+    stereo_agreement: tuple[StereoAgreementRow, ...] | None = field(
+        default=None, metadata=OMIT_NONE
+    )
     counts: RunCounts | None = None
     skipped: Mapping[str, int] = field(default_factory=empty_mapping)
     warnings: tuple[str, ...] = ()

@@ -50,7 +50,23 @@ class DetectionsTask:
             terminal_label='P@.5',
             tracked=True,
         ),
+        # streaming scores (replaybench.replay.streaming): each frame's truth against the
+        # output in use at its release; timed rates and recorded outputs only
+        MetricSpec('streaming_map50', 'streaming mAP@0.5', 'stream mAP@0.5', 'higher', sweep=True),
+        MetricSpec('streaming_map50_95', 'streaming mAP@0.5:0.95', 'stream mAP', 'higher'),
+        MetricSpec('streaming_recall', 'streaming recall@0.5', 'stream R@0.5', 'higher'),
+        MetricSpec('streaming_precision', 'streaming precision@0.5', 'stream P@0.5', 'higher'),
     )
+    #: the streaming metrics (names of ``metrics``), each with the offline figure it is the
+    #: streaming form of (a metric or ``SummaryRow`` field), and how picks are scored to them
+    #: (``replaybench.replay.streaming``)
+    streaming_metrics: ClassVar[Mapping[str, str]] = {
+        'streaming_map50': 'map50',
+        'streaming_map50_95': 'map50_95',
+        'streaming_recall': 'recall50',
+        'streaming_precision': 'precision50',
+    }
+    streaming: ClassVar[str] = 'replaybench.tasks.detections.streaming:score'
     #: the report's parts live in the report layer (report/detections.py), imported there
     views: ClassVar[TaskViews] = TaskViews(
         summary_field='accuracy',

@@ -99,8 +99,14 @@ class Segmentation(TaskRecordingBase):
     #: a mask's messages go before the frame's detections message in outputs.mcap
     writes_first = True
 
-    def __init__(self, backends: int) -> None:
+    def __init__(
+        self, backends: int, streams: Mapping[tuple[str, str], object] | None = None
+    ) -> None:
         self.keep = backends > 1
+        #: the (backend label, topic)s with streaming picks (``Recorder.picks``, filled before
+        #: a pass's frames are recorded): their masks are kept for the streaming scores
+        #: (``replaybench.tasks.segmentation.streaming``)
+        self.streams: Mapping[tuple[str, str], object] = {} if streams is None else streams
         self.matrices: dict[tuple[str, str], npt.NDArray[np.int64]] = {}
         self.frames: dict[tuple[str, str], int] = {}
         self.class_names: dict[str, tuple[str, ...]] = {}
@@ -149,7 +155,7 @@ class Segmentation(TaskRecordingBase):
 
             add_mask(writer, backend, topic, log_time_ns, stamp_ns, frame_id, labels)
         group = (backend, topic)
-        if self.keep:
+        if self.keep or group in self.streams:
             import cv2
 
             ok, png = cv2.imencode('.png', labels, [cv2.IMWRITE_PNG_COMPRESSION, 1])
@@ -279,10 +285,13 @@ class Segmentation(TaskRecordingBase):
 class _Recorder(Protocol):
     @property
     def backends(self) -> int: ...
+    @property
+    def picks(self) -> Mapping[tuple[str, str], object]: ...
 
 
 def recording(recorder: _Recorder) -> Segmentation:
     """The segmentation task's ``TaskRecording`` for the run of ``recorder``
     (``replaybench.replay.recording.Recorder``): a new ``Segmentation``, which keeps masks for
-    the agreement when the run has several backends."""
-    return Segmentation(recorder.backends)
+    the agreement when the run has several backends, and for the streaming scores of a
+    (backend, topic) that has them."""
+    return Segmentation(recorder.backends, recorder.picks)

@@ -43,7 +43,20 @@ class SegmentationTask:
             terminal_label='mIoU',
         ),
         MetricSpec('pixel_accuracy', 'pixel accuracy', 'pixel acc.', 'higher', appended=False),
+        # streaming scores (replaybench.replay.streaming): each frame's truth mask against the
+        # mask in use at its release; timed rates and recorded outputs only
+        MetricSpec('streaming_miou', 'streaming mIoU', 'stream mIoU', 'higher'),
+        MetricSpec(
+            'streaming_pixel_accuracy', 'streaming pixel accuracy', 'stream pixel acc.', 'higher'
+        ),
     )
+    #: the streaming metrics, each with the offline figure it is the streaming form of, and
+    #: how picks are scored to them (``replaybench.replay.streaming``)
+    streaming_metrics: ClassVar[Mapping[str, str]] = {
+        'streaming_miou': 'miou',
+        'streaming_pixel_accuracy': 'pixel_accuracy',
+    }
+    streaming: ClassVar[str] = 'replaybench.tasks.segmentation.streaming:score'
     #: the report's mask thumbnails live in the report layer (report/masks.py)
     views: ClassVar[TaskViews] = TaskViews(
         summary_field='segmentation',

@@ -39,10 +39,16 @@ __all__ = ['DisparityTruth', 'StereoRecording', 'figures_of', 'recording', 'scor
 class DisparityTruth(Protocol):
     """An input's truth disparity (``replaybench.tasks.stereo.truth.DisparityTopic``)."""
 
+    #: the truth is depth in metres, converted with each output's f and baseline
+    depth: bool
+
     def lookup(self, frame_id: str, stamp_ns: int) -> npt.NDArray[np.float32] | None: ...
 
 
 class _Input(Protocol):
+    @property
+    def number(self) -> int: ...
+
     @property
     def truth(self) -> Mapping[str, object]: ...
 
@@ -87,8 +93,15 @@ class StereoRecording(TaskRecordingBase):
     scores_boxes = False
     writes_first = False
 
-    def __init__(self) -> None:
+    def __init__(self, backends: int = 1) -> None:
         self.counts: dict[tuple[str, str], DisparityCounts] = {}
+        #: with several backends, each (backend, topic)'s disparities by (input, seq), zlib'd
+        #: float32 (their estimated pixels; NaN elsewhere), for the agreement
+        self.keep = backends > 1
+        self.kept: dict[tuple[str, str], dict[tuple[int, int], tuple[tuple[int, ...], bytes]]] = {}
+        self.unconverted: dict[str, int] = {}
+        #: the truth of the pair last recorded (``frame`` runs before ``sample``)
+        self._truth: npt.NDArray[np.float32] | None = None
 
     def frame(
         self,
@@ -112,14 +125,97 @@ class StereoRecording(TaskRecordingBase):
             raise BackendError(msg)
         if output is not None:
             write_disparity(writer, label, topic, log_time_ns, stamp_ns, frame_id, output)
+            if self.keep:
+                self._keep(label, topic, (inp.number, key[1]), output)
         table = cast('DisparityTruth | None', inp.truth.get('stereo'))
         truth = None if table is None else table.lookup(frame_id, stamp_ns)
+        self._truth = truth
         if truth is None:
             return {}
+        if getattr(table, 'depth', False):
+            truth = self._truth = self._depth_truth(label, output, truth)
+            if truth is None:
+                return {}
         counts = score_output(output, truth)
         row = (label, topic)
         self.counts[row] = self.counts.get(row, DisparityCounts()) + counts
         return figures_of(counts.figures())
+
+    def _keep(self, label: str, topic: str, frame: tuple[int, int], output: Disparity) -> None:
+        import zlib
+
+        values = np.where(output.estimated(), output.disparity, np.nan).astype(np.float32)
+        packed = zlib.compress(np.ascontiguousarray(values).tobytes(), 1)
+        self.kept.setdefault((label, topic), {})[frame] = (values.shape, packed)
+
+    def agreements(self) -> list[dict[str, Any]]:
+        """Per topic and pair of stereo backends (run order): the pairs both returned, the
+        figures of the second's disparities against the first's as truth."""
+        import zlib
+
+        def unpack(found: tuple[tuple[int, ...], bytes]) -> npt.NDArray[np.float32]:
+            shape, packed = found
+            return np.frombuffer(zlib.decompress(packed), np.float32).reshape(shape)
+
+        rows: list[dict[str, Any]] = []
+        groups = list(self.kept)
+        for i, (first, topic) in enumerate(groups):
+            for second, other_topic in groups[i + 1 :]:
+                if other_topic != topic:
+                    continue
+                a, b = self.kept[(first, topic)], self.kept[(second, topic)]
+                both = sorted(set(a) & set(b))
+                total = DisparityCounts()
+                for frame in both:
+                    reference, other = unpack(a[frame]), unpack(b[frame])
+                    if reference.shape == other.shape:
+                        total += score_disparity(other, reference)
+                figures = figures_of(total.figures())
+                rows.append(
+                    {'backend_a': first, 'backend_b': second, 'topic': topic, 'frames': len(both)}
+                    | {k: figures[k] for k in ('epe', 'bad1', 'bad2', 'bad3', 'density')}
+                )
+        return rows
+
+    def run_fields(self) -> Mapping[str, Any]:
+        """run.json's ``stereo_agreement`` where two stereo backends replayed a topic."""
+        rows = self.agreements()
+        if not rows:
+            return {}
+        from replaybench.results.model import StereoAgreementRow
+
+        return {'stereo_agreement': tuple(StereoAgreementRow(**row) for row in rows)}
+
+    def sample(self, result: BackendResult) -> tuple[Disparity, Any] | None:
+        """The sample pair's disparity and its truth (None without), for its thumbnail; None
+        without an output."""
+        output = result.output
+        if not isinstance(output, Disparity):
+            return None
+        return output, self._truth
+
+    def _depth_truth(
+        self, label: str, output: Disparity | None, depth: npt.NDArray[np.float32]
+    ) -> npt.NDArray[np.float32] | None:
+        """Truth depth as disparity with the output's f and baseline; without an output, the
+        depth itself (only which pixels hold truth matters: they all count as bad); None,
+        counted, for an output without f or baseline."""
+        from replaybench.tasks.stereo.truth import depth_to_disparity
+
+        if output is None:
+            return depth
+        if not (output.f > 0 and output.t > 0):
+            self.unconverted[label] = self.unconverted.get(label, 0) + 1
+            return None
+        return depth_to_disparity(depth, output.f, output.t, output.cx_offset)
+
+    def warnings(self) -> list[str]:
+        """Pairs whose truth depth could not be made a disparity."""
+        return [
+            f'{label}: {n} pair(s) not scored: truth is depth and the output has no focal '
+            'length or baseline to convert it'
+            for label, n in sorted(self.unconverted.items())
+        ]
 
     def summary(self, backend: str, topic: str) -> Mapping[str, Any] | None:
         """The row's figures pooled over its pairs with truth; None where none was scored."""
@@ -129,7 +225,12 @@ class StereoRecording(TaskRecordingBase):
         return figures_of(counts.figures())
 
 
-def recording(recorder: object) -> StereoRecording:
-    """The stereo task's ``TaskRecording`` for a run."""
-    del recorder
-    return StereoRecording()
+class _Recorder(Protocol):
+    @property
+    def backends(self) -> int: ...
+
+
+def recording(recorder: _Recorder) -> StereoRecording:
+    """The stereo task's ``TaskRecording`` for the run of ``recorder``: it keeps disparities
+    for the agreement when the run has several backends."""
+    return StereoRecording(recorder.backends)

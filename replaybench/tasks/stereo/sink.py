@@ -1,6 +1,9 @@
 """Disparity in outputs.mcap: per pair of a stereo backend, a ``stereo_msgs/msg/DisparityImage``
 on ``/replaybench/<backend><left image topic>/disparity`` with the left image's header (32FC1,
-no estimate written as ``min_disparity - 1``; ``replaybench.stereo.msgs``)."""
+no estimate written as ``min_disparity - 1``; ``replaybench.stereo.msgs``); with ``--depth``
+also a ``sensor_msgs/msg/Image`` on ``.../depth``: 32FC1 depth in metres (the baseline's unit,
+``Disparity.depth``), NaN without an estimate (REP 118), where the output has a focal length
+and a baseline."""
 
 from __future__ import annotations
 
@@ -12,7 +15,7 @@ if TYPE_CHECKING:
     from replaybench.sinks.writer import OutputWriter
     from replaybench.stereo.output import Disparity
 
-__all__ = ['disparity_channel', 'write_disparity']
+__all__ = ['depth_channel', 'disparity_channel', 'write_disparity']
 
 
 def disparity_channel(backend: str, image_topic: str) -> str:
@@ -21,6 +24,13 @@ def disparity_channel(backend: str, image_topic: str) -> str:
     """
     topic = image_topic if image_topic.startswith('/') else f'/{image_topic}'
     return f'/replaybench/{backend.replace("-", "_")}{topic}/disparity'
+
+
+def depth_channel(backend: str, image_topic: str) -> str:
+    """>>> depth_channel('sgbm', '/stereo/left/image_rect')
+    '/replaybench/sgbm/stereo/left/image_rect/depth'
+    """
+    return disparity_channel(backend, image_topic).removesuffix('/disparity') + '/depth'
 
 
 def write_disparity(
@@ -47,3 +57,8 @@ def write_disparity(
         valid_window=disparity.valid_window,
     )
     writer.add_message(disparity_channel(backend, image_topic), DISPARITY_IMAGE, log_time_ns, data)
+    if writer.depth and disparity.f > 0 and disparity.t > 0:
+        from replaybench.msgs import IMAGE, serialize_image
+
+        depth = serialize_image(stamp_ns, frame_id, disparity.depth(), '32FC1')
+        writer.add_message(depth_channel(backend, image_topic), IMAGE, log_time_ns, depth)

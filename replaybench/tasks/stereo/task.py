@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
+from replaybench.errors import UsageError
 from replaybench.tasks.base import LazyMapping, MetricSpec, TaskViews
 from replaybench.tasks.stereo import DISPARITY_TRUTH_TOPIC
 
@@ -14,6 +16,19 @@ if TYPE_CHECKING:
     from replaybench.tasks.base import TruthInput
 
 __all__ = ['FRAME_COLUMNS', 'TASK', 'StereoTask']
+
+
+def _truth_topic(options: Any) -> str | None:
+    """The truth topic asked for: the depth topic, the disparity topic, the default; None for
+    a folder."""
+    depth: str | None = getattr(options, 'ground_truth_depth', None)
+    if depth is not None:
+        return depth
+    disparity: str | None = getattr(options, 'ground_truth_disparity', None)
+    if disparity is None:
+        return DISPARITY_TRUTH_TOPIC
+    return None if Path(disparity).is_dir() else disparity
+
 
 #: frames.csv's columns of a stereo backend's row: the pair's own figures (after the known ones)
 FRAME_COLUMNS = ('epe', 'bad1', 'bad2', 'bad3', 'd1_all', 'density', 'abs_rel')
@@ -53,7 +68,12 @@ class StereoTask:
     frame_columns: ClassVar[tuple[str, ...]] = FRAME_COLUMNS
     #: ``replaybench run``'s table: EPE, bad-2 and density after the memory column, where a
     #: row has them; the report shows bad-2 in its Summary and the others under More figures
-    views: ClassVar[TaskViews] = TaskViews(terminal_metrics=('epe', 'bad2', 'density'))
+    #: report.html shows each backend's disparity of the sample pair and its error
+    views: ClassVar[TaskViews] = TaskViews(
+        terminal_metrics=('epe', 'bad2', 'density'),
+        sample_picture='replaybench.report.disparity:disparity_sample_picture',
+        sample_caption='replaybench.report.disparity:disparity_caption',
+    )
 
     #: each pair's disparity written and scored (``replaybench.tasks.stereo.recording``)
     recording: ClassVar[str] = 'replaybench.tasks.stereo.recording:recording'
@@ -66,27 +86,45 @@ class StereoTask:
     # the ground truth (``replaybench.tasks.stereo.truth``, imported for an input with some)
 
     def truth_topics(self, options: Any) -> frozenset[str]:
-        """``/ground_truth/disparity``."""
-        del options
-        return frozenset((DISPARITY_TRUTH_TOPIC,))
+        """The truth topic (``--ground-truth-depth``, ``--ground-truth-disparity``, default
+        ``/ground_truth/disparity``): no camera; none for a folder."""
+        topic = _truth_topic(options)
+        return frozenset((topic,)) if topic is not None else frozenset()
 
     def load_truth(self, config: Any) -> object | None:
-        """Nothing: the truth is read from each input."""
-        del config
-        return None
+        """The folder of ``--ground-truth-disparity DIR`` (a ``DisparityFolder``), listed once;
+        None for a topic. ``UsageError`` for both options, or a folder without truth."""
+        disparity: str | None = getattr(config, 'ground_truth_disparity', None)
+        if disparity is not None and getattr(config, 'ground_truth_depth', None) is not None:
+            msg = 'give --ground-truth-disparity or --ground-truth-depth, not both'
+            raise UsageError(msg)
+        if disparity is None or not Path(disparity).is_dir():
+            return None
+        from replaybench.tasks.stereo.truth import DisparityFolder
+
+        return DisparityFolder(Path(disparity))
 
     def open_truth(
         self, inp: TruthInput, options: Any, loaded: object | None, notes: list[str]
     ) -> object | None:
-        """The input's truth topic, indexed when its first pair is scored (after the pass);
-        None without it."""
-        del options, loaded
-        found = [t for t in inp.source.topics() if t.name == DISPARITY_TRUTH_TOPIC]
-        if not found:
+        """The run's folder, or the input's truth topic (indexed when its first pair is scored,
+        after the pass); None without either. ``UsageError`` for a topic named by an option
+        that the input lacks."""
+        if loaded is not None:
+            return loaded
+        topic = _truth_topic(options)
+        if topic is None:
             return None
-        from replaybench.tasks.stereo.truth import DisparityTopic
+        if not any(t.name == topic for t in inp.source.topics()):
+            if topic != DISPARITY_TRUTH_TOPIC:
+                msg = f'{inp.path}: ground-truth topic {topic} is not a topic of this file'
+                raise UsageError(msg)
+            return None
+        from replaybench.tasks.stereo.truth import DepthTopic, DisparityTopic
 
-        return DisparityTopic(inp.source, DISPARITY_TRUTH_TOPIC, notes)
+        if getattr(options, 'ground_truth_depth', None) is not None:
+            return DepthTopic(inp.source, topic, notes)
+        return DisparityTopic(inp.source, topic, notes)
 
 
 TASK = StereoTask()

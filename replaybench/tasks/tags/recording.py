@@ -22,7 +22,7 @@ from replaybench.tasks.base import TaskRecordingBase
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
-    from replaybench.fiducials.types import TagResult
+    from replaybench.fiducials.types import TagDetection, TagResult
     from replaybench.results.model import TagAccuracy
     from replaybench.sinks.writer import OutputWriter
     from replaybench.tasks.tags.scoring import FrameTagScore
@@ -39,6 +39,8 @@ class TaggedInput(Protocol):
 
     @property
     def truth(self) -> Mapping[str, object]: ...
+    @property
+    def number(self) -> int: ...
 
 
 class TagScores(TaskRecordingBase):
@@ -52,6 +54,9 @@ class TagScores(TaskRecordingBase):
     def __init__(self) -> None:
         # (backend label, topic) -> scores of its frames with truth, in replay order
         self.scores: dict[tuple[str, str], list[FrameTagScore]] = {}
+        # (backend label, topic) -> (input, seq) -> the tags found: the outputs the streaming
+        # scores show (``replaybench.tasks.tags.streaming``)
+        self.found: dict[tuple[str, str], dict[tuple[int, int], tuple[TagDetection, ...]]] = {}
         self.notes: dict[tuple[str, str], str] = {}
 
     def frame(
@@ -79,6 +84,7 @@ class TagScores(TaskRecordingBase):
         if note and (label, topic) not in self.notes:
             self.notes[(label, topic)] = f'{label}: {note}'
         write_tags(writer, label, topic, log_time_ns, stamp_ns, frame_id, tagged)
+        self.found.setdefault((label, topic), {})[inp.number, key[1]] = tuple(tags)
         table = cast('TagTable | None', inp.truth.get('tags'))
         truth = None if table is None else table.get((frame_id, stamp_ns))
         if truth is None:

@@ -30,7 +30,30 @@ class TagsTask:
         MetricSpec('tag_trans_err_m', 'tag translation error (m)', 'trans m', 'lower'),
         MetricSpec('tag_trans_err_pct', 'tag translation error (% of range)', 'trans %', 'lower'),
         MetricSpec('tag_rot_err_deg', 'tag rotation error (deg)', 'rot deg', 'lower', sweep=True),
+        # streaming scores (replaybench.replay.streaming): each frame's tag truth against the
+        # tags in use at its release; timed rates and recorded outputs only
+        MetricSpec('streaming_tag_recall', 'streaming tag recall', 'stream tag recall', 'higher'),
+        MetricSpec(
+            'streaming_tag_trans_err_m',
+            'streaming tag translation error (m)',
+            'stream trans m',
+            'lower',
+        ),
+        MetricSpec(
+            'streaming_tag_rot_err_deg',
+            'streaming tag rotation error (deg)',
+            'stream rot deg',
+            'lower',
+        ),
     )
+    #: the streaming metrics, each with the offline figure it is the streaming form of, and
+    #: how picks are scored to them (``replaybench.replay.streaming``)
+    streaming_metrics: ClassVar[Mapping[str, str]] = {
+        'streaming_tag_recall': 'tag_recall',
+        'streaming_tag_trans_err_m': 'tag_trans_err_m',
+        'streaming_tag_rot_err_deg': 'tag_rot_err_deg',
+    }
+    streaming: ClassVar[str] = 'replaybench.tasks.tags.streaming:score'
     #: the report's section lives in the report layer (report/tags.py), the terminal's lines
     #: beside the tag scoring (tasks/tags/scoring.py); both imported where shown
     views: ClassVar[TaskViews] = TaskViews(

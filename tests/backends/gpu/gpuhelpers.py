@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from replaybench.backends.gpu._cuda import driver_problem
+from replaybench.types import FrameSet
 
 REAL = (Path(__file__).resolve().parents[3] / '..' / 'shared' / 'real').resolve()
 YOLOX_NANO = REAL / 'models' / 'yolox_nano.onnx'
@@ -25,3 +26,21 @@ needs_scipy = pytest.mark.skipif(not has('scipy'), reason='scipy is not installe
 needs_gpu = pytest.mark.skipif(
     driver_problem() is not None, reason=f'needs an NVIDIA GPU: {driver_problem()}'
 )
+
+
+def stereo_pairs(bag: Path) -> list[FrameSet]:
+    """The bag's stereo pairs as FrameSets, each member with its CameraInfo."""
+    from replaybench.decode import decode_camera_info, decode_image
+    from replaybench.sources import open_source
+
+    infos, images = {}, {}
+    with open_source(bag) as source:
+        for msg in source.messages():
+            if msg.topic.endswith('camera_info'):
+                infos[msg.topic.split('/')[2]] = decode_camera_info(msg)
+            elif msg.topic.startswith('/stereo/'):
+                frame = decode_image(msg)
+                side = msg.topic.split('/')[2]
+                images[(frame.stamp_ns, side)] = frame._replace(camera_info=infos[side])
+    stamps = sorted({stamp for stamp, _ in images})
+    return [FrameSet((images[(s, 'left')], images[(s, 'right')])) for s in stamps]

@@ -71,7 +71,7 @@ def test_each_gpu_backend_says_whether_it_runs_and_what_it_needs(monkeypatch, dr
     fake_loader(monkeypatch, {})
     report = gpu_report()
     names = [name for name, _ in report.backends]
-    assert names == ['cuda', 'tensorrt', 'hsv-cuda']
+    assert names == ['cuda', 'tensorrt', 'hsv-cuda', 'cuda-stereo', 'tensorrt-stereo']
     text = report.lines()
     for name, status in report.backends:
         assert not status.ok

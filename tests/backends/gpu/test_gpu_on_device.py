@@ -309,3 +309,51 @@ def test_the_gpu_engines_label_the_bundled_segmentation_model_as_onnx_seg_does(
         assert ours.stages.postprocess_device_ns is not None
     assert (info['task'], info['layout']) == ('segmentation', 'logits-nchw')
     assert info['device_name']
+
+
+#: ``cuda-stereo`` / ``tensorrt-stereo`` against ``onnx-stereo`` on the stereo fixture, in
+#: pixels of disparity: (mean, max) absolute difference per pair
+STEREO_TOLERANCE_PX = {'fp32': (1e-3, 0.05), 'fp16': (0.1, 2.0)}
+
+
+@pytest.mark.parametrize(
+    ('name', 'engine', 'precision'),
+    [
+        ('cuda-stereo', 'torch', 'fp32'),
+        ('cuda-stereo', 'torch', 'fp16'),
+        ('cuda-stereo', 'ort', 'fp32'),
+        ('tensorrt-stereo', 'ort', 'fp32'),
+    ],
+)
+def test_the_gpu_stereo_backends_give_onnx_stereos_disparity_on_the_device(
+    tmp_path: Path, name: str, engine: str, precision: str
+) -> None:
+    status = get_backend(name).available()
+    if not status.ok:
+        pytest.skip(f'{name} unavailable: {status.reason}')
+    if engine == 'torch' and not has('onnx2torch'):
+        pytest.skip('onnx2torch is not installed')
+    from backends.gpu.gpuhelpers import stereo_pairs
+
+    from replaybench.fixtures.stereo import write_stereo_mcap
+
+    sets = stereo_pairs(write_stereo_mcap(tmp_path / 'stereo.mcap', 3))
+    options = BackendOptions(engine=engine, precision=precision)
+    if name == 'tensorrt-stereo':
+        options = BackendOptions(
+            engine=engine, precision=precision, extra={'trt_cache': str(tmp_path / 'trt')}
+        )
+    try:
+        ours, info = _detect_all(name, options, sets)  # type: ignore[arg-type]
+    except BackendUnavailableError as exc:
+        pytest.skip(f'{name}: {exc}')
+    theirs, _ = _detect_all('onnx-stereo', BackendOptions(threads=1), sets)  # type: ignore[arg-type]
+    mean_tol, max_tol = STEREO_TOLERANCE_PX[precision]
+    for a, b in zip(ours, theirs, strict=True):
+        difference = np.abs(a.output.disparity - b.output.disparity)
+        assert float(difference.mean()) <= mean_tol
+        assert float(difference.max()) <= max_tol
+        assert a.stages.infer_device_ns is not None
+        assert a.stages.h2d_device_ns is not None
+    assert info['engine'] == engine
+    assert info['task'] == 'stereo'

@@ -84,9 +84,11 @@ def test_the_torch_engine_runs_its_convolutions_without_tf32(monkeypatch, driver
     assert set(seen) == {'ieee'}
 
 
-def test_precisions_are_fp32_tf32_and_fp16_and_nothing_else():
-    assert PRECISIONS == ('fp32', 'tf32', 'fp16')
-    with pytest.raises(BackendError, match=r"unknown --precision 'bf16'; known: fp32, tf32, fp16"):
+def test_precisions_are_fp32_tf32_fp16_and_int8_and_nothing_else():
+    assert PRECISIONS == ('fp32', 'tf32', 'fp16', 'int8')
+    with pytest.raises(
+        BackendError, match=r"unknown --precision 'bf16'; known: fp32, tf32, fp16, int8"
+    ):
         CudaBackend(BackendOptions(precision='bf16'))
 
 

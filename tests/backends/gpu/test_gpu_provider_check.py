@@ -124,7 +124,7 @@ def test_the_session_check_wants_the_gpu_provider_first():
     ('options', 'match'),
     [
         (BackendOptions(engine='tensorflow'), 'unknown --engine'),
-        (BackendOptions(precision='int8'), 'unknown --precision'),
+        (BackendOptions(precision='int4'), 'unknown --precision'),
         (BackendOptions(conf=1.5), '--conf must be within 0..1'),
         (BackendOptions(model_family='detr'), 'unknown --model-family'),
         (BackendOptions(device=-1), '--device must be >= 0'),

@@ -371,7 +371,7 @@ def _detections_cdr(stamp_ns: int, frame_id: str, detections: Sequence[Detection
             float(det.x1 - det.x0),
             float(det.y1 - det.y0),
         )
-        _cdr_string(out, '')  # Detection2D.id
+        _cdr_string(out, det.id)  # Detection2D.id
     return bytes(out)
 
 

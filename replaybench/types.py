@@ -191,7 +191,11 @@ class FrameSet:
 
 
 class Detection(NamedTuple):
-    """One detected object; the box is in source-image pixels, x0 < x1, y0 < y1."""
+    """One detected object; the box is in source-image pixels, x0 < x1, y0 < y1.
+
+    ``id``: the object's identity, ``vision_msgs/Detection2D.id`` (a track's id from a tracker,
+    an object's id in ground truth); '' for none.
+    """
 
     class_index: int
     label: str
@@ -200,6 +204,7 @@ class Detection(NamedTuple):
     y0: float
     x1: float
     y1: float
+    id: str = ''
 
 
 class StageTimes(NamedTuple):

@@ -308,6 +308,7 @@ def test_the_fixtures_command_reports_progress_per_bag_and_frame(tmp_path, monke
         'rgb8.bag',
         'two_camera.mcap',
         'live_detections.mcap',
+        'live_tracks.mcap',
     ]
     assert calls == [(name, done, 2) for name in names for done in (1, 2)]
 

@@ -192,7 +192,7 @@ def _rosbags_detections(stamp_ns: int, frame_id: str, detections: list[Detection
                 size_x=d.x1 - d.x0,
                 size_y=d.y1 - d.y0,
             ),
-            id='',
+            id=d.id,
         )
         for d in detections
     ]
@@ -210,6 +210,7 @@ _detection = st.builds(
     _floats,
     _floats,
     _floats,
+    st.text(max_size=5),
 )
 
 

@@ -137,11 +137,19 @@ def _load_entry_point(ep: EntryPoint) -> type[Backend]:
 def get_backend(name: str) -> type[Backend]:
     """The backend class registered as ``name``.
 
+    ``DETECTOR+TRACKER`` (``hsv+sort``) is a tracker over a box backend
+    (``replaybench.backends.tracked``).
+
     Raises ``UsageError`` naming the known backends when ``name`` is unknown, and
     ``BackendUnavailableError`` when its module or entry point cannot be loaded.
     """
     if name in BUILTIN_BACKENDS:
         return _load_builtin(name)
+    if '+' in name:  # DETECTOR+TRACKER: a tracker over a box backend
+        from replaybench.backends.tracked import split_name, tracked_class
+
+        detector, tracker = cast('tuple[str, str]', split_name(name))
+        return tracked_class(name, get_backend(detector), tracker)
     usable, _ = _plugins()
     if name in usable:
         return _load_entry_point(usable[name])

@@ -108,7 +108,8 @@ class HsvConfig:
     detector: DetectorParams = field(default_factory=DetectorParams)
 
 
-_TOP_KEYS = ('classes', 'detector')
+#: the [tracker.NAME] tables are a tracked backend's (replaybench.backends.tracked)
+_TOP_KEYS = ('classes', 'detector', 'tracker')
 _CLASS_KEYS = ('name', 'ranges')
 _DETECTOR_KEYS = tuple(DetectorParams.__dataclass_fields__)
 _COMPONENTS = (('hue', 180), ('saturation', 255), ('value', 255))

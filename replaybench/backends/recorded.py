@@ -57,6 +57,7 @@ class RecordedBackend:
         self.topic = ''
         self._table: Mapping[tuple[int, str, int], RecordedOutput] = {}
         self._readers: Mapping[int, OutputReader] = {}
+        self._tracked: set[int] = set()
         self._matched = 0
         # frames without a recorded output, by what the outputs are ('detections', 'tags')
         self._missing: dict[str, int] = {'detections': 0}
@@ -70,6 +71,10 @@ class RecordedBackend:
         self.topic = recorded.topic
         self._table = recorded.table
         self._readers = recorded.readers or {}
+        #: inputs whose recorded boxes carry ids (``Detection2D.id``): a tracker's tracks
+        self._tracked = {
+            index for (index, _, _), found in self._table.items() if _has_ids(found.result)
+        }
         self._missing = {self._noun(index): 0 for index in sorted(self._readers) or [0]}
 
     def _noun(self, input_index: int) -> str:
@@ -78,9 +83,14 @@ class RecordedBackend:
 
     def task_of(self, input_index: int) -> str:
         """The task of the outputs recorded in input ``input_index``: its topic's reader's
-        (``Backend.task``); boxes for an input without a reader."""
+        (``Backend.task``); boxes for an input without a reader; tracks for boxes of which
+        some carry an id."""
         reader = self._readers.get(input_index)
-        return 'detections' if reader is None else reader.task
+        if reader is None:
+            return 'detections'
+        if reader.identified_task is not None and input_index in self._tracked:
+            return reader.identified_task  # boxes that carry ids are tracks
+        return reader.task
 
     def open(self) -> None:
         """Nothing to load: ``prepare`` gave the recorded messages."""
@@ -121,3 +131,7 @@ class RecordedBackend:
 
     def close(self) -> None:
         """Nothing to release."""
+
+
+def _has_ids(result: BackendResult) -> bool:
+    return any(d.id for d in result.detections)

@@ -63,6 +63,15 @@ def fixtures(
             'hardware-synchronised stamps, the last camera starting 2 frames late.',
         ),
     ] = None,
+    tracks: Annotated[
+        bool,
+        typer.Option(
+            '--tracks',
+            help='Write only tracks.mcap: 90 frames of one JPEG camera whose objects cross and '
+            'pass behind a wall, truth boxes with ids (docs/tracking.md; --frames does not '
+            'apply).',
+        ),
+    ] = False,
 ) -> None:
     """Generate the synthetic fixture bags (MCAP raw/jpeg, rosbag2 .db3, ROS 1 .bag, two cameras,
     and live_detections.mcap: a detector's outputs recorded live, logged after their images).
@@ -77,8 +86,9 @@ def fixtures(
 
         typer.echo(str(write_ci_fixture(out)))
         return
-    if sum((rig is not None, tags, stereo)) > 1:
-        raise fail(UsageError('--rig, --tags and --stereo write different bags: give one of them'))
+    if sum((rig is not None, tags, stereo, tracks)) > 1:
+        msg = '--rig, --tags, --stereo and --tracks write different bags: give one of them'
+        raise fail(UsageError(msg))
     if size is None:
         size = '640x480' if tags else '320x240'
     try:
@@ -88,6 +98,8 @@ def fixtures(
             raise UsageError(msg)
         if rig is not None:
             paths = [_write_rig(out, rig, frames, (int(w), int(h)))]
+        elif tracks:
+            paths = [_write_tracks(out, (int(w), int(h)))]
         elif stereo:
             paths = _write_stereo(out, frames, (int(w), int(h)))
         elif tags:
@@ -155,3 +167,18 @@ def _write_stereo(out: Path, frames: int, size: tuple[int, int]) -> list[Path]:
 
         paths.append(write_stereo_mcap(target, frames, size, raw=raw, progress=report))
     return paths
+
+
+def _write_tracks(out: Path, size: tuple[int, int]) -> Path:
+    """``tracks.mcap`` in ``out`` (replacing it)."""
+    from replaybench.fixtures.tracks import TRACKS_BAG, TRACKS_FRAMES, write_tracks_mcap
+
+    out.mkdir(parents=True, exist_ok=True)
+    target = out / TRACKS_BAG
+    target.unlink(missing_ok=True)
+    progress = FixtureProgress(sys.stderr)
+
+    def report(done: int) -> None:
+        progress(TRACKS_BAG, done, TRACKS_FRAMES)
+
+    return write_tracks_mcap(target, TRACKS_FRAMES, size, progress=report)

@@ -153,6 +153,15 @@ def run(
             '--force', help='Replace the run folder --out, once the new run has finished.'
         ),
     ] = False,
+    tracker: Annotated[
+        list[str],
+        typer.Option(
+            '--tracker',
+            metavar='NAME',
+            help='Tracker over every backend: a row DETECTOR+TRACKER beside each (iou, sort, '
+            'bytetrack; repeat for several; docs/tracking.md).',
+        ),
+    ] = [],  # noqa: B006
     *,
     backend: list[str],
     param: list[str],
@@ -163,13 +172,14 @@ def run(
     Example: replaybench run fixtures/bags/rgb8_raw.mcap --backend hsv --backend null --out runs/a
     """
     from replaybench.app.run import run_config
+    from replaybench.backends.tracked import with_trackers
     from replaybench.replay.runner import new_run_dir
 
     progress = RunProgress()
     try:
         settings = run_config(
             bags,
-            backends=backend,
+            backends=with_trackers(backend, tracker),
             params=param,
             out=out if out is not None else new_run_dir(),
             force=force,

@@ -227,6 +227,8 @@ class BoxFields(NamedTuple):
     size_y: float
     class_id: str
     score: float
+    #: ``Detection2D.id``: the object's identity ('' for none)
+    id: str = ''
 
 
 class DetectionArrayFields(NamedTuple):
@@ -302,8 +304,8 @@ def _box(cur: _Cdr) -> BoxFields:
         if i == 0:
             class_id, score = name, value
     cx, cy, _theta, size_x, size_y = cur.floats(5)
-    cur.string()  # id
-    return BoxFields(cx, cy, size_x, size_y, class_id, score)
+    ident = cur.string()  # Detection2D.id
+    return BoxFields(cx, cy, size_x, size_y, class_id, score, ident)
 
 
 def parse_detection_array(buf: memoryview) -> DetectionArrayFields:

@@ -43,13 +43,23 @@ def _box_fields(d: Any) -> BoxFields:
         result = d.results[0]
         label, score = str(result.id), float(result.score)
     size_x, size_y = float(bbox.size_x), float(bbox.size_y)
-    return BoxFields(float(bbox.center.x), float(bbox.center.y), size_x, size_y, label, score)
+    ident = str(getattr(d, 'tracking_id', '') or '')  # noetic's tracking layout only
+    return BoxFields(
+        float(bbox.center.x), float(bbox.center.y), size_x, size_y, label, score, ident
+    )
 
 
 def _detection(b: BoxFields) -> Detection:
     half_w, half_h = b.size_x / 2, b.size_y / 2
     return Detection(
-        -1, b.class_id, b.score, b.cx - half_w, b.cy - half_h, b.cx + half_w, b.cy + half_h
+        -1,
+        b.class_id,
+        b.score,
+        b.cx - half_w,
+        b.cy - half_h,
+        b.cx + half_w,
+        b.cy + half_h,
+        b.id,
     )
 
 

@@ -84,6 +84,9 @@ class OutputReader:
     unusable: str = 'unusable value(s)'
     #: who made the outputs on the robot, in the ``latency`` line of the backend's info
     producer: str = 'the node'
+    #: the task of an input's outputs where some of their boxes carry an id
+    #: (``Detection.id``: a tracker's tracks); None: always ``task``
+    identified_task: str | None = None
 
     @property
     def noun(self) -> str:

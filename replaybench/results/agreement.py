@@ -85,7 +85,7 @@ def _grouped(
     if not dets:
         empty = np.zeros(0, dtype=np.int64)
         return _Flat(empty, empty, empty, np.zeros(0), np.zeros((0, 4)))
-    _, names, scores, x0, y0, x1, y1 = zip(*dets, strict=True)
+    _, names, scores, x0, y0, x1, y1, _ = zip(*dets, strict=True)
     frame = np.repeat(np.arange(len(keys), dtype=np.int64), counts)
     label = np.fromiter((labels[n] for n in names), dtype=np.int64, count=len(dets))
     group = frame * n_labels + label

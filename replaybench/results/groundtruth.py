@@ -37,14 +37,17 @@ if TYPE_CHECKING:
 
 __all__ = [
     'DEFAULT_TOLERANCE_NS',
+    'MOT_DISTRACTORS',
+    'MOT_PEDESTRIAN',
     'ExternalGroundTruth',
     'GroundTruthFormat',
     'MatchMode',
     'load_ground_truth_file',
+    'mot_boxes',
     'stamp_from_name',
 ]
 
-GroundTruthFormat = Literal['coco', 'cvat-images', 'cvat-video']
+GroundTruthFormat = Literal['coco', 'cvat-images', 'cvat-video', 'mot']
 MatchMode = Literal['stamp', 'seq']
 
 #: Largest difference between a frame's stamp and an annotated stamp that still matches.
@@ -95,6 +98,10 @@ class ExternalGroundTruth:
     topic: str | None = None
     tolerance_ns: int = DEFAULT_TOLERANCE_NS
     warnings: tuple[str, ...] = ()
+    #: a MOTChallenge file's boxes that are not scored (``mot_boxes``): the ones of other
+    #: classes and those marked not to consider, each with its class number as ``label``; a
+    #: tracker's box matched to a distractor's is not scored either (``MOT_DISTRACTORS``)
+    others: Mapping[_Key, tuple[Detection, ...]] = field(default_factory=dict)
     _sorted: dict[str | None, list[int]] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -127,7 +134,14 @@ class ExternalGroundTruth:
             topic,
             self.tolerance_ns,
             self.warnings,
+            self.others,
         )
+
+    def others_of(self, topic: str, seq: int) -> tuple[Detection, ...]:
+        """A MOTChallenge file's unscored boxes of one frame (``others``)."""
+        if self.topic is not None and topic != self.topic:
+            return ()
+        return self.others.get((topic, seq)) or self.others.get((None, seq)) or ()
 
     def lookup(self, topic: str, seq: int, stamp_ns: int) -> tuple[Detection, ...] | None:
         """The ground truth of one frame; None when the file does not annotate it."""
@@ -161,7 +175,8 @@ def load_ground_truth_file(
     tolerance_ns: int = DEFAULT_TOLERANCE_NS,
     seq_offset: int = 0,
 ) -> ExternalGroundTruth:
-    """Read a COCO JSON or CVAT XML ground-truth file (the format is told by its content).
+    """Read a COCO JSON, CVAT XML or MOTChallenge ``gt.txt`` ground-truth file (the format is
+    told by its content; a MOT file is read by ``mot_boxes`` and always matched by seq).
 
     ``match``: ``'stamp'`` or ``'seq'``. ``topic``: only frames of this image topic are
     annotated. ``seq_offset`` is subtracted from image ids and frame numbers in ``'seq'`` mode
@@ -191,12 +206,58 @@ def load_ground_truth_file(
         fmt, frames = parser.coco(data)
     elif start == b'<':
         fmt, frames = parser.cvat(data)
+    elif start[:1].isdigit():
+        kept, others = mot_boxes(path)
+        return ExternalGroundTruth(
+            path, 'mot', 'seq', kept, topic, tolerance_ns, tuple(parser.warnings()), others
+        )
     else:
-        msg = f'{path}: not a ground-truth file: expected COCO JSON or CVAT XML'
+        msg = f'{path}: not a ground-truth file: expected COCO JSON, CVAT XML or MOT gt.txt'
         raise SourceError(msg)
     return ExternalGroundTruth(
         path, fmt, match, frames, topic, tolerance_ns, tuple(parser.warnings())
     )
+
+
+#: MOT17's pedestrian class (-1: a MOT15 file without classes), the one scored
+MOT_PEDESTRIAN = frozenset({1, -1})
+#: MOT17's distractor classes (person on vehicle, static person, distractor, reflection): a
+#: tracker's box matched to one is not scored, as TrackEval's MOT17 preset removes it
+MOT_DISTRACTORS = frozenset({'2', '7', '8', '12'})
+
+
+def mot_boxes(
+    path: Path,
+) -> tuple[dict[_Key, tuple[Detection, ...]], dict[_Key, tuple[Detection, ...]]]:
+    """A MOTChallenge ground-truth file's boxes by (None, seq), seq its frame number less 1
+    (frames count the topic's images from 1), as TrackEval's MOT17 preset reads them: scored,
+    the pedestrians (class 1, or -1) not marked ``consider`` 0, labelled ``pedestrian`` with
+    their id; the others (``ExternalGroundTruth.others``) with their class number as label.
+    ``UsageError`` naming the line for a malformed one."""
+    from replaybench.tracking.motfile import read_mot_file
+
+    kept: dict[_Key, list[Detection]] = {}
+    others: dict[_Key, list[Detection]] = {}
+    for box in read_mot_file(path):
+        key: _Key = (None, box.frame - 1)
+        scored = box.cls in MOT_PEDESTRIAN and box.conf != 0
+        det = Detection(
+            0 if scored else -1,
+            'pedestrian' if scored else str(box.cls),
+            1.0,
+            box.x,
+            box.y,
+            box.x + box.w,
+            box.y + box.h,
+            str(box.id),
+        )
+        (kept if scored else others).setdefault(key, []).append(det)
+    last = max((seq for _, seq in (*kept, *others)), default=-1)
+    # every frame up to the file's last is annotated: a frame without a line has no object
+    frames: dict[_Key, tuple[Detection, ...]] = {
+        (None, seq): tuple(kept.get((None, seq), ())) for seq in range(last + 1)
+    }
+    return frames, {k: tuple(v) for k, v in others.items()}
 
 
 class _Parser:

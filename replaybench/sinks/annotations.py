@@ -48,7 +48,9 @@ def annotations_channel(backend: str, image_topic: str) -> str:
     '/replaybench/yolo_nano/camera/image_raw/annotations'
     """
     topic = image_topic if image_topic.startswith('/') else f'/{image_topic}'
-    return f'/replaybench/{backend.replace("-", "_")}{topic}/annotations'
+    # a tracked backend's + (hsv+sort) as _: ROS names hold letters, digits, _ and /
+    name = backend.replace('-', '_').replace('+', '_')
+    return f'/replaybench/{name}{topic}/annotations'
 
 
 def backend_colour(index: int) -> str:
@@ -67,7 +69,10 @@ def rgba(hex_colour: str, alpha: float = 1.0) -> tuple[float, float, float, floa
 
 
 def annotation_text(det: Detection) -> str:
-    """The text drawn next to a box: ``label score`` (score with two decimals)."""
+    """The text drawn next to a box: ``label score`` (score with two decimals), after the
+    track's id where the box has one: ``#7 red 0.93``."""
+    if det.id:
+        return f'#{det.id} {det.label} {det.score:.2f}'
     return f'{det.label} {det.score:.2f}'
 
 

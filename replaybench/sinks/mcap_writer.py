@@ -94,7 +94,9 @@ def detections_channel(backend: str, image_topic: str) -> str:
     '/replaybench/yolo_nano/camera/image_raw/detections'
     """
     topic = image_topic if image_topic.startswith('/') else f'/{image_topic}'
-    return f'/replaybench/{backend.replace("-", "_")}{topic}/detections'
+    # a tracked backend's + (hsv+sort) as _: ROS names hold letters, digits, _ and /
+    name = backend.replace('-', '_').replace('+', '_')
+    return f'/replaybench/{name}{topic}/detections'
 
 
 @cache

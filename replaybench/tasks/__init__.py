@@ -76,6 +76,7 @@ TASKS: dict[str, str] = {
     'tags': 'replaybench.tasks.tags.task:TASK',
     'segmentation': 'replaybench.tasks.segmentation.task:TASK',
     'stereo': 'replaybench.tasks.stereo.task:TASK',
+    'tracks': 'replaybench.tasks.tracks.task:TASK',
 }
 
 

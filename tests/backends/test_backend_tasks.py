@@ -145,7 +145,7 @@ def test_a_backend_that_declares_an_unknown_task_is_refused_in_one_line_before_a
     message = str(caught.value)
     assert message == (
         "backend 'declares' declares task 'flow': unknown task 'flow'; "
-        'known tasks: detections, tags, segmentation, stereo'
+        'known tasks: detections, tags, segmentation, stereo, tracks'
     )
     assert caught.value.exit_code == 2
     assert (_Declares.detected, _Declares.closed) == (0, 1)  # closed again, never replayed

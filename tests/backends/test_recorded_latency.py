@@ -66,7 +66,7 @@ def _messages(
         out.append((IMAGE_TOPIC, IMAGE, image_log, image))
         after = output_after_ms(i)
         if after is not None:
-            robot = [b._replace(score=0.9) for b in boxes[1:]]
+            robot = [b._replace(score=0.9, id='') for b in boxes[1:]]  # a detector: no ids
             data = serialize_detections(stamp, 'cam', robot, ros1=ros1)
             out.append((ROBOT_TOPIC, DETECTION2DARRAY, image_log + after * MS, data))
     return sorted(out, key=lambda m: m[2])

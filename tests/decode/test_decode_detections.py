@@ -95,9 +95,10 @@ def test_detection_arrays_decode_into_boxes_labels_and_scores(serialization):
     gt = decode_detections(RawMessage('/gt', DETECTION2DARRAY, serialization, 0, 0, data))
     assert gt.stamp_ns == 1_234_000_000_567
     assert gt.frame_id == 'cam'
+    ident = '' if serialization == 'ros1' else 'track-1'  # Detection2D.id: ROS 2 only
     assert gt.detections == (
-        Detection(-1, '7', 0.9, 80.0, 40.0, 120.0, 60.0),
-        Detection(-1, '3', 0.25, 8.0, 16.0, 13.0, 25.0),
+        Detection(-1, '7', 0.9, 80.0, 40.0, 120.0, 60.0, ident),
+        Detection(-1, '3', 0.25, 8.0, 16.0, 13.0, 25.0, ident),
     )
 
 
@@ -105,7 +106,8 @@ def test_detection_arrays_decode_into_boxes_labels_and_scores(serialization):
 def test_detections_without_hypotheses_get_score_one_and_no_label(serialization):
     data = detection_array(serialization == 'ros1', 5, BOXES[:1], with_results=False)
     gt = decode_detections(RawMessage('/gt', DETECTION2DARRAY, serialization, 0, 0, data))
-    assert gt.detections == (Detection(-1, '', 1.0, 80.0, 40.0, 120.0, 60.0),)
+    ident = '' if serialization == 'ros1' else 'track-1'
+    assert gt.detections == (Detection(-1, '', 1.0, 80.0, 40.0, 120.0, 60.0, ident),)
 
 
 def test_empty_detection_arrays_decode():
@@ -135,7 +137,7 @@ def test_detections_written_by_msgs_read_back_unchanged():
         )
         assert (gt.stamp_ns, gt.frame_id) == (42, 'cam')
         (got,) = gt.detections
-        assert got[2:] == (0.75, 10.0, 20.0, 50.0, 100.0)
+        assert got[2:7] == (0.75, 10.0, 20.0, 50.0, 100.0)
         if not ros1 or ros1_id_is_string():  # an int64 id carries the class index instead
             assert got.label == 'person'
 
@@ -191,7 +193,8 @@ def test_genuine_noetic_detections_with_an_integer_id_decode(tracking):
     data = bytes(store.serialize_ros1(message, DETECTION2DARRAY))
     gt = decode_detections(RawMessage('/gt', DETECTION2DARRAY, 'ros1', 0, 0, data))
     assert gt.stamp_ns == 3_000_000_004
-    assert gt.detections == (Detection(-1, '41', 0.5, 8.0, 17.0, 12.0, 23.0),)
+    ident = 'track-9' if tracking else ''  # noetic's tracking_id is the track's id
+    assert gt.detections == (Detection(-1, '41', 0.5, 8.0, 17.0, 12.0, 23.0, ident),)
 
 
 # -- CDR read by hand, against rosbags' deserialiser ------------------------------------------
@@ -256,8 +259,8 @@ def _as_rosbags_reads_it(data: bytes):
         label, score = '', 1.0
         if d.results:
             label, score = d.results[0].hypothesis.class_id, d.results[0].hypothesis.score
-        box = Detection(-1, label, score, cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2)
-        if all(math.isfinite(v) for v in box[2:]):
+        box = Detection(-1, label, score, cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2, d.id)
+        if all(math.isfinite(v) for v in box[2:7]):
             boxes.append(box)
     stamp = m.header.stamp
     return stamp.sec * 1_000_000_000 + stamp.nanosec, m.header.frame_id, tuple(boxes)

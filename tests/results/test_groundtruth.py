@@ -277,7 +277,7 @@ GOOD_ANN = {'image_id': 1, 'category_id': 1, 'bbox': [0, 0, 1, 1]}
           'xbr="1" ybr="1"/></image></annotations>'), r"xtl='a' must be a number"),
         ('<annotations><image id="0"', r'invalid XML \(line 1'),
         ('<dataset/>', 'root element is <dataset>'),
-        ('hello', 'expected COCO JSON or CVAT XML'),
+        ('hello', 'expected COCO JSON, CVAT XML or MOT gt.txt'),
     ],
 )  # fmt: skip
 def test_malformed_files_give_one_clear_error_naming_the_file(

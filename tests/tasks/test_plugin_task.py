@@ -110,7 +110,9 @@ def test_the_plugins_task_and_backends_are_listed_beside_the_built_in_ones(
     names = subprocess.run(
         [sys.executable, '-c', code], env=plugin['env'], capture_output=True, text=True, check=True
     ).stdout
-    assert names.strip() == "['detections', 'tags', 'segmentation', 'stereo', 'brightness']"
+    assert (
+        names.strip() == "['detections', 'tags', 'segmentation', 'stereo', 'tracks', 'brightness']"
+    )
 
 
 def test_summary_csv_holds_the_tasks_metric_after_the_known_columns(run_dir: Path) -> None:

@@ -33,6 +33,7 @@ def test_every_registered_task_declares_its_recorded_readers_and_each_reads_for_
         'tags': {'isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray'},
         'segmentation': {'sensor_msgs/msg/Image'},
         'stereo': {'stereo_msgs/msg/DisparityImage'},
+        'tracks': set(),
     }
     for name in task_names():
         readers = get_task(name).recorded_readers

@@ -38,6 +38,7 @@ def test_each_built_in_task_names_its_part_of_recording_a_frame():
         'tags': 'replaybench.tasks.tags.recording:recording',
         'segmentation': 'replaybench.tasks.segmentation.recording:recording',
         'stereo': 'replaybench.tasks.stereo.recording:recording',
+        'tracks': 'replaybench.tasks.tracks.recording:recording',
     }
 
 

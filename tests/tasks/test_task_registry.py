@@ -104,14 +104,14 @@ def test_built_in_tasks_are_module_strings_resolved_on_first_use() -> None:
     ).stdout
     before, names, listed, after, same = json.loads(found)
     assert before == []
-    assert names[:4] == ['detections', 'tags', 'segmentation', 'stereo']
+    assert names[:5] == ['detections', 'tags', 'segmentation', 'stereo', 'tracks']
     assert listed == []  # listing the names imports no task
     assert after == ['replaybench.tasks.tags.task']
     assert same is True
 
 
 def test_built_in_tasks_are_tasks_named_as_registered() -> None:
-    assert list(TASKS) == ['detections', 'tags', 'segmentation', 'stereo']
+    assert list(TASKS) == ['detections', 'tags', 'segmentation', 'stereo', 'tracks']
     for name in TASKS:
         task = get_task(name)
         assert isinstance(task, Task)
@@ -123,7 +123,7 @@ def test_built_in_tasks_are_tasks_named_as_registered() -> None:
 def test_an_unknown_task_is_a_usage_error_listing_the_known_ones() -> None:
     with pytest.raises(
         UsageError,
-        match=r"unknown task 'flow'; known tasks: detections, tags, segmentation, stereo",
+        match=r"unknown task 'flow'; known tasks: detections, tags, segmentation, stereo, tracks",
     ):
         get_task('flow')
 
@@ -132,7 +132,7 @@ def test_an_installed_distribution_registers_a_task_through_the_entry_point_grou
     tmp_path: Path, plugin_module: str
 ) -> None:
     distribution(tmp_path, toy=f'{plugin_module}:TASK')
-    assert task_names() == ['detections', 'tags', 'segmentation', 'stereo', 'toy']
+    assert task_names() == ['detections', 'tags', 'segmentation', 'stereo', 'tracks', 'toy']
     task = get_task('toy')
     assert type(task).__module__ == plugin_module
     assert [m.name for m in task.metrics] == ['toy_score']
@@ -171,6 +171,7 @@ def test_broken_entry_points_are_refused_with_one_line_naming_them(
         'tags',
         'segmentation',
         'stereo',
+        'tracks',
         'gone',
         'misnamed',
         'number',
@@ -230,10 +231,12 @@ def test_the_tag_task_declares_the_summary_csv_tag_columns_in_their_order() -> N
 
 def test_every_accuracy_metric_is_a_summary_row_field_or_of_a_task_without_fields() -> None:
     fields = {f.name for f in dataclasses.fields(SummaryRow)}
-    # the stereo task keeps its metrics in SummaryRow.task_metrics (its frame_columns too)
-    own = {m.name for m in get_task('stereo').metrics}
+    # the stereo and tracks tasks keep their metrics in SummaryRow.task_metrics (their
+    # frame_columns too)
+    own = {m.name for name in ('stereo', 'tracks') for m in get_task(name).metrics}
     assert not own & fields
     assert get_task('stereo').frame_columns  # type: ignore[attr-defined]
+    assert get_task('tracks').frame_columns == ('track_ms',)  # type: ignore[attr-defined]
     # every task's streaming metrics (replaybench.replay.streaming) are in task_metrics too
     streaming = {n for t in task_names() for n in getattr(get_task(t), 'streaming_metrics', ())}
     assert streaming
@@ -253,6 +256,10 @@ def test_the_sweep_shows_the_metrics_whose_spec_says_so() -> None:
         'bad2',
         'd1_all',
         'density',
+        'hota',
+        'assa',
+        'idf1',
+        'mota',
         'streaming_map50',
     )
     start = SWEEP_CSV_COLUMNS.index('p99_high') + 1

@@ -141,7 +141,7 @@ def test_the_built_in_views_are_imported_when_the_report_loads_them_not_with_the
     assert before == []
     assert after == ['replaybench.report.detections', 'replaybench.report.tags']
     # each task's main figure, in task order
-    assert main == ['map50', 'tag_recall', 'miou', 'bad2']
+    assert main == ['map50', 'tag_recall', 'miou', 'bad2', 'hota']
 
 
 def test_the_run_table_takes_the_boxes_columns_for_every_row_and_masks_only_where_scored(

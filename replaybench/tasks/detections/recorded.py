@@ -32,5 +32,7 @@ READERS: Mapping[str, OutputReader] = {
         read_detection2d_array,
         unusable='detection(s) with a NaN or infinite box or score',
         producer='the detector',
+        # a tracker's output: boxes that carry ids are tracks (replaybench.tasks.tracks)
+        identified_task='tracks',
     ),
 }

@@ -70,12 +70,16 @@ def load_file(config: FileOptions) -> ExternalGroundTruth | None:
     if config.ground_truth_match == 'seq' and len(config.inputs) > 1:
         msg = '--ground-truth-match seq needs a single BAG: seq numbers restart in every bag'
         raise UsageError(msg)
-    return load_ground_truth_file(
+    found = load_ground_truth_file(
         config.ground_truth_file,
         match=cast('MatchMode', config.ground_truth_match),
         topic=config.ground_truth_image_topic,
         seq_offset=config.ground_truth_seq_offset,
     )
+    if found.format == 'mot' and len(config.inputs) > 1:
+        msg = f"{found.path}: a MOT file counts one topic's images from 1: give a single BAG"
+        raise UsageError(msg)
+    return found
 
 
 def open_box_truth(

@@ -123,7 +123,7 @@ def test_cuda_torch_engine_converts_the_model_and_finds_what_onnx_cpu_finds(
     for ours, theirs in zip(result.detections, expected, strict=True):
         # the device letterbox resizes with torch, onnx-cpu with OpenCV: near, not equal
         assert abs(ours.score - theirs.score) <= 0.01
-        for a, b in zip(ours[3:], theirs[3:], strict=True):
+        for a, b in zip(ours[3:7], theirs[3:7], strict=True):
             assert abs(a - b) <= 0.5
     assert info['engine'] == 'torch'
     assert info['precision'] == 'fp32'

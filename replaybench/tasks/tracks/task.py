@@ -61,6 +61,11 @@ class TracksTask:
         _share('fragmentations', 'fragmentations', 'Frag', 'lower', fmt='.0f'),
         _share('mt', 'mostly tracked (share of objects)', 'MT'),
         _share('ml', 'mostly lost (share of objects)', 'ML', 'lower'),
+        # streaming scores (replaybench.replay.streaming): each frame's truth against the
+        # tracks in use at its release; timed rates and recorded outputs only
+        _share('streaming_hota', 'streaming HOTA', 'stream HOTA'),
+        _share('streaming_idf1', 'streaming IDF1', 'stream IDF1'),
+        _share('streaming_mota', 'streaming MOTA', 'stream MOTA'),
         MetricSpec(
             'track_ms',
             'mean tracker time per frame',
@@ -71,6 +76,14 @@ class TracksTask:
             gate=False,
         ),
     )
+    #: the streaming metrics, each with the offline figure it is the streaming form of, and
+    #: how picks are scored to them (``replaybench.tasks.tracks.streaming``)
+    streaming_metrics: ClassVar[Mapping[str, str]] = {
+        'streaming_hota': 'hota',
+        'streaming_idf1': 'idf1',
+        'streaming_mota': 'mota',
+    }
+    streaming: ClassVar[str] = 'replaybench.tasks.tracks.streaming:score'
     frame_columns: ClassVar[tuple[str, ...]] = FRAME_COLUMNS
     #: ``replaybench run``'s table: HOTA, IDF1 and MOTA after the memory column, where a row
     #: has them; the report shows HOTA in its Summary and the others under More figures

@@ -160,14 +160,12 @@ def tracker_params(
 def _tracked(tracks: list[Any], detections: tuple[Detection, ...]) -> tuple[Detection, ...]:
     """The tracks as detections: the matched box's class, label and score, the track's box and
     id."""
-    out: list[Detection] = []
-    for track in tracks:
-        if track.detection is None:
-            continue  # a prediction without a box of this frame: not reported
-        det = detections[track.detection]
-        x0, y0, x1, y1 = track.box
-        out.append(Detection(det.class_index, det.label, det.score, x0, y0, x1, y1, str(track.id)))
-    return tuple(out)
+    made = Detection._make
+    return tuple(
+        made((*detections[t.detection][:3], *t.box, str(t.id)))
+        for t in tracks
+        if t.detection is not None  # a prediction without a box of this frame: not reported
+    )
 
 
 class _TrackedBase:
@@ -231,8 +229,8 @@ class _TrackedBase:
         np = self._np
         t0 = time.perf_counter_ns()
         dets = found.detections
-        boxes = np.array([(d.x0, d.y0, d.x1, d.y1) for d in dets], dtype=np.float64).reshape(-1, 4)
-        scores = np.array([d.score for d in dets], dtype=np.float64)
+        boxes = np.array([d[3:7] for d in dets], dtype=np.float64).reshape(-1, 4)
+        scores = np.array([d[2] for d in dets], dtype=np.float64)
         stream = (frame.input_index, frame.topic)
         tracker = self._trackers.get(stream)
         if tracker is None:

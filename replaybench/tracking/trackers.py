@@ -67,7 +67,7 @@ def box_iou_xyxy(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.
     y1 = np.maximum(a[:, None, 1], b[None, :, 1])
     x2 = np.minimum(a[:, None, 2], b[None, :, 2])
     y2 = np.minimum(a[:, None, 3], b[None, :, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
+    inter = np.maximum(x2 - x1, 0.0) * np.maximum(y2 - y1, 0.0)
     area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
     area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
     union = area_a[:, None] + area_b[None, :] - inter
@@ -82,18 +82,19 @@ def _match(
     """One-to-one matches of rows to columns with IoU ≥ ``threshold`` (Hungarian on -IoU), the
     unmatched rows and the unmatched columns, each in increasing order."""
     rows_n, cols_n = iou.shape
-    pairs: list[tuple[int, int]] = []
-    if rows_n and cols_n:
-        rows, cols = _assign(-iou)
-        pairs = sorted(
-            (int(r), int(c)) for r, c in zip(rows, cols, strict=True) if iou[r, c] >= threshold
-        )
-    used_r = {r for r, _ in pairs}
-    used_c = {c for _, c in pairs}
+    if not (rows_n and cols_n):
+        return [], list(range(rows_n)), list(range(cols_n))
+    rows, cols = _assign(-iou)  # rows ascending
+    good = iou[rows, cols] >= threshold
+    rows, cols = rows[good], cols[good]
+    free_r = np.ones(rows_n, bool)
+    free_r[rows] = False
+    free_c = np.ones(cols_n, bool)
+    free_c[cols] = False
     return (
-        pairs,
-        [r for r in range(rows_n) if r not in used_r],
-        [c for c in range(cols_n) if c not in used_c],
+        list(zip(rows.tolist(), cols.tolist(), strict=True)),
+        np.flatnonzero(free_r).tolist(),
+        np.flatnonzero(free_c).tolist(),
     )
 
 
@@ -147,6 +148,28 @@ class _Bank:
         self.f = f
         self.h = h
         n = f.shape[0]
+        m = h.shape[0]
+        #: H measures the first m states (the trackers' H): H P, H P H^T and H x are slices,
+        #: the same numbers as the products (every other term is an exact zero), fewer steps
+        self.select = m if np.array_equal(h, np.eye(m, n)) else None
+        #: F is the identity plus ones off the diagonal, at most one a row (constant velocity):
+        #: F x and F P F^T are sums of two terms, added here without the products (the same
+        #: numbers: the products add exact zeros)
+        off = f - np.eye(n)
+        rows, cols = np.nonzero(off)
+        simple = bool(np.all(off[rows, cols] == 1.0)) and len(set(rows.tolist())) == len(rows)
+        ranges = (
+            simple
+            and len(rows) > 0
+            and np.count_nonzero(off) == len(rows)
+            and np.array_equal(rows, np.arange(rows[0], rows[0] + len(rows)))
+            and np.array_equal(cols, np.arange(cols[0], cols[0] + len(cols)))
+        )
+        self.velocity = (
+            (slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1))
+            if ranges
+            else None
+        )
         self.x = np.zeros((0, n))
         self.p = np.zeros((0, n, n))
 
@@ -159,9 +182,20 @@ class _Bank:
 
     def predict(self, q: npt.NDArray[np.float64]) -> None:
         """``q``: the process noise, n x n or N x n x n."""
-        if len(self.x):
+        if not len(self.x):
+            return
+        if self.velocity is None:
             self.x = self.x @ self.f.T
             self.p = self.f @ self.p @ self.f.T + q
+            return
+        rows, cols = self.velocity
+        x = self.x.copy()
+        x[:, rows] += self.x[:, cols]
+        fp = self.p.copy()
+        fp[:, rows, :] += self.p[:, cols, :]
+        fp[:, :, rows] += fp[:, :, cols]
+        fp += q
+        self.x, self.p = x, fp
 
     def update(
         self, rows: npt.NDArray[np.intp], z: npt.NDArray[np.float64], r: npt.NDArray[np.float64]
@@ -169,10 +203,11 @@ class _Bank:
         """Tracks ``rows`` measured ``z`` (len(rows) x m), with noise ``r`` (m x m or per row)."""
         if not len(rows):
             return
-        x, p, h = self.x[rows], self.p[rows], self.h
-        s = h @ p @ h.T + r
-        k = np.linalg.solve(s, h @ p).transpose(0, 2, 1)  # P H^T S^-1, S symmetric
-        y = z - x @ h.T
+        x, p, h, m = self.x[rows], self.p[rows], self.h, self.select
+        hp = p[:, :m, :] if m is not None else h @ p
+        s = (hp[:, :, :m] if m is not None else hp @ h.T) + r
+        k = np.linalg.solve(s, hp).transpose(0, 2, 1)  # P H^T S^-1, S symmetric
+        y = z - (x[:, :m] if m is not None else x @ h.T)
         self.x[rows] = x + np.einsum('nij,nj->ni', k, y)
         self.p[rows] = p - k @ s @ k.transpose(0, 2, 1)
 
@@ -246,7 +281,7 @@ class SortTracker:
             bank.update(t_rows, _to_z_all(dets[d_rows]), _SORT_R)
             self.since[t_rows] = 0
             self.streak[t_rows] += 1
-            matched = {int(t): int(keep[d]) for d, t in pairs}
+            matched = dict(zip(t_rows.tolist(), keep[d_rows].tolist(), strict=True))
         for d in new:
             x = np.zeros(7)
             x[:4] = _to_z_all(dets[d : d + 1])[0]
@@ -259,15 +294,18 @@ class SortTracker:
         shown = (self.since < 1) & (
             (self.streak >= self.min_hits) | (self.frame_count <= self.min_hits)
         )
-        now = _from_x_all(bank.x)
+        rows = np.flatnonzero(shown)
+        now = _from_x_all(bank.x[rows]).tolist()
+        # in id order: a track's row never moves before an older one's (new tracks are
+        # appended with the next id, gone ones removed in place)
         out = [
-            Track(int(self.ids[i]), _box(now[i]), matched.get(int(i)))
-            for i in np.flatnonzero(shown)
+            Track(track_id, (b[0], b[1], b[2], b[3]), matched.get(row))
+            for track_id, b, row in zip(self.ids[rows].tolist(), now, rows.tolist(), strict=True)
         ]
         alive = self.since <= self.max_age
         if not alive.all():
             self._keep(alive)
-        return sorted(out, key=lambda t: t.id)
+        return out
 
 
 # ---------------------------------------------------------------- ByteTrack

@@ -45,13 +45,12 @@ import numpy as np
 
 from replaybench.backends.base import Availability, BackendOptions
 from replaybench.backends.onnx_cpu import onnx_cpu_available, session_options
-from replaybench.backends.sgbm import StereoMatcherBackend
+from replaybench.backends.sgbm import StereoMatcherBackend, pair_rectifier
 from replaybench.errors import BackendError, BackendUnavailableError, StereoError
+from replaybench.stereo.topics import pair_by_name
 from replaybench.types import BackendResult, StageTimes
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
-
     import numpy.typing as npt
 
     from replaybench.stereo import Rectifier
@@ -247,13 +246,8 @@ class OnnxStereoBackend:
     #: without --sync, a pair's images are paired by equal stamps (``--sync exact``)
     default_sync: ClassVar[str] = 'exact'
 
-    @staticmethod
-    def frame_set_topics(topics: Sequence[str]) -> tuple[tuple[str, ...], str | None]:
-        """Without --topic or --stereo: the stereo pair the names of an input's camera topics
-        make, left first (``replaybench.stereo.pair_by_name``)."""
-        from replaybench.stereo.topics import pair_by_name
-
-        return pair_by_name(topics)
+    #: without --topic or --stereo: the pair by name, as the matchers take it
+    frame_set_topics = staticmethod(pair_by_name)
 
     #: before the replay: a left and a right topic, CameraInfo of one size and a baseline
     check_frame_set = StereoMatcherBackend.check_frame_set
@@ -336,17 +330,8 @@ class OnnxStereoBackend:
         self._rectifiers.clear()
 
     def rectifier(self, left: Frame, right: Frame) -> Rectifier:
-        """The pair's rectifier, built on its first set (``StereoError``: no CameraInfo,
-        sizes that differ, no baseline)."""
-        key = (left.input_index, left.topic, right.topic)
-        found = self._rectifiers.get(key)
-        if found is None:
-            from replaybench.stereo import parse_stereo, stereo_pair
-
-            named = parse_stereo(f'{left.topic},{right.topic}').rectified
-            pair = stereo_pair(left.camera_info, right.camera_info, rectified=named or None)
-            found = self._rectifiers[key] = pair.rectifier()
-        return found
+        """The pair's rectifier, built on its first set (``pair_rectifier``)."""
+        return pair_rectifier(self._rectifiers, left, right)
 
     def _channels(self, image: npt.NDArray[Any], encoding: str) -> npt.NDArray[np.uint8]:
         """An image as the network's channels (HxW grey, or HxWx3 in its order), uint8."""

@@ -22,16 +22,17 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from replaybench.backends.base import Availability, BackendOptions
 from replaybench.errors import StereoError, UsageError
+from replaybench.stereo.topics import pair_by_name
 from replaybench.types import BackendResult, StageTimes
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Mapping
 
     from replaybench.stereo import Matcher, Rectifier
     from replaybench.stereo.matchers import MatcherKind
     from replaybench.types import CameraInfo, Frame, FrameSet
 
-__all__ = ['SgbmBackend', 'StereoMatcherBackend', 'matcher_parameters']
+__all__ = ['SgbmBackend', 'StereoMatcherBackend', 'matcher_parameters', 'pair_rectifier']
 
 
 def _option_value(key: str, text: str) -> object:
@@ -67,6 +68,23 @@ def matcher_parameters(kind: str, options: BackendOptions) -> dict[str, object]:
     return table
 
 
+def pair_rectifier(
+    built: dict[tuple[int, str, str], Rectifier], left: Frame, right: Frame
+) -> Rectifier:
+    """The rectifier of a pair's left and right frames, built on its first set and kept in
+    ``built`` by (input, left topic, right topic); ``StereoError`` for no CameraInfo, sizes
+    that differ or no baseline. What every stereo backend rectifies with."""
+    key = (left.input_index, left.topic, right.topic)
+    found = built.get(key)
+    if found is None:
+        from replaybench.stereo import parse_stereo, stereo_pair
+
+        named = parse_stereo(f'{left.topic},{right.topic}').rectified
+        pair = stereo_pair(left.camera_info, right.camera_info, rectified=named or None)
+        found = built[key] = pair.rectifier()
+    return found
+
+
 class StereoMatcherBackend:
     """A stereo matcher of ``replaybench.stereo.matchers`` over synchronised pairs."""
 
@@ -79,13 +97,9 @@ class StereoMatcherBackend:
     #: without --sync, a pair's images are paired by equal stamps (``--sync exact``)
     default_sync: ClassVar[str] = 'exact'
 
-    @staticmethod
-    def frame_set_topics(topics: Sequence[str]) -> tuple[tuple[str, ...], str | None]:
-        """Without --topic or --stereo: the stereo pair the names of an input's camera topics
-        make, left first (``replaybench.stereo.pair_by_name``)."""
-        from replaybench.stereo.topics import pair_by_name
-
-        return pair_by_name(topics)
+    #: without --topic or --stereo: the stereo pair the names of an input's camera topics
+    #: make, left first
+    frame_set_topics = staticmethod(pair_by_name)
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         from replaybench.stereo import Matcher
@@ -124,17 +138,8 @@ class StereoMatcherBackend:
             raise StereoError(msg) from None
 
     def rectifier(self, left: Frame, right: Frame) -> Rectifier:
-        """The pair's rectifier, built on its first set (``StereoError``: no CameraInfo,
-        sizes that differ, no baseline)."""
-        key = (left.input_index, left.topic, right.topic)
-        found = self._rectifiers.get(key)
-        if found is None:
-            from replaybench.stereo import parse_stereo, stereo_pair
-
-            named = parse_stereo(f'{left.topic},{right.topic}').rectified
-            pair = stereo_pair(left.camera_info, right.camera_info, rectified=named or None)
-            found = self._rectifiers[key] = pair.rectifier()
-        return found
+        """The pair's rectifier, built on its first set (``pair_rectifier``)."""
+        return pair_rectifier(self._rectifiers, left, right)
 
     def detect(self, frame_set: FrameSet) -> BackendResult:
         from replaybench.stereo import Disparity, to_mono8

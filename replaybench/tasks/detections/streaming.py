@@ -12,10 +12,10 @@ if TYPE_CHECKING:
     from replaybench.tasks.detections.truth import BoxTruth
     from replaybench.types import Detection
 
-__all__ = ['score']
+__all__ = ['score', 'truth_boxes']
 
 
-def _truth(inp: Any, frame: tuple[str, int, int, int, str]) -> tuple[Detection, ...] | None:
+def truth_boxes(inp: Any, frame: tuple[str, int, int, int, str]) -> tuple[Detection, ...] | None:
     """The frame's boxes of truth: the ground-truth file's (matched by topic, seq, stamp), else
     the input's topic's (by frame_id, stamp); None where the frame has none."""
     found = cast('BoxTruth | None', inp.truth.get('detections'))
@@ -41,7 +41,7 @@ def score(recorder: Any, backend: str, topic: str, picks: Sequence[Any]) -> Mapp
     truth: dict[tuple[int, str, int], tuple[Detection, ...]] = {}
     shown: dict[tuple[int, str, int], tuple[Detection, ...]] = {}
     for pick in picks:
-        boxes = _truth(recorder.inputs[pick.input], pick.frame)
+        boxes = truth_boxes(recorder.inputs[pick.input], pick.frame)
         if boxes is None:
             continue
         key = (pick.input, pick.frame[0], pick.frame[1])

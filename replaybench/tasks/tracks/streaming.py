@@ -26,6 +26,7 @@ def score(
     """``streaming_hota``, ``streaming_idf1`` and ``streaming_mota`` of the picks of a
     (backend label, topic); empty where no frame has truth or the row's truth has no ids. The
     tracks of each output are the recorder's kept detections (``Recorder.detections``)."""
+    from replaybench.tasks.detections.streaming import truth_boxes
     from replaybench.tasks.tracks.recording import figures_of, score_sequence, without_distractors
 
     recording = cast('TracksRecording | None', recorder.task_recording('tracks'))
@@ -39,22 +40,17 @@ def score(
         truth = cast('BoxTruth | None', recorder.inputs[pick.input].truth.get('detections'))
         if truth is None:
             continue
-        _, seq, _, stamp_ns, frame_id = pick.frame
         external = truth.external
         if external is not None and external.format != 'mot':
             return {}
-        boxes = (
-            external.lookup(topic, seq, stamp_ns)
-            if external is not None
-            else truth.frames.get((frame_id, stamp_ns))
-        )
+        boxes = truth_boxes(recorder.inputs[pick.input], pick.frame)
         if boxes is None:
             continue
         if any(not d.id for d in boxes):
             return {}
         tracks = () if pick.output is None else outputs.get((pick.input, pick.output[1]), ())
         if external is not None:
-            tracks = without_distractors(boxes, external.others_of(topic, seq), tracks)
+            tracks = without_distractors(boxes, external.others_of(topic, pick.frame[1]), tracks)
         frames.append((tuple(boxes), tuple(tracks)))
     if not frames:
         return {}

@@ -222,7 +222,7 @@ class StereoRecording(TaskRecordingBase):
         return output, self._truth
 
     def _depth_truth(
-        self, label: str, output: Disparity | KeptDisparity | None, depth: npt.NDArray[np.float32]
+        self, label: str, output: Disparity | None, depth: npt.NDArray[np.float32]
     ) -> npt.NDArray[np.float32] | None:
         """Truth depth as disparity with the output's f and baseline; without an output, the
         depth itself (only which pixels hold truth matters: they all count as bad); None,

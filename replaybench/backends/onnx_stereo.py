@@ -63,7 +63,7 @@ DEFAULT_STEREO_MODEL = Path(__file__).resolve().parents[1] / 'models' / 'stereo_
 #: The input layouts a model may have.
 LAYOUTS = ('two-inputs', 'six-channel')
 #: Keys ``BackendOptions.extra`` may hold for this backend.
-EXTRA_KEYS = ('channel_order', 'scale', 'max_disparity', 'allow_spinning')
+EXTRA_KEYS = ('channel_order', 'scale', 'max_disparity', 'allow_spinning', 'rectify_maps')
 _ORDERS = ('grey', 'rgb', 'bgr')
 
 
@@ -275,6 +275,10 @@ class OnnxStereoBackend:
             )
             raise BackendError(msg)
         self.spinning = spinning in ('1', 'true')
+        from replaybench.stereo import rectify_maps
+
+        #: the rectification maps (``fixed`` or ``float``; replaybench.stereo.calibration)
+        self.rectify_maps = rectify_maps(opts.extra.get('rectify_maps'), self.name)
         self.model_path: Path = opts.model if opts.model is not None else DEFAULT_STEREO_MODEL
         self.spec: StereoModelSpec | None = None
         self._session: Any = None
@@ -308,7 +312,11 @@ class OnnxStereoBackend:
             text = str(exc).splitlines()[0] if str(exc) else ''
             msg = f'{self.name}: cannot load {path}: {type(exc).__name__}: {text}'
             raise BackendError(msg) from exc
-        extra = {k: v for k, v in self.options.extra.items() if k != 'allow_spinning'}
+        extra = {
+            k: v
+            for k, v in self.options.extra.items()
+            if k not in ('allow_spinning', 'rectify_maps')
+        }
         try:
             spec = load_stereo_spec(path, session, self.options.model_family, extra)
         except BackendError as exc:
@@ -331,7 +339,7 @@ class OnnxStereoBackend:
 
     def rectifier(self, left: Frame, right: Frame) -> Rectifier:
         """The pair's rectifier, built on its first set (``pair_rectifier``)."""
-        return pair_rectifier(self._rectifiers, left, right)
+        return pair_rectifier(self._rectifiers, left, right, self.rectify_maps)
 
     def _channels(self, image: npt.NDArray[Any], encoding: str) -> npt.NDArray[np.uint8]:
         """An image as the network's channels (HxW grey, or HxWx3 in its order), uint8."""
@@ -465,6 +473,7 @@ class OnnxStereoBackend:
                 'max_disparity': spec.max_disparity,
                 'resize': 'area to the network, bilinear back, values x width ratio',
                 'rectified': sorted({r.pair.rectified for r in self._rectifiers.values()}),
+                'rectify_maps': self.rectify_maps,
                 'engine': 'onnxruntime',
                 'onnxruntime': self._ort_version,
                 'providers': list(self._providers_used),

@@ -36,8 +36,11 @@ __all__ = ['SgbmBackend', 'StereoMatcherBackend', 'matcher_parameters', 'pair_re
 
 
 def _option_value(key: str, text: str) -> object:
-    """A backend option's text as the matcher takes it: true/false, or a whole number."""
+    """A backend option's text as the matcher takes it: true/false, or a whole number
+    (``rectify_maps`` as it is)."""
     lowered = text.strip().lower()
+    if key == 'rectify_maps':
+        return lowered
     if lowered in {'true', 'false'}:
         return lowered == 'true'
     try:
@@ -69,11 +72,15 @@ def matcher_parameters(kind: str, options: BackendOptions) -> dict[str, object]:
 
 
 def pair_rectifier(
-    built: dict[tuple[int, str, str], Rectifier], left: Frame, right: Frame
+    built: dict[tuple[int, str, str], Rectifier],
+    left: Frame,
+    right: Frame,
+    maps: str = 'fixed',
 ) -> Rectifier:
     """The rectifier of a pair's left and right frames, built on its first set and kept in
     ``built`` by (input, left topic, right topic); ``StereoError`` for no CameraInfo, sizes
-    that differ or no baseline. What every stereo backend rectifies with."""
+    that differ or no baseline. What every stereo backend rectifies with; ``maps``: the
+    backend's ``rectify_maps`` option (``replaybench.stereo.RECTIFY_MAPS``)."""
     key = (left.input_index, left.topic, right.topic)
     found = built.get(key)
     if found is None:
@@ -81,7 +88,7 @@ def pair_rectifier(
 
         named = parse_stereo(f'{left.topic},{right.topic}').rectified
         pair = stereo_pair(left.camera_info, right.camera_info, rectified=named or None)
-        found = built[key] = pair.rectifier()
+        found = built[key] = pair.rectifier(maps)
     return found
 
 
@@ -102,12 +109,13 @@ class StereoMatcherBackend:
     frame_set_topics = staticmethod(pair_by_name)
 
     def __init__(self, options: BackendOptions | None = None) -> None:
-        from replaybench.stereo import Matcher
+        from replaybench.stereo import Matcher, rectify_maps
 
         self.options = options if options is not None else BackendOptions()
-        self.matcher: Matcher = Matcher.from_mapping(
-            self.kind, matcher_parameters(self.kind, self.options)
-        )
+        table = matcher_parameters(self.kind, self.options)
+        #: the rectification maps (``fixed`` or ``float``; replaybench.stereo.calibration)
+        self.rectify_maps = rectify_maps(table.pop('rectify_maps', None), self.kind)
+        self.matcher: Matcher = Matcher.from_mapping(self.kind, table)
         self._rectifiers: dict[tuple[int, str, str], Rectifier] = {}
 
     @classmethod
@@ -139,7 +147,7 @@ class StereoMatcherBackend:
 
     def rectifier(self, left: Frame, right: Frame) -> Rectifier:
         """The pair's rectifier, built on its first set (``pair_rectifier``)."""
-        return pair_rectifier(self._rectifiers, left, right)
+        return pair_rectifier(self._rectifiers, left, right, self.rectify_maps)
 
     def detect(self, frame_set: FrameSet) -> BackendResult:
         from replaybench.stereo import Disparity, to_mono8
@@ -183,7 +191,12 @@ class StereoMatcherBackend:
 
         params: Mapping[str, Any] = asdict(self.matcher.params)
         rectified = sorted({r.pair.rectified for r in self._rectifiers.values()})
-        return {'matcher': self.kind, 'parameters': dict(params), 'rectified': rectified}
+        return {
+            'matcher': self.kind,
+            'parameters': dict(params),
+            'rectified': rectified,
+            'rectify_maps': self.rectify_maps,
+        }
 
     def close(self) -> None:
         self._rectifiers.clear()

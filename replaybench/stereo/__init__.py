@@ -12,7 +12,13 @@ backend of the stereo task returns in ``BackendResult.output``.
 
 from __future__ import annotations
 
-from replaybench.stereo.calibration import Rectifier, StereoPair, stereo_pair
+from replaybench.stereo.calibration import (
+    RECTIFY_MAPS,
+    Rectifier,
+    StereoPair,
+    rectify_maps,
+    stereo_pair,
+)
 from replaybench.stereo.matchers import DELTA_D, Matcher, StereoParams, to_mono8
 from replaybench.stereo.metrics import DisparityCounts, StereoFigures, score_disparity
 from replaybench.stereo.output import Disparity
@@ -20,6 +26,7 @@ from replaybench.stereo.topics import StereoTopics, find_pairs, pair_by_name, pa
 
 __all__ = [
     'DELTA_D',
+    'RECTIFY_MAPS',
     'Disparity',
     'DisparityCounts',
     'Matcher',
@@ -31,6 +38,7 @@ __all__ = [
     'find_pairs',
     'pair_by_name',
     'parse_stereo',
+    'rectify_maps',
     'score_disparity',
     'stereo_pair',
     'to_mono8',

@@ -155,3 +155,62 @@ def test_euroc_pairs_rectified_from_their_real_calibration_have_matching_rows():
     assert rect_dy.size > 100
     assert np.median(rect_dy) < 1.0
     assert np.median(rect_dy) < np.median(raw_dy)
+
+
+@pytest.mark.parametrize('model', ['plumb_bob', 'equidistant'])
+def test_float_maps_are_opencvs_32_bit_maps_and_rectify_as_bilinear_sampling_at_them(model):
+    info = raw_camera_infos(SIZE, 0)[0]
+    if model == 'equidistant':
+        info = replace(info, distortion_model='equidistant', d=(0.05, -0.01, 0.002, 0.0))
+    k = np.array(info.k).reshape(3, 3)
+    r = np.array(info.r).reshape(3, 3)
+    p = np.array(info.p).reshape(3, 4)[:, :3]
+    if model == 'equidistant':
+        want = cv2.fisheye.initUndistortRectifyMap(
+            k, np.array(info.d).reshape(1, 4), r, p, SIZE, cv2.CV_32FC1
+        )
+    else:
+        want = cv2.initUndistortRectifyMap(k, np.array(info.d), r, p, SIZE, cv2.CV_32FC1)
+    got = _maps(info, 'float')
+    assert got[0].dtype == np.float32
+    assert np.array_equal(got[0], want[0])
+    assert np.array_equal(got[1], want[1])
+    # each output pixel is the bilinear sample of the image at its map position (float64 here)
+    image = render_raw(SIZE, 1).left
+    out = cv2.remap(image, *got, cv2.INTER_LINEAR)
+    x, y = got[0].astype(np.float64), got[1].astype(np.float64)
+    inside = (x >= 0) & (y >= 0) & (x < SIZE[0] - 1) & (y < SIZE[1] - 1)
+    x0, y0 = np.floor(x[inside]).astype(int), np.floor(y[inside]).astype(int)
+    fx, fy = x[inside] - x0, y[inside] - y0
+    v = image.astype(np.float64)
+    top = v[y0, x0] * (1 - fx) + v[y0, x0 + 1] * fx
+    bottom = v[y0 + 1, x0] * (1 - fx) + v[y0 + 1, x0 + 1] * fx
+    reference = top * (1 - fy) + bottom * fy
+    assert inside.mean() > 0.8
+    assert np.abs(out[inside] - reference).max() <= 1.0
+
+
+def test_float_and_fixed_maps_rectify_a_pair_alike_but_not_byte_for_byte():
+    raw = render_raw(SIZE, 1)
+    pair = stereo_pair(*raw_camera_infos(SIZE, 0))
+    fixed = pair.rectifier().rectify(raw.left, raw.right)
+    floating = pair.rectifier('float').rectify(raw.left, raw.right)
+    for a, b in zip(fixed, floating, strict=True):
+        diff = np.abs(a.astype(int) - b)
+        assert diff.any()  # the fixed-point maps round positions to 1/32 px
+        assert np.median(diff) == 0
+        assert diff.mean() < 0.5
+
+
+def test_a_rectify_maps_value_other_than_fixed_or_float_is_one_line_and_exit_2():
+    from replaybench.stereo import rectify_maps
+
+    assert rectify_maps(None, 'sgbm') == 'fixed'
+    assert rectify_maps(' Float ', 'sgbm') == 'float'
+    with pytest.raises(StereoError) as err:
+        rectify_maps('half', 'sgbm')
+    assert str(err.value) == "sgbm: rectify_maps must be one of fixed, float, not 'half'"
+    assert err.value.exit_code == 2
+    pair = stereo_pair(*raw_camera_infos(SIZE, 0))
+    with pytest.raises(StereoError, match='rectify_maps must be one of fixed, float'):
+        pair.rectifier('half')

@@ -144,6 +144,67 @@ def test_a_raw_pair_is_rectified_from_its_camera_info_as_the_bare_library_does(
     assert epe < 1.0  # unrectified, SGBM's EPE on this bag is about 11 px
 
 
+def test_sgbm_with_float_maps_rectifies_with_them_and_says_so_and_a_bad_value_exits_2(
+    bags: dict[str, Path], tmp_path: Path
+) -> None:
+    out = tmp_path / 'float'
+    done = subprocess.run(
+        [
+            sys.executable,
+            '-m',
+            'replaybench',
+            'run',
+            str(bags['raw']),
+            '--backend',
+            'sgbm',
+            '--param',
+            'sgbm.rectify_maps=float',
+            '--out',
+            str(out),
+            '--no-report',
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    facts = json.loads((out / 'run.json').read_text(encoding='utf-8'))
+    text = json.dumps(facts)
+    assert '"rectify_maps": "float"' in text
+    (row,) = _read_csv(out / 'summary.csv')
+    rectifier, matcher, total = None, Matcher('sgbm'), None
+    for left, right, truth in _pairs(bags['raw']):
+        if rectifier is None:
+            rectifier = stereo_pair(*raw_camera_infos((320, 240), left.stamp_ns)).rectifier('float')
+        c = score_disparity(matcher.compute(*rectifier.rectify(left.image, right.image)), truth)
+        total = c if total is None else total + c
+    assert total is not None
+    assert float(row['bad2']) == pytest.approx(total.figures().bad2, abs=1e-4)  # 4 places
+    bad = subprocess.run(
+        [
+            sys.executable,
+            '-m',
+            'replaybench',
+            'run',
+            str(bags['raw']),
+            '--backend',
+            'sgbm',
+            '--param',
+            'sgbm.rectify_maps=half',
+            '--out',
+            str(tmp_path / 'bad'),
+            '--no-report',
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert bad.returncode == 2
+    lines = bad.stderr.strip().splitlines()
+    assert len(lines) == 1, bad.stderr
+    assert 'rectify_maps must be one of fixed, float' in lines[0]
+
+
 def test_the_gate_fails_bm_against_sgbm_on_bad2(both: Path) -> None:
     done = subprocess.run(
         [sys.executable, '-m', 'replaybench', 'compare', str(both), '--baseline-backend', 'sgbm',

@@ -68,7 +68,7 @@ if TYPE_CHECKING:
 __all__ = ['STEREO_EXTRA_KEYS', 'CudaStereoBackend']
 
 #: ``onnx-stereo``'s model options, and ``cuda_graph`` (engine torch).
-STEREO_EXTRA_KEYS = ('channel_order', 'scale', 'max_disparity', 'cuda_graph')
+STEREO_EXTRA_KEYS = ('channel_order', 'scale', 'max_disparity', 'cuda_graph', 'rectify_maps')
 _SPEC_KEYS = ('channel_order', 'scale', 'max_disparity')
 
 
@@ -98,6 +98,10 @@ class CudaStereoBackend(CudaBackend):
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         super().__init__(options)
+        from replaybench.stereo import rectify_maps
+
+        #: the rectification maps (``fixed`` or ``float``; replaybench.stereo.calibration)
+        self.rectify_maps = rectify_maps(self.options.extra.get('rectify_maps'), self.name)
         self.stereo_spec: StereoModelSpec | None = None
         self._stereo: StereoPipeline | None = None
         self._rectifiers: dict[tuple[int, str, str], Rectifier] = {}
@@ -227,7 +231,7 @@ class CudaStereoBackend(CudaBackend):
 
     def rectifier(self, left: Frame, right: Frame) -> Rectifier:
         """The pair's rectifier, built on its first set (``pair_rectifier``)."""
-        return pair_rectifier(self._rectifiers, left, right)
+        return pair_rectifier(self._rectifiers, left, right, self.rectify_maps)
 
     def detect(self, frame_set: FrameSet) -> BackendResult:  # type: ignore[override]  # a stereo backend takes frame sets
         from replaybench.stereo import Disparity
@@ -343,5 +347,6 @@ class CudaStereoBackend(CudaBackend):
         if spec is not None:
             facts.update(stereo_facts(spec))
             facts['rectified'] = sorted({r.pair.rectified for r in self._rectifiers.values()})
+            facts['rectify_maps'] = self.rectify_maps
         facts.update(self._facts)
         return facts

@@ -1,0 +1,142 @@
+"""The CLEAR matching behind ``id_switches`` (``clear_matching``): its switch events counted by
+hand on a small sequence, as many as TrackEval's IDSW on the motmetrics sequences, and the
+figures of ``score_tracks`` unchanged by keeping them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from replaybench.tracking import (
+    IdSwitch,
+    TrackFrame,
+    box_iou_xywh,
+    clear_matching,
+    read_mot_file,
+    score_tracks,
+)
+
+
+def _frame(pairs: dict[tuple[int, int], float], gt: list[int], tr: list[int]) -> TrackFrame:
+    sim = np.zeros((len(gt), len(tr)))
+    for (g, t), value in pairs.items():
+        sim[gt.index(g), tr.index(t)] = value
+    return TrackFrame(np.array(gt, np.int64), np.array(tr, np.int64), sim)
+
+
+def _trackeval_clear(frames: list[TrackFrame]) -> dict[str, Any]:
+    """TrackEval's CLEAR on the frames (its ids renumbered 0..n-1)."""
+    trackeval = pytest.importorskip('trackeval', reason='TrackEval (the dev extra) is missing')
+    gt_all = sorted({int(i) for f in frames for i in f.gt_ids})
+    tr_all = sorted({int(i) for f in frames for i in f.tracker_ids})
+    data = {
+        'num_timesteps': len(frames),
+        'num_gt_ids': len(gt_all),
+        'num_tracker_ids': len(tr_all),
+        'num_gt_dets': sum(len(f.gt_ids) for f in frames),
+        'num_tracker_dets': sum(len(f.tracker_ids) for f in frames),
+        'gt_ids': [np.array([gt_all.index(int(i)) for i in f.gt_ids], int) for f in frames],
+        'tracker_ids': [
+            np.array([tr_all.index(int(i)) for i in f.tracker_ids], int) for f in frames
+        ],
+        'similarity_scores': [f.similarity for f in frames],
+    }
+    found: dict[str, Any] = trackeval.metrics.CLEAR({'PRINT_CONFIG': False}).eval_sequence(data)
+    return found
+
+
+def _hand_built() -> list[TrackFrame]:
+    """Two objects (1, 2) and tracks 10, 20, 30, 40; the switches counted by hand:
+
+    0: 1-10, 2-20.
+    1: 1-20, 2-10: two switches (1: 10 -> 20, 2: 20 -> 10).
+    2: 1 missed (its only box below IoU 0.5), 2-10.
+    3: 1-30: a switch after the gap (20 -> 30); 2-10.
+    4: 1-30 kept although 40 overlaps it more (CLEAR keeps last frame's pair); 2-10.
+    5: no tracks at all.
+    6: 1-20: a switch (30 -> 20); 2 is not in the truth, track 10 a false positive.
+    """
+    return [
+        _frame({(1, 10): 0.9, (2, 20): 0.8}, [1, 2], [10, 20]),
+        _frame({(1, 20): 0.9, (2, 10): 0.7}, [1, 2], [10, 20]),
+        _frame({(1, 20): 0.3, (2, 10): 0.9}, [1, 2], [10, 20]),
+        _frame({(1, 30): 0.6, (2, 10): 0.9}, [1, 2], [10, 30]),
+        _frame({(1, 30): 0.6, (1, 40): 0.95, (2, 10): 0.9}, [1, 2], [10, 30, 40]),
+        _frame({}, [1, 2], []),
+        _frame({(1, 20): 0.8}, [1], [10, 20]),
+    ]
+
+
+def test_the_switches_of_a_hand_built_sequence_are_those_counted_by_hand() -> None:
+    matching = clear_matching(_hand_built())
+    assert matching.switches == (
+        IdSwitch(frame=1, gt_id=1, from_id=10, to_id=20),
+        IdSwitch(frame=1, gt_id=2, from_id=20, to_id=10),
+        IdSwitch(frame=3, gt_id=1, from_id=20, to_id=30),
+        IdSwitch(frame=6, gt_id=1, from_id=30, to_id=20),
+    )
+    assert matching.pairs == (
+        ((1, 10), (2, 20)),
+        ((1, 20), (2, 10)),
+        ((2, 10),),
+        ((1, 30), (2, 10)),
+        ((1, 30), (2, 10)),
+        (),
+        ((1, 20),),
+    )
+    assert score_tracks(_hand_built()).id_switches == 4
+
+
+def test_the_hand_built_switches_are_trackevals_idsw() -> None:
+    frames = _hand_built()
+    ref = _trackeval_clear(frames)
+    assert ref['IDSW'] == len(clear_matching(frames).switches) == 4
+    assert ref['CLR_TP'] == sum(len(p) for p in clear_matching(frames).pairs)
+
+
+def test_frames_without_any_track_or_truth_have_no_pairs_and_no_switches() -> None:
+    empty = [_frame({}, [1, 2], []), _frame({}, [1], [])]
+    assert clear_matching(empty).pairs == ((), ())
+    assert clear_matching(empty).switches == ()
+    no_truth = [_frame({}, [], [5]), _frame({}, [], [])]
+    assert clear_matching(no_truth).pairs == ((), ())
+
+
+@pytest.mark.parametrize('sequence', ['TUD-Campus', 'TUD-Stadtmitte'])
+def test_the_switch_events_are_as_many_as_trackevals_idsw_on_the_motmetrics_files(
+    sequence: str,
+) -> None:
+    motmetrics = pytest.importorskip('motmetrics', reason='motmetrics (the dev extra) is missing')
+    folder = Path(motmetrics.__file__).parent / 'data' / sequence
+    gt, test = read_mot_file(folder / 'gt.txt'), read_mot_file(folder / 'test.txt')
+    frames = []
+    for t in range(1, max(b.frame for b in (*gt, *test)) + 1):
+        g = [b for b in gt if b.frame == t]
+        r = [b for b in test if b.frame == t]
+        frames.append(
+            TrackFrame(
+                np.array([b.id for b in g], np.int64),
+                np.array([b.id for b in r], np.int64),
+                box_iou_xywh(
+                    np.array([[b.x, b.y, b.w, b.h] for b in g]).reshape(-1, 4),
+                    np.array([[b.x, b.y, b.w, b.h] for b in r]).reshape(-1, 4),
+                ),
+            )
+        )
+    ref = _trackeval_clear(frames)
+    matching = clear_matching(frames)
+    assert ref['IDSW'] > 0
+    assert len(matching.switches) == ref['IDSW'] == score_tracks(frames).id_switches
+    assert sum(len(p) for p in matching.pairs) == ref['CLR_TP']
+    # each switch names the id its object had at its previous match, and the one it has now
+    last: dict[int, int] = {}
+    switches = iter(matching.switches)
+    for number, pairs in enumerate(matching.pairs):
+        for g, t in pairs:
+            if g in last and last[g] != t:
+                assert next(switches) == IdSwitch(number, g, last[g], t)
+            last[g] = t
+    assert next(switches, None) is None

@@ -1,6 +1,6 @@
 """The CLEAR matching behind ``id_switches`` (``clear_matching``): its switch events counted by
-hand on a small sequence, as many as TrackEval's IDSW on the motmetrics sequences, and the
-figures of ``score_tracks`` unchanged by keeping them."""
+hand on a small sequence and as many as TrackEval's IDSW on it and on the motmetrics
+sequences; and a tracked row's id-switch timeline made of it (``timeline_of``)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from replaybench.results.model import IdSwitchEvent, TrackSpan
+from replaybench.tasks.tracks.recording import score_sequence, timeline_of
 from replaybench.tracking import (
     IdSwitch,
     TrackFrame,
@@ -18,6 +20,7 @@ from replaybench.tracking import (
     read_mot_file,
     score_tracks,
 )
+from replaybench.types import Detection
 
 
 def _frame(pairs: dict[tuple[int, int], float], gt: list[int], tr: list[int]) -> TrackFrame:
@@ -140,3 +143,47 @@ def test_the_switch_events_are_as_many_as_trackevals_idsw_on_the_motmetrics_file
                 assert next(switches) == IdSwitch(number, g, last[g], t)
             last[g] = t
     assert next(switches, None) is None
+
+
+def _box(x: float, ident: str) -> Detection:
+    return Detection(0, 'thing', 1.0, x, 0.0, x + 10.0, 10.0, ident)
+
+
+def test_a_rows_timeline_has_each_objects_matched_missed_and_absent_frames_and_its_switches() -> (
+    None
+):
+    a, b = _box(0, 'a'), _box(50, 'b')
+    far = _box(200, '')
+    frames = [
+        ((a, b), (_box(0, '7'), _box(50, '8'))),
+        ((a, b), (_box(0, '7'), _box(50, '8'))),
+        ((a,), (_box(0, '8'),)),  # b not in the truth; a now on track 8: a switch
+        ((a, b), (far._replace(id='7'),)),  # both missed
+        ((a, b), (_box(0, '8'), _box(50, '9'))),  # b on 9: a switch across its gap
+    ]
+    timeline = timeline_of(frames)
+    assert timeline.frames == 5
+    assert [lane.object_id for lane in timeline.lanes] == ['a', 'b']
+    assert timeline.lanes[0].spans == (
+        TrackSpan(0, 1, '7'),
+        TrackSpan(2, 2, '8'),
+        TrackSpan(3, 3, None),
+        TrackSpan(4, 4, '8'),
+    )
+    assert timeline.lanes[1].spans == (
+        TrackSpan(0, 1, '8'),
+        TrackSpan(3, 3, None),
+        TrackSpan(4, 4, '9'),
+    )
+    assert timeline.switches == (
+        IdSwitchEvent(2, 'a', '7', '8'),
+        IdSwitchEvent(4, 'b', '8', '9'),
+    )
+    assert score_sequence(frames).id_switches == 2
+
+
+def test_the_lanes_are_in_id_order_numbers_by_value_first() -> None:
+    boxes = [_box(20.0 * i, ident) for i, ident in enumerate(['10', 'x', '9', '2'])]
+    timeline = timeline_of([(tuple(boxes), ())])
+    assert [lane.object_id for lane in timeline.lanes] == ['2', '9', '10', 'x']
+    assert all(lane.spans == (TrackSpan(0, 0, None),) for lane in timeline.lanes)

@@ -11,6 +11,7 @@ from replaybench.tracking.metrics import (
     TrackScores,
     box_iou_xywh,
     clear_matching,
+    score_and_match,
     score_tracks,
 )
 from replaybench.tracking.motfile import MotBox, read_mot_file
@@ -25,5 +26,6 @@ __all__ = [
     'box_iou_xywh',
     'clear_matching',
     'read_mot_file',
+    'score_and_match',
     'score_tracks',
 ]

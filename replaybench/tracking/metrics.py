@@ -52,6 +52,7 @@ __all__ = [
     'TrackScores',
     'box_iou_xywh',
     'clear_matching',
+    'score_and_match',
     'score_tracks',
 ]
 
@@ -397,12 +398,24 @@ def clear_matching(frames: Sequence[TrackFrame]) -> ClearMatching:
     return ClearMatching(tuple(kept.pairs), tuple(kept.switches))
 
 
+def score_and_match(frames: Sequence[TrackFrame]) -> tuple[TrackScores, ClearMatching]:
+    """``score_tracks`` and ``clear_matching`` of one sequence in one pass: the figures and
+    the matching their CLEAR figures were counted from."""
+    s = _Sequence(frames)
+    kept = _Matched(s)
+    scores = _scores(s, _clear(s, kept), len(frames))
+    return scores, ClearMatching(tuple(kept.pairs), tuple(kept.switches))
+
+
 def score_tracks(frames: Sequence[TrackFrame]) -> TrackScores:
     """The HOTA, CLEAR and identity figures of one sequence (``TrackFrame`` per frame, in
     order). ``ValueError`` for an id twice in one frame or a similarity of the wrong shape."""
     s = _Sequence(frames)
+    return _scores(s, _clear(s), len(frames))
+
+
+def _scores(s: _Sequence, clear: dict[str, float], frames: int) -> TrackScores:
     hota = _hota(s)
-    clear = _clear(s)
     ident = _identity(s)
     tp, fn, fp = clear['TP'], clear['FN'], clear['FP']
     idtp, idfn, idfp = ident['IDTP'], ident['IDFN'], ident['IDFP']
@@ -437,6 +450,6 @@ def score_tracks(frames: Sequence[TrackFrame]) -> TrackScores:
         tracker_ids=s.n_tr,
         gt_dets=s.gt_dets,
         tracker_dets=s.tr_dets,
-        frames=len(frames),
+        frames=frames,
         hota_per_alpha=tuple(float(v) for v in hota['HOTA']),
     )

@@ -18,6 +18,7 @@ from replaybench.tracking import (
     box_iou_xywh,
     clear_matching,
     read_mot_file,
+    score_and_match,
     score_tracks,
 )
 from replaybench.types import Detection
@@ -134,6 +135,8 @@ def test_the_switch_events_are_as_many_as_trackevals_idsw_on_the_motmetrics_file
     assert ref['IDSW'] > 0
     assert len(matching.switches) == ref['IDSW'] == score_tracks(frames).id_switches
     assert sum(len(p) for p in matching.pairs) == ref['CLR_TP']
+    # scored in one pass with its matching: every figure as score_tracks gives it
+    assert score_and_match(frames) == (score_tracks(frames), matching)
     # each switch names the id its object had at its previous match, and the one it has now
     last: dict[int, int] = {}
     switches = iter(matching.switches)

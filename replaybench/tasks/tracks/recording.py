@@ -39,6 +39,7 @@ __all__ = [
     'figures_of',
     'recording',
     'score_sequence',
+    'scored_with_timeline',
     'timeline_of',
     'without_distractors',
 ]
@@ -123,15 +124,23 @@ def _id_order(text: str) -> tuple[int, int, str]:
 def timeline_of(
     frames: Sequence[tuple[Sequence[Detection], Sequence[Detection]]],
 ) -> TrackTimeline:
-    """The id-switch timeline of a sequence scored as ``score_sequence`` scores it: its CLEAR
-    matching (``replaybench.tracking.clear_matching``, the one that counts ``id_switches``),
-    each truth object's frames as spans matched to one track or missed, and the switches.
-    ``ValueError`` as ``score_sequence``."""
+    """The id-switch timeline of a sequence scored as ``score_sequence`` scores it (its CLEAR
+    matching: ``scored_with_timeline``). ``ValueError`` as ``score_sequence``."""
+    return scored_with_timeline(frames)[1]
+
+
+def scored_with_timeline(
+    frames: Sequence[tuple[Sequence[Detection], Sequence[Detection]]],
+) -> tuple[TrackScores, TrackTimeline]:
+    """``score_sequence`` and the sequence's id-switch timeline in one pass
+    (``replaybench.tracking.score_and_match``): each truth object's frames as spans matched to
+    one track or missed, and the ID switches, of the CLEAR matching that counted the figures'
+    ``id_switches``. ``ValueError`` as ``score_sequence``."""
     from replaybench.results.model import IdSwitchEvent, TrackLane, TrackSpan, TrackTimeline
-    from replaybench.tracking import clear_matching
+    from replaybench.tracking import score_and_match
 
     made, gt_names, tr_names = _track_frames(frames)
-    matching = clear_matching(made)
+    scores, matching = score_and_match(made)
     spans: dict[str, list[TrackSpan]] = {}
     for index, (frame, pairs) in enumerate(zip(made, matching.pairs, strict=True)):
         matched = {gt_names[g]: tr_names[t] for g, t in pairs}
@@ -143,7 +152,7 @@ def timeline_of(
                 lane[-1] = TrackSpan(lane[-1].first, index, track)
             else:
                 lane.append(TrackSpan(index, index, track))
-    return TrackTimeline(
+    timeline = TrackTimeline(
         frames=len(made),
         lanes=tuple(TrackLane(name, tuple(spans[name])) for name in sorted(spans, key=_id_order)),
         switches=tuple(
@@ -151,6 +160,7 @@ def timeline_of(
             for s in matching.switches
         ),
     )
+    return scores, timeline
 
 
 def without_distractors(
@@ -255,10 +265,12 @@ class TracksRecording(TaskRecordingBase):
             reason = self.refused.get(row)
             if reason is None and frames:
                 try:
-                    found.update(figures_of(score_sequence(frames)))
-                    found['track_timeline'] = timeline_of(frames)
+                    scores, timeline = scored_with_timeline(frames)
                 except ValueError as err:
                     reason = str(err)
+                else:
+                    found.update(figures_of(scores))
+                    found['track_timeline'] = timeline
             if reason is not None:
                 self._warnings[f'{backend} on {topic}: no tracking metrics: {reason}'] = None
             times = self.times.get(row)

@@ -141,10 +141,10 @@ def test_the_switch_events_are_as_many_as_trackevals_idsw_on_the_motmetrics_file
     last: dict[int, int] = {}
     switches = iter(matching.switches)
     for number, pairs in enumerate(matching.pairs):
-        for g, t in pairs:
-            if g in last and last[g] != t:
-                assert next(switches) == IdSwitch(number, g, last[g], t)
-            last[g] = t
+        for obj, track in pairs:
+            if obj in last and last[obj] != track:
+                assert next(switches) == IdSwitch(number, obj, last[obj], track)
+            last[obj] = track
     assert next(switches, None) is None
 
 

@@ -143,6 +143,21 @@ def test_a_run_json_without_timelines_says_so_in_one_line_per_tracked_row(
         )
 
 
+def test_recorded_tracks_have_their_timeline_too(tmp_path: Path) -> None:
+    live = Path(__file__).resolve().parents[2] / 'fixtures' / 'bags' / 'live_tracks.mcap'
+    out = tmp_path / 'live'
+    done = _cli('run', str(live), '--backend', 'recorded', '--out', str(out))
+    assert done.returncode == 0, done.stderr
+    (row,) = rb.load_run(out).summary_rows
+    assert row.track_timeline is not None
+    assert len(row.track_timeline.switches) == row.metric('id_switches')
+    svg = _svgs((out / 'report.html').read_text(encoding='utf-8'))['recorded']
+    assert svg.count('<g class="idsw">') == row.metric('id_switches')
+    objects = [lane.object_id for lane in row.track_timeline.lanes]
+    assert re.findall(r'>object (\w+)</text>', svg) == objects
+    assert len(objects) > 1
+
+
 def _many_lanes(objects: int) -> TrackTimeline:
     """``objects`` objects over 10 frames; object i switches i % 4 times."""
     lanes, switches = [], []

@@ -25,7 +25,9 @@ side empty), and the same floating-point tolerance (``eps``) in its comparisons:
 tests/tracking/ checks every figure equal to TrackEval's to 1e-6 on the TUD-Campus and
 TUD-Stadtmitte files the motmetrics wheel ships.
 
-These are sequence metrics: a frame has no value of its own.
+These are sequence metrics: a frame has no value of its own. ``clear_matching`` gives the
+CLEAR matching itself (each frame's matched pairs and every ID switch: the report's id-switch
+timeline), from the same code that counts ``id_switches``.
 """
 
 from __future__ import annotations
@@ -42,7 +44,17 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
-__all__ = ['HOTA_ALPHAS', 'TrackFrame', 'TrackScores', 'box_iou_xywh', 'score_tracks']
+__all__ = [
+    'HOTA_ALPHAS',
+    'ClearMatching',
+    'IdSwitch',
+    'TrackFrame',
+    'TrackScores',
+    'box_iou_xywh',
+    'clear_matching',
+    'score_and_match',
+    'score_tracks',
+]
 
 #: HOTA's localisation thresholds, as TrackEval's ``np.arange(0.05, 0.99, 0.05)``
 HOTA_ALPHAS: npt.NDArray[np.float64] = np.arange(0.05, 0.99, 0.05)
@@ -98,6 +110,28 @@ class TrackScores:
     hota_per_alpha: tuple[float, ...] = ()
 
 
+@dataclass(frozen=True, slots=True)
+class IdSwitch:
+    """One CLEAR ID switch: at ``frame`` (the frame's index in the sequence, from 0) the truth
+    object ``gt_id`` is matched to track ``to_id`` after it was last matched (in this frame's
+    predecessor or before a gap) to ``from_id``; ids as the ``TrackFrame`` s give them."""
+
+    frame: int
+    gt_id: int
+    from_id: int
+    to_id: int
+
+
+@dataclass(frozen=True, slots=True)
+class ClearMatching:
+    """CLEAR's matching of a sequence, the one ``score_tracks`` counts its CLEAR figures from:
+    each frame's matched (truth id, tracker id) pairs, in the frame's truth order, and the ID
+    switches in frame order (as many as ``TrackScores.id_switches``)."""
+
+    pairs: tuple[tuple[tuple[int, int], ...], ...]
+    switches: tuple[IdSwitch, ...]
+
+
 def box_iou_xywh(
     a: npt.NDArray[np.floating], b: npt.NDArray[np.floating]
 ) -> npt.NDArray[np.float64]:
@@ -129,6 +163,8 @@ class _Sequence:
     def __init__(self, frames: Sequence[TrackFrame]) -> None:
         gt_index: dict[int, int] = {}
         tr_index: dict[int, int] = {}
+        self.gt_index = gt_index
+        self.tr_index = tr_index
         self.gt: list[npt.NDArray[np.int64]] = []
         self.tr: list[npt.NDArray[np.int64]] = []
         self.sim: list[npt.NDArray[np.float64]] = []
@@ -236,13 +272,43 @@ def _hota_final(
     }
 
 
-def _clear(s: _Sequence) -> dict[str, float]:
+class _Matched:
+    """What ``_clear`` matched, kept where asked for (``clear_matching``), in the given ids."""
+
+    def __init__(self, s: _Sequence) -> None:
+        self.gt_names = np.array(list(s.gt_index), dtype=np.int64)
+        self.tr_names = np.array(list(s.tr_index), dtype=np.int64)
+        self.pairs: list[tuple[tuple[int, int], ...]] = []
+        self.switches: list[IdSwitch] = []
+
+    def frame(
+        self,
+        matched_gt: npt.NDArray[np.int64],
+        matched_tr: npt.NDArray[np.int64],
+        before: npt.NDArray[np.float64],
+    ) -> None:
+        frame = len(self.pairs)
+        gt = self.gt_names[matched_gt].tolist()
+        tr = self.tr_names[matched_tr].tolist()
+        order = np.argsort(matched_gt, kind='stable')
+        self.pairs.append(tuple((int(gt[i]), int(tr[i])) for i in order))
+        for i in order:
+            if not np.isnan(before[i]) and matched_tr[i] != before[i]:
+                was = int(self.tr_names[int(before[i])])
+                self.switches.append(IdSwitch(frame, int(gt[i]), was, int(tr[i])))
+
+
+def _clear(s: _Sequence, kept: _Matched | None = None) -> dict[str, float]:
     out = dict.fromkeys(('TP', 'FN', 'FP', 'IDSW', 'MT', 'PT', 'ML', 'Frag', 'MOTP_sum'), 0.0)
-    if s.tr_dets == 0:
-        out.update(FN=s.gt_dets, ML=s.n_gt)
-        return out
-    if s.gt_dets == 0:
-        out['FP'] = s.tr_dets
+    nothing = np.zeros(0, dtype=np.int64)
+    if s.tr_dets == 0 or s.gt_dets == 0:
+        for _ in s.gt:
+            if kept is not None:
+                kept.frame(nothing, nothing, np.zeros(0))
+        if s.tr_dets == 0:
+            out.update(FN=s.gt_dets, ML=s.n_gt)
+        else:
+            out['FP'] = s.tr_dets
         return out
     gt_count = np.zeros(s.n_gt)
     gt_matched = np.zeros(s.n_gt)
@@ -250,12 +316,14 @@ def _clear(s: _Sequence) -> dict[str, float]:
     prev_id = np.full(s.n_gt, np.nan)  # the id each truth object last had
     prev_step = np.full(s.n_gt, np.nan)  # its id in the previous frame
     for gt, tr, sim in zip(s.gt, s.tr, s.sim, strict=True):
-        if len(gt) == 0:
-            out['FP'] += len(tr)
-            continue
-        if len(tr) == 0:
-            out['FN'] += len(gt)
-            gt_count[gt] += 1
+        if len(gt) == 0 or len(tr) == 0:
+            if kept is not None:
+                kept.frame(nothing, nothing, np.zeros(0))
+            if len(gt) == 0:
+                out['FP'] += len(tr)
+            else:
+                out['FN'] += len(gt)
+                gt_count[gt] += 1
             continue
         score = 1000.0 * (tr[np.newaxis, :] == prev_step[gt[:, np.newaxis]]) + sim
         score[sim < MATCH_THRESHOLD - _EPS] = 0
@@ -265,6 +333,8 @@ def _clear(s: _Sequence) -> dict[str, float]:
         matched_gt, matched_tr = gt[rows], tr[cols]
         before = prev_id[matched_gt]
         out['IDSW'] += float(np.sum(~np.isnan(before) & (matched_tr != before)))
+        if kept is not None:
+            kept.frame(matched_gt, matched_tr, before)
         gt_count[gt] += 1
         gt_matched[matched_gt] += 1
         not_tracked = np.isnan(prev_step)
@@ -317,12 +387,35 @@ def _identity(s: _Sequence) -> dict[str, float]:
     return {'IDTP': float(gt_count.sum() - idfn), 'IDFN': idfn, 'IDFP': idfp}
 
 
+def clear_matching(frames: Sequence[TrackFrame]) -> ClearMatching:
+    """The CLEAR matching of one sequence (``TrackFrame`` per frame, in order) that
+    ``score_tracks`` counts TP, FN, FP, ID switches and fragmentations from: the same code, so
+    ``len(clear_matching(f).switches) == score_tracks(f).id_switches``. ``ValueError`` as
+    ``score_tracks``."""
+    s = _Sequence(frames)
+    kept = _Matched(s)
+    _clear(s, kept)
+    return ClearMatching(tuple(kept.pairs), tuple(kept.switches))
+
+
+def score_and_match(frames: Sequence[TrackFrame]) -> tuple[TrackScores, ClearMatching]:
+    """``score_tracks`` and ``clear_matching`` of one sequence in one pass: the figures and
+    the matching their CLEAR figures were counted from."""
+    s = _Sequence(frames)
+    kept = _Matched(s)
+    scores = _scores(s, _clear(s, kept), len(frames))
+    return scores, ClearMatching(tuple(kept.pairs), tuple(kept.switches))
+
+
 def score_tracks(frames: Sequence[TrackFrame]) -> TrackScores:
     """The HOTA, CLEAR and identity figures of one sequence (``TrackFrame`` per frame, in
     order). ``ValueError`` for an id twice in one frame or a similarity of the wrong shape."""
     s = _Sequence(frames)
+    return _scores(s, _clear(s), len(frames))
+
+
+def _scores(s: _Sequence, clear: dict[str, float], frames: int) -> TrackScores:
     hota = _hota(s)
-    clear = _clear(s)
     ident = _identity(s)
     tp, fn, fp = clear['TP'], clear['FN'], clear['FP']
     idtp, idfn, idfp = ident['IDTP'], ident['IDFN'], ident['IDFP']
@@ -357,6 +450,6 @@ def score_tracks(frames: Sequence[TrackFrame]) -> TrackScores:
         tracker_ids=s.n_tr,
         gt_dets=s.gt_dets,
         tracker_dets=s.tr_dets,
-        frames=len(frames),
+        frames=frames,
         hota_per_alpha=tuple(float(v) for v in hota['HOTA']),
     )

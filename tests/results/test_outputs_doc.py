@@ -18,7 +18,14 @@ OUTPUTS_MD = REPO / 'docs' / 'outputs.md'
 SCHEMA = load_schema('run.schema.json')
 
 #: Summary rows are documented by the summary.csv table (and these run.json-only keys).
-SUMMARY_JSON_ONLY = {'warnings', 'accuracy', 'segmentation', 'tag_accuracy', 'task_metrics'}
+SUMMARY_JSON_ONLY = {
+    'warnings',
+    'accuracy',
+    'segmentation',
+    'tag_accuracy',
+    'task_metrics',
+    'track_timeline',
+}
 
 
 def _section(text: str, heading: str) -> str:

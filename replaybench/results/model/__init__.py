@@ -20,7 +20,8 @@ A field's JSON key is its name, except where ``metadata['json']`` says otherwise
 
 The types live in one module per kind, and are imported from here: ``common`` (the program,
 the inputs, the machine), ``run`` (run.json), ``summary`` (a summary row and a repeat's
-statistics), the tasks' accuracy types ``detections``, ``tags`` and ``segmentation``,
+statistics), the tasks' accuracy types ``detections``, ``tags`` and ``segmentation``, the
+tracks task's id-switch timeline ``tracks``,
 ``sync`` (run.json's ``--sync`` section), ``peak`` (peak.json) and ``comparison``
 (comparison.json). Each type's ``__module__`` is this
 package, the one place that names it for the API, so that a pickle names
@@ -80,9 +81,13 @@ from replaybench.results.model.stereo import StereoAgreementRow
 from replaybench.results.model.summary import RepeatStats, SummaryRow
 from replaybench.results.model.sync import SyncInput, SyncReport, SyncTopic
 
-# importable from here as before, though not in __all__
+# importable from here (the tags' as before), though not in __all__
 from replaybench.results.model.tags import TagAccuracy as TagAccuracy
 from replaybench.results.model.tags import TagSizeHint as TagSizeHint
+from replaybench.results.model.tracks import IdSwitchEvent as IdSwitchEvent
+from replaybench.results.model.tracks import TrackLane as TrackLane
+from replaybench.results.model.tracks import TrackSpan as TrackSpan
+from replaybench.results.model.tracks import TrackTimeline as TrackTimeline
 
 __all__ = [
     'COMPARISON_SCHEMA_VERSION',

@@ -4,7 +4,8 @@ pass's statistics (``RepeatStats``).
 ``SummaryRow`` holds the common fields (counts, latency, throughput, stage means, resources,
 intervals, warnings, the recorded outputs' latency) and each task's metrics: detection's
 ``precision50`` ... ``map50_95`` and ``accuracy``, segmentation's ``miou``,
-``pixel_accuracy`` and ``segmentation``, the tags' ``tag_*`` and ``tag_accuracy``. The
+``pixel_accuracy`` and ``segmentation``, the tags' ``tag_*`` and ``tag_accuracy``, the
+tracks' ``track_timeline`` (its metrics are ``task_metrics``). The
 order of the fields is the order of run.json's keys.
 """
 
@@ -16,6 +17,7 @@ from replaybench.results.model.common import OMIT_NONE
 from replaybench.results.model.detections import Accuracy
 from replaybench.results.model.segmentation import SegmentationSummary
 from replaybench.results.model.tags import TagAccuracy
+from replaybench.results.model.tracks import TrackTimeline
 
 __all__ = ['RIG_METRICS', 'RIG_TOPIC', 'RepeatStats', 'SummaryRow']
 
@@ -120,6 +122,9 @@ class SummaryRow:
     #: by metric name, in the order the task gave them; None (not in run.json) where the row
     #: has none. summary.csv writes them after the columns above.
     task_metrics: Mapping[str, float | None] | None = field(default=None, metadata=OMIT_NONE)
+    #: a tracked row with truth ids: its id-switch timeline (report.html's Tracking section);
+    #: absent otherwise, and in run.json files written before it
+    track_timeline: TrackTimeline | None = field(default=None, metadata=OMIT_NONE)
 
     def metric(self, name: str) -> float | None:
         """The row's value of the metric ``name`` (a ``MetricSpec.name``): its field of that

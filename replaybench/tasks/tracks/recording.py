@@ -7,8 +7,10 @@ Detection2DArray's ``Detection2D.id``) and scores their boxes as any backend's. 
 processed frame's tracks are kept beside the frame's truth boxes (the detections task's truth:
 ``/ground_truth/detections``, each box's ``id`` its object); after the passes a row's frames
 with truth, in replay order, are one sequence for ``replaybench.tracking.score_tracks`` (box
-IoU, every class together). Frames the tracker never saw (dropped from the queue, cut by
-``--max-frames``) are not in the sequence. Truth without ids (a box without one, or a
+IoU, every class together), and its CLEAR matching the row's id-switch timeline
+(``timeline_of``: the row's ``track_timeline``, report.html's Tracking section). Frames the
+tracker never saw (dropped from the queue, cut by ``--max-frames``) are not in the
+sequence. Truth without ids (a box without one, or a
 ground-truth file) gives no tracking metrics and a warning saying why; the boxes are still
 scored.
 """
@@ -24,9 +26,10 @@ if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
 
     from replaybench.decode.recorded import OutputReader
+    from replaybench.results.model import TrackTimeline
     from replaybench.sinks.writer import OutputWriter
     from replaybench.tasks.detections.truth import BoxTruth
-    from replaybench.tracking import TrackScores
+    from replaybench.tracking import TrackFrame, TrackScores
     from replaybench.types import BackendResult, Detection
 
 __all__ = [
@@ -36,6 +39,8 @@ __all__ = [
     'figures_of',
     'recording',
     'score_sequence',
+    'scored_with_timeline',
+    'timeline_of',
     'without_distractors',
 ]
 
@@ -75,15 +80,14 @@ def figures_of(scores: TrackScores) -> dict[str, float | None]:
     }
 
 
-def score_sequence(
+def _track_frames(
     frames: Sequence[tuple[Sequence[Detection], Sequence[Detection]]],
-) -> TrackScores:
-    """The tracking figures of a sequence of (truth boxes, tracks) per frame, in order: ids
-    as the boxes' ``id`` texts, similarity box IoU. ``ValueError`` for an id twice in a
-    frame."""
+) -> tuple[list[TrackFrame], list[str], list[str]]:
+    """The sequence as ``TrackFrame`` s (ids numbered in order of first appearance, similarity
+    box IoU), with the truth's and the tracks' id texts by number."""
     import numpy as np
 
-    from replaybench.tracking import TrackFrame, box_iou_xywh, score_tracks
+    from replaybench.tracking import TrackFrame, box_iou_xywh
 
     gt_numbers: dict[str, int] = {}
     tr_numbers: dict[str, int] = {}
@@ -98,7 +102,65 @@ def score_sequence(
         gt = np.array([gt_numbers.setdefault(d.id, len(gt_numbers)) for d in truth], np.int64)
         tr = np.array([tr_numbers.setdefault(d.id, len(tr_numbers)) for d in tracks], np.int64)
         made.append(TrackFrame(gt, tr, box_iou_xywh(xywh(truth), xywh(tracks))))
-    return score_tracks(made)
+    return made, list(gt_numbers), list(tr_numbers)
+
+
+def score_sequence(
+    frames: Sequence[tuple[Sequence[Detection], Sequence[Detection]]],
+) -> TrackScores:
+    """The tracking figures of a sequence of (truth boxes, tracks) per frame, in order: ids
+    as the boxes' ``id`` texts, similarity box IoU. ``ValueError`` for an id twice in a
+    frame."""
+    from replaybench.tracking import score_tracks
+
+    return score_tracks(_track_frames(frames)[0])
+
+
+def _id_order(text: str) -> tuple[int, int, str]:
+    """Ids in order: numbers by value first, then other texts."""
+    return (0, int(text), '') if text.isdigit() else (1, 0, text)
+
+
+def timeline_of(
+    frames: Sequence[tuple[Sequence[Detection], Sequence[Detection]]],
+) -> TrackTimeline:
+    """The id-switch timeline of a sequence scored as ``score_sequence`` scores it (its CLEAR
+    matching: ``scored_with_timeline``). ``ValueError`` as ``score_sequence``."""
+    return scored_with_timeline(frames)[1]
+
+
+def scored_with_timeline(
+    frames: Sequence[tuple[Sequence[Detection], Sequence[Detection]]],
+) -> tuple[TrackScores, TrackTimeline]:
+    """``score_sequence`` and the sequence's id-switch timeline in one pass
+    (``replaybench.tracking.score_and_match``): each truth object's frames as spans matched to
+    one track or missed, and the ID switches, of the CLEAR matching that counted the figures'
+    ``id_switches``. ``ValueError`` as ``score_sequence``."""
+    from replaybench.results.model import IdSwitchEvent, TrackLane, TrackSpan, TrackTimeline
+    from replaybench.tracking import score_and_match
+
+    made, gt_names, tr_names = _track_frames(frames)
+    scores, matching = score_and_match(made)
+    spans: dict[str, list[TrackSpan]] = {}
+    for index, (frame, pairs) in enumerate(zip(made, matching.pairs, strict=True)):
+        matched = {gt_names[g]: tr_names[t] for g, t in pairs}
+        for number in frame.gt_ids.tolist():
+            name = gt_names[number]
+            track = matched.get(name)
+            lane = spans.setdefault(name, [])
+            if lane and lane[-1].last == index - 1 and lane[-1].track_id == track:
+                lane[-1] = TrackSpan(lane[-1].first, index, track)
+            else:
+                lane.append(TrackSpan(index, index, track))
+    timeline = TrackTimeline(
+        frames=len(made),
+        lanes=tuple(TrackLane(name, tuple(spans[name])) for name in sorted(spans, key=_id_order)),
+        switches=tuple(
+            IdSwitchEvent(s.frame, gt_names[s.gt_id], tr_names[s.from_id], tr_names[s.to_id])
+            for s in matching.switches
+        ),
+    )
+    return scores, timeline
 
 
 def without_distractors(
@@ -146,7 +208,7 @@ class TracksRecording(TaskRecordingBase):
         #: why a row has no tracking metrics, by row
         self.refused: dict[tuple[str, str], str] = {}
         self._warnings: dict[str, None] = {}
-        self._figures: dict[tuple[str, str], dict[str, float | None]] | None = None
+        self._figures: dict[tuple[str, str], dict[str, Any]] | None = None
 
     def frame(
         self,
@@ -190,22 +252,25 @@ class TracksRecording(TaskRecordingBase):
         self.sequences.setdefault(row, []).append((boxes, tracks))
         return {'track_ms': track_ms}
 
-    def _scored(self) -> dict[tuple[str, str], dict[str, float | None]]:
+    def _scored(self) -> dict[tuple[str, str], dict[str, Any]]:
         """Every row's figures, scored once (after the passes); why a row has none goes into
         the warnings."""
         if self._figures is not None:
             return self._figures
-        figures: dict[tuple[str, str], dict[str, float | None]] = {}
+        figures: dict[tuple[str, str], dict[str, Any]] = {}
         for row in dict.fromkeys([*self.times, *self.sequences]):
             backend, topic = row
-            found: dict[str, float | None] = dict.fromkeys(METRIC_NAMES)
+            found: dict[str, Any] = dict.fromkeys(METRIC_NAMES)
             frames = self.sequences.get(row)
             reason = self.refused.get(row)
             if reason is None and frames:
                 try:
-                    found.update(figures_of(score_sequence(frames)))
+                    scores, timeline = scored_with_timeline(frames)
                 except ValueError as err:
                     reason = str(err)
+                else:
+                    found.update(figures_of(scores))
+                    found['track_timeline'] = timeline
             if reason is not None:
                 self._warnings[f'{backend} on {topic}: no tracking metrics: {reason}'] = None
             times = self.times.get(row)
@@ -215,8 +280,9 @@ class TracksRecording(TaskRecordingBase):
         return figures
 
     def summary(self, backend: str, topic: str) -> Mapping[str, Any] | None:
-        """The row's tracking figures (None where refused or without truth) and its mean
-        tracker time; None for a row that is not the task's."""
+        """The row's tracking figures (None where refused or without truth), its id-switch
+        timeline (``track_timeline``, where it has figures) and its mean tracker time; None for
+        a row that is not the task's."""
         return self._scored().get((backend, topic))
 
     def warnings(self) -> list[str]:

@@ -86,9 +86,11 @@ class TracksTask:
     streaming: ClassVar[str] = 'replaybench.tasks.tracks.streaming:score'
     frame_columns: ClassVar[tuple[str, ...]] = FRAME_COLUMNS
     #: ``replaybench run``'s table: HOTA, IDF1 and MOTA after the memory column, where a row
-    #: has them; the report shows HOTA in its Summary and the others under More figures
+    #: has them; the report shows HOTA in its Summary and the others under More figures, and
+    #: each tracked row's id-switch timeline in its Tracking section
     views: ClassVar[TaskViews] = TaskViews(
         more_columns='replaybench.tasks.tracks.views:more_columns',
+        section_panel='replaybench.report.tracks:track_timelines_html',
         terminal_metrics=('hota', 'idf1', 'mota'),
     )
 

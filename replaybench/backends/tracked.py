@@ -23,6 +23,7 @@ import inspect
 import time
 import tomllib
 from dataclasses import dataclass, replace
+from itertools import repeat
 from typing import TYPE_CHECKING, Any, ClassVar, cast
 
 from replaybench.backends.base import (
@@ -157,15 +158,24 @@ def tracker_params(
     return params, rest
 
 
-def _tracked(tracks: list[Any], detections: tuple[Detection, ...]) -> tuple[Detection, ...]:
-    """The tracks as detections: the matched box's class, label and score, the track's box and
-    id."""
-    made = Detection._make
-    return tuple(
-        made((*detections[t.detection][:3], *t.box, str(t.id)))
-        for t in tracks
-        if t.detection is not None  # a prediction without a box of this frame: not reported
-    )
+def _tracked(
+    reported: tuple[list[int], list[list[float]], list[int]], detections: tuple[Detection, ...]
+) -> tuple[Detection, ...]:
+    """The tracks a tracker's ``step`` reports as detections: the matched box's class, label
+    and score, the track's box and id (built by ``zip`` and ``map``, no Python per track)."""
+    ids, columns, matched = reported
+    if not ids:
+        return ()
+    if min(matched) < 0:  # a prediction without a box of this frame: not reported
+        kept = [n for n, d in enumerate(matched) if d >= 0]
+        ids = [ids[n] for n in kept]
+        columns = [[column[n] for n in kept] for column in columns]
+        matched = [matched[n] for n in kept]
+        if not ids:
+            return ()
+    classes, labels, scores = list(zip(*map(detections.__getitem__, matched), strict=True))[:3]
+    fields = zip(classes, labels, scores, *columns, map(str, ids), strict=True)
+    return tuple(map(tuple.__new__, repeat(Detection), fields))
 
 
 class _TrackedBase:
@@ -229,14 +239,13 @@ class _TrackedBase:
         np = self._np
         t0 = time.perf_counter_ns()
         dets = found.detections
-        boxes = np.array([d[3:7] for d in dets], dtype=np.float64).reshape(-1, 4)
-        scores = np.array([d[2] for d in dets], dtype=np.float64)
+        # the scores and boxes as rows (score, x0, y0, x1, y1): one zip, one array
+        values = np.array(list(zip(*dets, strict=True))[2:7], dtype=np.float64).reshape(5, -1)
         stream = (frame.input_index, frame.topic)
         tracker = self._trackers.get(stream)
         if tracker is None:
             tracker = self._trackers[stream] = self._new_tracker()
-        tracks = tracker.update(boxes, scores)
-        out = _tracked(tracks, dets)
+        out = _tracked(tracker.step(values[1:].T, values[0]), dets)
         took = time.perf_counter_ns() - t0
         return BackendResult(out, found.stages, output=TrackStage(took))
 

@@ -146,3 +146,44 @@ def test_frames_without_boxes_and_a_tracker_fed_nothing_report_no_tracks() -> No
     for name, params in PARAMS:
         _assert_same(name, params, frames)
         assert trackers.make_tracker(name, **params).update(*empty) == []
+
+
+@pytest.mark.parametrize('name', ['iou', 'sort', 'bytetrack'])
+def test_a_tracked_backends_detections_are_its_references_tracks_on_the_fixture(name: str) -> None:
+    from replaybench.backends.base import BackendOptions
+    from replaybench.backends.hsv import HsvBackend
+    from replaybench.backends.tracked import tracked_class
+    from replaybench.fixtures.tracks import TRACKS_FRAMES, TrackScene
+    from replaybench.types import Detection, Frame
+
+    backend = tracked_class(f'hsv+{name}', HsvBackend, name)(BackendOptions())
+    backend.open()
+    hsv = HsvBackend()
+    hsv.open()
+    reference = frozen_trackers.make_tracker(name)
+    scene = TrackScene()
+    reported = 0
+    for i in range(TRACKS_FRAMES):
+        image, _ = scene.render(i)
+        frame = Frame('/camera', i, i, i, 'camera', image, 'bgr8', 'bgr8')
+        got = backend.detect(frame).detections
+        found = hsv.detect(frame).detections
+        tracks = reference.update(
+            np.array([d[3:7] for d in found]).reshape(-1, 4), np.array([d[2] for d in found])
+        )
+        want = [
+            Detection(*found[t.detection][:3], *t.box, str(t.id))
+            for t in tracks
+            if t.detection is not None
+        ]
+        assert [d[:3] + d[7:] for d in got] == [d[:3] + d[7:] for d in want], i
+        assert all(type(d) is Detection for d in got)
+        np.testing.assert_allclose(
+            np.array([d[3:7] for d in got]).reshape(-1, 4),
+            np.array([d[3:7] for d in want]).reshape(-1, 4),
+            rtol=0,
+            atol=1e-6,
+        )
+        reported += len(got)
+    backend.close()
+    assert reported > 200

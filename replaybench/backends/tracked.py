@@ -24,6 +24,7 @@ import time
 import tomllib
 from dataclasses import dataclass, replace
 from itertools import repeat
+from operator import itemgetter
 from typing import TYPE_CHECKING, Any, ClassVar, cast
 
 from replaybench.backends.base import (
@@ -173,7 +174,8 @@ def _tracked(
         matched = [matched[n] for n in kept]
         if not ids:
             return ()
-    classes, labels, scores = list(zip(*map(detections.__getitem__, matched), strict=True))[:3]
+    picked = itemgetter(*matched)(detections) if len(matched) > 1 else (detections[matched[0]],)
+    classes, labels, scores = list(zip(*picked, strict=True))[:3]
     fields = zip(classes, labels, scores, *columns, map(str, ids), strict=True)
     return tuple(map(tuple.__new__, repeat(Detection), fields))
 

@@ -61,6 +61,7 @@ def _nonzero(mask: npt.NDArray[np.bool_]) -> npt.NDArray[np.intp]:
 
 
 _NO_ROWS = np.zeros(0, np.intp)
+_NO_ROWS.flags.writeable = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,19 +88,21 @@ def _columns(boxes: npt.ArrayLike) -> npt.NDArray[np.float64]:
 
 
 def _iou(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """IoU of each box of ``a`` (4 x N, rows x1 y1 x2 y2) with each of ``b`` (4 x M): the same
-    operations in the same order as ``box_iou_xyxy``, on contiguous rows."""
+    """IoU of each box of ``a`` (4 x N, rows x1 y1 x2 y2) with each of ``b`` (4 x M), each row
+    contiguous: the intersection's width and height clipped at 0, their product over the sum of
+    the areas less it (0 where that union is not positive)."""
     n, m = a.shape[1], b.shape[1]
     if not (n and m):
         return np.zeros((n, m))
-    inter = np.minimum.outer(a[2], b[2])
-    inter -= np.maximum.outer(a[0], b[0])
+    inter = np.minimum(a[2, :, None], b[2])
+    inter -= np.maximum(a[0, :, None], b[0])
     np.maximum(inter, 0.0, out=inter)
-    high = np.minimum.outer(a[3], b[3])
-    high -= np.maximum.outer(a[1], b[1])
+    high = np.minimum(a[3, :, None], b[3])
+    high -= np.maximum(a[1, :, None], b[1])
     np.maximum(high, 0.0, out=high)
     inter *= high
-    union = np.add.outer((a[2] - a[0]) * (a[3] - a[1]), (b[2] - b[0]) * (b[3] - b[1]))
+    size_a, size_b = a[2:4] - a[0:2], b[2:4] - b[0:2]
+    union = (size_a[0] * size_a[1])[:, None] + size_b[0] * size_b[1]
     union -= inter
     if union.min() > 0.0:  # False for a NaN too
         inter /= union
@@ -126,12 +129,18 @@ def _match(
     np.negative(iou, out=iou)
     rows, cols = _assign(iou)  # rows ascending
     good = iou[rows, cols] <= -threshold  # IoU >= threshold, the negation being exact
-    rows, cols = rows[good], cols[good]
-    free_r = np.ones(rows_n, bool)
-    free_r[rows] = False
-    free_c = np.ones(cols_n, bool)
-    free_c[cols] = False
-    return rows, cols, free_r.nonzero()[0], free_c.nonzero()[0]
+    if not good.all():
+        rows, cols = rows[good], cols[good]
+    return rows, cols, _free(rows, rows_n), _free(cols, cols_n)
+
+
+def _free(taken: npt.NDArray[np.intp], n: int) -> npt.NDArray[np.intp]:
+    """The indices below ``n`` not in ``taken`` (distinct), ascending."""
+    if len(taken) == n:
+        return _NO_ROWS
+    free = np.ones(n, bool)
+    free[taken] = False
+    return free.nonzero()[0]
 
 
 class IouTracker:
@@ -209,23 +218,41 @@ class _Filters:
         s[8:12] += s[12:16]
 
     def update(
-        self, rows: npt.NDArray[np.intp], z: npt.NDArray[np.float64], r: npt.ArrayLike
+        self, rows: npt.NDArray[np.intp], z: npt.NDArray[np.float64], r: npt.NDArray[np.float64]
     ) -> None:
-        """Tracks ``rows`` measured ``z`` (4 x k) with noise variances ``r`` (4 x k or 4 x 1)."""
-        g = self.s[:, rows]
+        """Tracks ``rows`` (distinct) measured ``z`` (4 x k) with noise variances ``r`` (4 x k or
+        4 x 1)."""
         k = len(rows)
+        every = k == self.s.shape[1]
+        if every:  # rows is a permutation: z and r put in the tracks' order, the filters in place
+            g = self.s
+            z = _scattered(z, rows)
+            if r.shape[1] > 1:
+                r = _scattered(r, rows)
+        else:
+            g = self.s[:, rows]
         s = g[8:12] + r
         gain = g[8:16].reshape(2, 4, k) * (1.0 / s)  # K: Paa / S and Pab / S
         g[0:8].reshape(2, 4, k)[:] += gain * (z - g[0:4])  # x += Ka y, v += Kb y
         # P -= K S K^T: (Ka S) Ka, (Ka S) Kb, (Kb S) Ka, (Kb S) Kb
         g[8:24] -= ((gain * s)[:, None] * gain[None, :]).reshape(16, k)
-        self.s[:, rows] = g
+        if not every:
+            self.s[:, rows] = g
+
+
+def _scattered(
+    values: npt.NDArray[np.float64], rows: npt.NDArray[np.intp]
+) -> npt.NDArray[np.float64]:
+    """``values`` (m x k) with column j moved to column ``rows[j]``."""
+    out = np.empty_like(values)
+    out[:, rows] = values
+    return out
 
 
 # ---------------------------------------------------------------- SORT
 
-_SORT_QA = np.array([[1.0], [1.0], [1.0], [1.0]])
-_SORT_QB = np.array([[0.01], [0.01], [0.0001], [0.0]])
+#: Q on rows 8-23 (Paa, Pab, Pba, Pbb): zeros off the diagonal, added as the matrix form adds them
+_SORT_Q = np.array([1.0] * 4 + [0.0] * 8 + [0.01, 0.01, 0.0001, 0.0]).reshape(16, 1)
 _SORT_R = np.array([[1.0], [1.0], [10.0], [10.0]])
 _SORT_PAA = np.array([[10.0], [10.0], [10.0], [10.0]])
 _SORT_PBB = np.array([[1e4], [1e4], [1e4], [0.0]])
@@ -302,20 +329,21 @@ class SortTracker:
         if s.shape[1]:
             s[6, s[6] + s[2] <= 0] = 0.0  # an area that would go negative stops shrinking
             f.predict()
-            s[8:12] += _SORT_QA
-            s[20:24] += _SORT_QB
+            s[8:24] += _SORT_Q
         counts = self.counts
         counts[1, counts[2] > 0] = 0
         counts[2] += 1
         pred = _from_x(s)
-        alive = np.isfinite(pred).all(axis=0)
-        if not alive.all():
+        if not np.isfinite(pred).all():
+            alive = np.isfinite(pred).all(axis=0)
             self._keep(alive)
             pred = pred[:, alive]
         d_rows, t_rows, new, _ = _match(_iou(dets, pred), self.iou_threshold)
         matched = np.full(pred.shape[1], -1, np.int64)
-        if len(d_rows):
-            f.update(t_rows, _to_z(dets[:, d_rows]), _SORT_R)
+        if len(d_rows):  # d_rows ascending: all of them where as many as the boxes
+            f.update(
+                t_rows, _to_z(dets if len(d_rows) == dets.shape[1] else dets[:, d_rows]), _SORT_R
+            )
             self.counts[2, t_rows] = 0
             self.counts[1, t_rows] += 1
             matched[t_rows] = d_rows if keep is None else keep[d_rows]
@@ -329,11 +357,16 @@ class SortTracker:
             self.counts = np.concatenate([self.counts, born], axis=1)
             self._next += k
         ids, streak, since = self.counts
-        shown = (since < 1) & ((streak >= self.min_hits) | (self.frame_count <= self.min_hits))
-        rows = _nonzero(shown)
+        shown = since < 1
+        if self.frame_count > self.min_hits:
+            shown &= streak >= self.min_hits
         # in id order: a track's row never moves before an older one's (new tracks are
         # appended with the next id, gone ones removed in place)
-        out = (ids[rows].tolist(), _from_x(f.s[:, rows]).tolist(), matched[rows].tolist())
+        if shown.all():
+            out = (ids.tolist(), _from_x(f.s).tolist(), matched.tolist())
+        else:
+            rows = _nonzero(shown)
+            out = (ids[rows].tolist(), _from_x(f.s[:, rows]).tolist(), matched[rows].tolist())
         alive = since <= self.max_age
         if not alive.all():
             self._keep(alive)
@@ -347,6 +380,8 @@ _STD_VEL = 1.0 / 160
 _VAR_A = 1e-2 * 1e-2  # the aspect ratio's process noise
 _VAR_VA = 1e-5 * 1e-5  # its velocity's
 _VAR_RA = 1e-1 * 1e-1  # its measurement noise
+#: Q's standard deviations on rows 8-23 per unit of height (the aspect ratio's set apart)
+_BT_STD = np.array([_STD_POS] * 2 + [0.0, _STD_POS] + [0.0] * 8 + [_STD_VEL] * 2 + [0.0, _STD_VEL])
 
 
 def _xyah(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -415,16 +450,12 @@ class ByteTrackTracker:
         lost = state[_LOST] != 0
         if n:
             s[7, lost] = 0.0
-            pos, vel = _STD_POS * s[3], _STD_VEL * s[3]
-            pos *= pos
-            vel *= vel
+            q = np.multiply.outer(_BT_STD, s[3])  # the standard deviations, scaled by the height
+            q *= q
+            q[2] = _VAR_A
+            q[14] = _VAR_VA
             f.predict()
-            s[8:10] += pos
-            s[10] += _VAR_A
-            s[11] += pos
-            s[20:22] += vel
-            s[22] += _VAR_VA
-            s[23] += vel
+            s[8:24] += q
         current = _xyxy(s)
         confirmed_now = state[_CONFIRMED] != 0
         confirmed = _nonzero(confirmed_now)

@@ -134,6 +134,24 @@ def _match(
     return rows, cols, _free(rows, rows_n), _free(cols, cols_n)
 
 
+#: ``_at``'s index of every row
+_ALL = None
+
+
+def _at(
+    index: npt.NDArray[np.intp] | None, positions: npt.NDArray[np.intp]
+) -> npt.NDArray[np.intp]:
+    """``index[positions]``; ``positions`` where ``index`` is ``_ALL`` (every row, in order)."""
+    return positions if index is None else index[positions]
+
+
+def _cols(
+    values: npt.NDArray[np.float64], index: npt.NDArray[np.intp] | None
+) -> npt.NDArray[np.float64]:
+    """The columns ``index`` of ``values``; all of them for ``_ALL``."""
+    return values if index is None else values[:, index]
+
+
 def _free(taken: npt.NDArray[np.intp], n: int) -> npt.NDArray[np.intp]:
     """The indices below ``n`` not in ``taken`` (distinct), ascending."""
     if len(taken) == n:
@@ -458,39 +476,54 @@ class ByteTrackTracker:
             s[8:24] += q
         current = _xyxy(s)
         confirmed_now = state[_CONFIRMED] != 0
-        confirmed = _nonzero(confirmed_now)
-        unconfirmed = _nonzero(~confirmed_now)
+        every = bool(confirmed_now.all())  # then confirmed is every row, unconfirmed none
+        confirmed = _ALL if every else _nonzero(confirmed_now)
+        unconfirmed = _NO_ROWS if every else _nonzero(~confirmed_now)
         # 1: the high boxes against every confirmed track, active or lost
+        high_all = len(high) == d.shape[1]
         t1, d1, left_tracks, left_high = _match(
-            _iou(current[:, confirmed], d[:, high]), 1.0 - self.match_thresh
+            _iou(_cols(current, confirmed), d if high_all else d[:, high]), 1.0 - self.match_thresh
         )
+        rows = [_at(confirmed, t1)]
+        took = [d1 if high_all else high[d1]]
         # 2: the low boxes against the active tracks still unmatched
-        remaining = confirmed[left_tracks]
-        remaining = remaining[~lost[remaining]]
-        t2, d2, left2, _ = _match(_iou(current[:, remaining], d[:, low]), 0.5)
-        state[_LOST, remaining[left2]] = 1
+        if len(left_tracks):
+            remaining = _at(confirmed, left_tracks)
+            remaining = remaining[~lost[remaining]]
+            t2, d2, left2, _ = _match(_iou(current[:, remaining], d[:, low]), 0.5)
+            state[_LOST, remaining[left2]] = 1
+            rows.append(remaining[t2])
+            took.append(low[d2])
         # 3: unconfirmed tracks against the high boxes left (IoU >= 0.3)
         rest = high[left_high]
-        t3, d3, dead, left_new = _match(_iou(current[:, unconfirmed], d[:, rest]), 0.3)
-        rows = np.concatenate([confirmed[t1], remaining[t2], unconfirmed[t3]])
-        took = np.concatenate([high[d1], low[d2], rest[d3]])
+        dead = left_new = _NO_ROWS
+        if len(unconfirmed):
+            t3, d3, dead, left_new = _match(_iou(current[:, unconfirmed], d[:, rest]), 0.3)
+            rows.append(unconfirmed[t3])
+            took.append(rest[d3])
+        else:
+            left_new = np.arange(len(rest))
+        rows_a = rows[0] if len(rows) == 1 else np.concatenate(rows)
+        took_a = took[0] if len(took) == 1 else np.concatenate(took)
         used = np.full(n, -1, np.int64)
-        if len(rows):  # the three stages' rows are distinct: one update for all
-            var = _STD_POS * s[3, rows]
+        if len(rows_a):  # the three stages' rows are distinct: one update for all
+            var = _STD_POS * s[3, rows_a]
             var *= var
-            r = np.empty((4, len(rows)))
+            r = np.empty((4, len(rows_a)))
             r[0] = r[1] = r[3] = var
             r[2] = _VAR_RA
-            f.update(rows, _xyah(d[:, took]), r)
-            used[rows] = took
-            state[_CONFIRMED, rows] = 1
-            state[_LOST, rows] = 0
-            state[_LAST, rows] = self.frame
+            f.update(rows_a, _xyah(d[:, took_a]), r)
+            used[rows_a] = took_a
+            state[_CONFIRMED, rows_a] = 1
+            state[_LOST, rows_a] = 0
+            state[_LAST, rows_a] = self.frame
         removed = np.zeros(n, bool)
-        removed[unconfirmed[dead]] = True
+        if len(dead):
+            removed[unconfirmed[dead]] = True
         # 4: new tracks from the high boxes no track took
         born = rest[left_new]
-        born = born[scores[born] >= self.track_thresh + 0.1]
+        if len(born):
+            born = born[scores[born] >= self.track_thresh + 0.1]
         if len(born):
             k = len(born)
             z = _xyah(d[:, born])
@@ -510,9 +543,16 @@ class ByteTrackTracker:
             self._next += k
         last = state[_LAST]
         shown = (state[_CONFIRMED] != 0) & (state[_LOST] == 0) & (last == self.frame) & ~removed
-        rows = _nonzero(shown)
         # in id order: rows are kept in the order the tracks were made
-        out = (state[_ID, rows].tolist(), _xyxy(f.s[:, rows]).tolist(), used[rows].tolist())
+        if shown.all():
+            out = (state[_ID].tolist(), _xyxy(f.s).tolist(), used.tolist())
+        else:
+            shown_rows = _nonzero(shown)
+            out = (
+                state[_ID, shown_rows].tolist(),
+                _xyxy(f.s[:, shown_rows]).tolist(),
+                used[shown_rows].tolist(),
+            )
         alive = ~removed & (self.frame - last <= self.track_buffer)
         if not alive.all():
             f.keep(alive)

@@ -160,23 +160,27 @@ def tracker_params(
 
 
 def _tracked(
-    reported: tuple[list[int], list[list[float]], list[int]], detections: tuple[Detection, ...]
+    reported: tuple[list[int], list[list[float]], list[int]], columns: Sequence[tuple[Any, ...]]
 ) -> tuple[Detection, ...]:
     """The tracks a tracker's ``step`` reports as detections: the matched box's class, label
-    and score, the track's box and id (built by ``zip`` and ``map``, no Python per track)."""
-    ids, columns, matched = reported
+    and score, the track's box and id. ``columns``: the frame's detections as columns (class
+    indices, labels, scores, ...); built by ``zip`` and ``map``, no Python per track."""
+    ids, boxes, matched = reported
     if not ids:
         return ()
     if min(matched) < 0:  # a prediction without a box of this frame: not reported
         kept = [n for n, d in enumerate(matched) if d >= 0]
-        ids = [ids[n] for n in kept]
-        columns = [[column[n] for n in kept] for column in columns]
-        matched = [matched[n] for n in kept]
-        if not ids:
+        if not kept:
             return ()
-    picked = itemgetter(*matched)(detections) if len(matched) > 1 else (detections[matched[0]],)
-    classes, labels, scores = list(zip(*picked, strict=True))[:3]
-    fields = zip(classes, labels, scores, *columns, map(str, ids), strict=True)
+        ids = [ids[n] for n in kept]
+        boxes = [[column[n] for n in kept] for column in boxes]
+        matched = [matched[n] for n in kept]
+    if len(matched) > 1:
+        pick = itemgetter(*matched)
+        heads = (pick(columns[0]), pick(columns[1]), pick(columns[2]))
+    else:
+        heads = tuple((column[matched[0]],) for column in columns[:3])
+    fields = zip(*heads, *boxes, map(str, ids), strict=True)
     return tuple(map(tuple.__new__, repeat(Detection), fields))
 
 
@@ -240,14 +244,15 @@ class _TrackedBase:
         found = self.detector.detect(frame)
         np = self._np
         t0 = time.perf_counter_ns()
-        dets = found.detections
-        # the scores and boxes as rows (score, x0, y0, x1, y1): one zip, one array
-        values = np.array(list(zip(*dets, strict=True))[2:7], dtype=np.float64).reshape(5, -1)
+        # the detections as columns (class, label, score, x0, y0, x1, y1, id): one zip; the
+        # scores and boxes as rows of one array
+        columns = list(zip(*found.detections, strict=True))
+        values = np.array(columns[2:7], dtype=np.float64).reshape(5, -1)
         stream = (frame.input_index, frame.topic)
         tracker = self._trackers.get(stream)
         if tracker is None:
             tracker = self._trackers[stream] = self._new_tracker()
-        out = _tracked(tracker.step(values[1:].T, values[0]), dets)
+        out = _tracked(tracker.step(values[1:].T, values[0]), columns)
         took = time.perf_counter_ns() - t0
         return BackendResult(out, found.stages, output=TrackStage(took))
 

@@ -187,3 +187,19 @@ def test_a_tracked_backends_detections_are_its_references_tracks_on_the_fixture(
         reported += len(got)
     backend.close()
     assert reported > 200
+
+
+def test_a_track_without_a_box_of_its_frame_is_not_reported_as_a_detection() -> None:
+    from replaybench.backends.tracked import _tracked
+    from replaybench.types import Detection
+
+    found = (Detection(0, 'red', 0.9, 1, 2, 3, 4), Detection(1, 'green', 0.8, 5, 6, 7, 8))
+    columns = list(zip(*found, strict=True))
+    boxes = [[10.0, 20.0, 30.0], [11.0, 21.0, 31.0], [12.0, 22.0, 32.0], [13.0, 23.0, 33.0]]
+    got = _tracked(([4, 5, 6], boxes, [1, -1, 0]), columns)
+    assert got == (
+        Detection(1, 'green', 0.8, 10.0, 11.0, 12.0, 13.0, '4'),
+        Detection(0, 'red', 0.9, 30.0, 31.0, 32.0, 33.0, '6'),
+    )
+    assert _tracked(([4], [[1.0], [2.0], [3.0], [4.0]], [-1]), columns) == ()
+    assert _tracked(([], [[], [], [], []], []), []) == ()

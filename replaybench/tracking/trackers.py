@@ -345,11 +345,14 @@ class SortTracker:
         f = self.filters
         s = f.s
         if s.shape[1]:
-            s[6, s[6] + s[2] <= 0] = 0.0  # an area that would go negative stops shrinking
+            ahead = s[6] + s[2]
+            if ahead.min() <= 0:  # an area that would go negative stops shrinking
+                s[6, ahead <= 0] = 0.0
             f.predict()
             s[8:24] += _SORT_Q
         counts = self.counts
-        counts[1, counts[2] > 0] = 0
+        if counts[2].any():  # a streak ends with a frame unmatched
+            counts[1, counts[2] > 0] = 0
         counts[2] += 1
         pred = _from_x(s)
         if not np.isfinite(pred).all():

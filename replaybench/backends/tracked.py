@@ -175,6 +175,7 @@ def _tracked(
         ids = [ids[n] for n in kept]
         boxes = [[column[n] for n in kept] for column in boxes]
         matched = [matched[n] for n in kept]
+    heads: tuple[tuple[Any, ...], ...]
     if len(matched) > 1:
         pick = itemgetter(*matched)
         heads = (pick(columns[0]), pick(columns[1]), pick(columns[2]))

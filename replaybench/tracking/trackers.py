@@ -94,7 +94,7 @@ def _iou(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray[
     n, m = a.shape[1], b.shape[1]
     if not (n and m):
         return np.zeros((n, m))
-    inter = np.minimum(a[2, :, None], b[2])
+    inter: npt.NDArray[np.float64] = np.minimum(a[2, :, None], b[2])
     inter -= np.maximum(a[0, :, None], b[0])
     np.maximum(inter, 0.0, out=inter)
     high = np.minimum(a[3, :, None], b[3])
@@ -356,7 +356,7 @@ class SortTracker:
         counts[2] += 1
         pred = _from_x(s)
         if not np.isfinite(pred).all():
-            alive = np.isfinite(pred).all(axis=0)
+            alive = np.all(np.isfinite(pred), axis=0)
             self._keep(alive)
             pred = pred[:, alive]
         d_rows, t_rows, new, _ = _match(_iou(dets, pred), self.iou_threshold)

@@ -156,7 +156,8 @@ def test_a_tracked_backends_detections_are_its_references_tracks_on_the_fixture(
     from replaybench.fixtures.tracks import TRACKS_FRAMES, TrackScene
     from replaybench.types import Detection, Frame
 
-    backend = tracked_class(f'hsv+{name}', HsvBackend, name)(BackendOptions())
+    made: Any = tracked_class(f'hsv+{name}', HsvBackend, name)
+    backend = made(BackendOptions())
     backend.open()
     hsv = HsvBackend()
     hsv.open()

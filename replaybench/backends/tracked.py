@@ -23,7 +23,7 @@ import inspect
 import time
 import tomllib
 from dataclasses import dataclass, replace
-from itertools import repeat
+from itertools import chain, repeat
 from operator import itemgetter
 from typing import TYPE_CHECKING, Any, ClassVar, cast
 
@@ -248,7 +248,8 @@ class _TrackedBase:
         # the detections as columns (class, label, score, x0, y0, x1, y1, id): one zip; the
         # scores and boxes as rows of one array
         columns = list(zip(*found.detections, strict=True))
-        values = np.array(columns[2:7], dtype=np.float64).reshape(5, -1)
+        n = len(found.detections)
+        values = np.fromiter(chain.from_iterable(columns[2:7]), np.float64, 5 * n).reshape(5, n)
         stream = (frame.input_index, frame.topic)
         tracker = self._trackers.get(stream)
         if tracker is None:

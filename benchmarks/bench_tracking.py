@@ -39,7 +39,7 @@ from benchmarks.core import (
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ['DEFAULT_OUT', 'ITEM', 'main', 'run', 'write_grid_mcap']
+__all__ = ['DEFAULT_OUT', 'ITEM', 'grid_scene', 'main', 'run', 'write_grid_mcap']
 
 ITEM = 'k'
 DEFAULT_OUT = Path(__file__).resolve().parent / 'results' / 'tracking.json'
@@ -47,8 +47,8 @@ OBJECTS = 50
 TARGETS = {'sort': 0.3, 'bytetrack': 0.5}
 
 
-def write_grid_mcap(path: Path, frames: int, size: tuple[int, int] = (640, 480)) -> Path:
-    """A JPEG bag of ``OBJECTS`` squares on a grid drifting right, truth with ids."""
+def grid_scene(size: tuple[int, int] = (640, 480)) -> Any:
+    """``OBJECTS`` squares on a 10 x 5 grid drifting right and down, truth with ids."""
     from replaybench.fixtures.exact import hsv_to_bgr
     from replaybench.fixtures.scene import Scene, SceneObject
 
@@ -74,7 +74,12 @@ def write_grid_mcap(path: Path, frames: int, size: tuple[int, int] = (640, 480))
                 for n in range(OBJECTS)
             )
 
-    return _write(path, Grid(), frames, size)
+    return Grid()
+
+
+def write_grid_mcap(path: Path, frames: int, size: tuple[int, int] = (640, 480)) -> Path:
+    """A JPEG bag of the ``grid_scene``: ``OBJECTS`` squares drifting, truth with ids."""
+    return _write(path, grid_scene(size), frames, size)
 
 
 def _write(path: Path, scene: Any, frames: int, size: tuple[int, int]) -> Path:

@@ -23,6 +23,8 @@ import inspect
 import time
 import tomllib
 from dataclasses import dataclass, replace
+from itertools import chain, repeat
+from operator import itemgetter
 from typing import TYPE_CHECKING, Any, ClassVar, cast
 
 from replaybench.backends.base import (
@@ -157,15 +159,30 @@ def tracker_params(
     return params, rest
 
 
-def _tracked(tracks: list[Any], detections: tuple[Detection, ...]) -> tuple[Detection, ...]:
-    """The tracks as detections: the matched box's class, label and score, the track's box and
-    id."""
-    made = Detection._make
-    return tuple(
-        made((*detections[t.detection][:3], *t.box, str(t.id)))
-        for t in tracks
-        if t.detection is not None  # a prediction without a box of this frame: not reported
-    )
+def _tracked(
+    reported: tuple[list[int], list[list[float]], list[int]], columns: Sequence[tuple[Any, ...]]
+) -> tuple[Detection, ...]:
+    """The tracks a tracker's ``step`` reports as detections: the matched box's class, label
+    and score, the track's box and id. ``columns``: the frame's detections as columns (class
+    indices, labels, scores, ...); built by ``zip`` and ``map``, no Python per track."""
+    ids, boxes, matched = reported
+    if not ids:
+        return ()
+    if min(matched) < 0:  # a prediction without a box of this frame: not reported
+        kept = [n for n, d in enumerate(matched) if d >= 0]
+        if not kept:
+            return ()
+        ids = [ids[n] for n in kept]
+        boxes = [[column[n] for n in kept] for column in boxes]
+        matched = [matched[n] for n in kept]
+    heads: tuple[tuple[Any, ...], ...]
+    if len(matched) > 1:
+        pick = itemgetter(*matched)
+        heads = (pick(columns[0]), pick(columns[1]), pick(columns[2]))
+    else:
+        heads = tuple((column[matched[0]],) for column in columns[:3])
+    fields = zip(*heads, *boxes, map(str, ids), strict=True)
+    return tuple(map(tuple.__new__, repeat(Detection), fields))
 
 
 class _TrackedBase:
@@ -228,15 +245,16 @@ class _TrackedBase:
         found = self.detector.detect(frame)
         np = self._np
         t0 = time.perf_counter_ns()
-        dets = found.detections
-        boxes = np.array([d[3:7] for d in dets], dtype=np.float64).reshape(-1, 4)
-        scores = np.array([d[2] for d in dets], dtype=np.float64)
+        # the detections as columns (class, label, score, x0, y0, x1, y1, id): one zip; the
+        # scores and boxes as rows of one array
+        columns = list(zip(*found.detections, strict=True))
+        n = len(found.detections)
+        values = np.fromiter(chain.from_iterable(columns[2:7]), np.float64, 5 * n).reshape(5, n)
         stream = (frame.input_index, frame.topic)
         tracker = self._trackers.get(stream)
         if tracker is None:
             tracker = self._trackers[stream] = self._new_tracker()
-        tracks = tracker.update(boxes, scores)
-        out = _tracked(tracks, dets)
+        out = _tracked(tracker.step(values[1:].T, values[0]), columns)
         took = time.perf_counter_ns() - t0
         return BackendResult(out, found.stages, output=TrackStage(took))
 

@@ -48,6 +48,21 @@ if TYPE_CHECKING:
 
 __all__ = ['ByteTrackTracker', 'IouTracker', 'SortTracker', 'Track', 'box_iou_xyxy', 'make_tracker']
 
+#: what ``step`` returns, in the order of the tracks (id order): their ids, their boxes as four
+#: lists (x1s, y1s, x2s, y2s) and the input boxes they were matched to (-1 for none)
+Reported = tuple[list[int], list[list[float]], list[int]]
+
+_F64 = np.float64
+
+
+def _nonzero(mask: npt.NDArray[np.bool_]) -> npt.NDArray[np.intp]:
+    """The indices of a 1-D mask's True entries."""
+    return mask.nonzero()[0]
+
+
+_NO_ROWS = np.zeros(0, np.intp)
+_NO_ROWS.flags.writeable = False
+
 
 @dataclass(frozen=True, slots=True)
 class Track:
@@ -59,47 +74,91 @@ class Track:
     detection: int | None
 
 
-def box_iou_xyxy(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """IoU of each box of ``a`` (N x 4, x1 y1 x2 y2) with each of ``b`` (M x 4)."""
-    a = np.asarray(a, dtype=np.float64).reshape(-1, 4)
-    b = np.asarray(b, dtype=np.float64).reshape(-1, 4)
-    x1 = np.maximum(a[:, None, 0], b[None, :, 0])
-    y1 = np.maximum(a[:, None, 1], b[None, :, 1])
-    x2 = np.minimum(a[:, None, 2], b[None, :, 2])
-    y2 = np.minimum(a[:, None, 3], b[None, :, 3])
-    inter = np.maximum(x2 - x1, 0.0) * np.maximum(y2 - y1, 0.0)
-    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
-    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    union = area_a[:, None] + area_b[None, :] - inter
+def _tracks(reported: Reported) -> list[Track]:
+    ids, columns, dets = reported
+    return [
+        Track(i, box, None if d < 0 else d)
+        for i, box, d in zip(ids, zip(*columns, strict=True), dets, strict=True)
+    ]
+
+
+def _columns(boxes: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Boxes (N x 4) as four rows x1 y1 x2 y2 (4 x N), each contiguous."""
+    return np.ascontiguousarray(np.asarray(boxes, dtype=_F64).reshape(-1, 4).T)
+
+
+def _iou(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """IoU of each box of ``a`` (4 x N, rows x1 y1 x2 y2) with each of ``b`` (4 x M), each row
+    contiguous: the intersection's width and height clipped at 0, their product over the sum of
+    the areas less it (0 where that union is not positive)."""
+    n, m = a.shape[1], b.shape[1]
+    if not (n and m):
+        return np.zeros((n, m))
+    inter: npt.NDArray[np.float64] = np.minimum(a[2, :, None], b[2])
+    inter -= np.maximum(a[0, :, None], b[0])
+    np.maximum(inter, 0.0, out=inter)
+    high = np.minimum(a[3, :, None], b[3])
+    high -= np.maximum(a[1, :, None], b[1])
+    np.maximum(high, 0.0, out=high)
+    inter *= high
+    size_a, size_b = a[2:4] - a[0:2], b[2:4] - b[0:2]
+    union = (size_a[0] * size_a[1])[:, None] + size_b[0] * size_b[1]
+    union -= inter
+    if union.min() > 0.0:  # False for a NaN too
+        inter /= union
+        return inter
     out: npt.NDArray[np.float64] = np.zeros_like(inter)
     np.divide(inter, union, out=out, where=union > 0)
     return out
 
 
+def box_iou_xyxy(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """IoU of each box of ``a`` (N x 4, x1 y1 x2 y2) with each of ``b`` (M x 4)."""
+    return _iou(_columns(a), _columns(b))
+
+
 def _match(
     iou: npt.NDArray[np.float64], threshold: float
-) -> tuple[list[tuple[int, int]], list[int], list[int]]:
-    """One-to-one matches of rows to columns with IoU ≥ ``threshold`` (Hungarian on -IoU), the
-    unmatched rows and the unmatched columns, each in increasing order."""
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """One-to-one matches of rows to columns with IoU ≥ ``threshold`` (Hungarian on -IoU): the
+    matched rows (ascending) and their columns, the unmatched rows and the unmatched columns
+    (ascending)."""
     rows_n, cols_n = iou.shape
     if not (rows_n and cols_n):
-        return [], list(range(rows_n)), list(range(cols_n))
-    rows, cols = _assign(-iou)  # rows ascending
-    good = iou[rows, cols] >= threshold
-    rows, cols = rows[good], cols[good]
-    free_r = np.ones(rows_n, bool)
-    free_r[rows] = False
-    free_c = np.ones(cols_n, bool)
-    free_c[cols] = False
-    return (
-        list(zip(rows.tolist(), cols.tolist(), strict=True)),
-        np.flatnonzero(free_r).tolist(),
-        np.flatnonzero(free_c).tolist(),
-    )
+        return _NO_ROWS, _NO_ROWS, np.arange(rows_n), np.arange(cols_n)
+    np.negative(iou, out=iou)
+    rows, cols = _assign(iou)  # rows ascending
+    good = iou[rows, cols] <= -threshold  # IoU >= threshold, the negation being exact
+    if not good.all():
+        rows, cols = rows[good], cols[good]
+    return rows, cols, _free(rows, rows_n), _free(cols, cols_n)
 
 
-def _box(values: npt.NDArray[np.float64]) -> tuple[float, float, float, float]:
-    return (float(values[0]), float(values[1]), float(values[2]), float(values[3]))
+#: ``_at``'s index of every row
+_ALL = None
+
+
+def _at(
+    index: npt.NDArray[np.intp] | None, positions: npt.NDArray[np.intp]
+) -> npt.NDArray[np.intp]:
+    """``index[positions]``; ``positions`` where ``index`` is ``_ALL`` (every row, in order)."""
+    return positions if index is None else index[positions]
+
+
+def _cols(
+    values: npt.NDArray[np.float64], index: npt.NDArray[np.intp] | None
+) -> npt.NDArray[np.float64]:
+    """The columns ``index`` of ``values``; all of them for ``_ALL``."""
+    return values if index is None else values[:, index]
+
+
+def _free(taken: npt.NDArray[np.intp], n: int) -> npt.NDArray[np.intp]:
+    """The indices below ``n`` not in ``taken`` (distinct), ascending."""
+    if len(taken) == n:
+        return _NO_ROWS
+    free = np.ones(n, bool)
+    free[taken] = False
+    return free.nonzero()[0]
 
 
 class IouTracker:
@@ -109,121 +168,137 @@ class IouTracker:
 
     def __init__(self, iou_threshold: float = 0.3) -> None:
         self.iou_threshold = iou_threshold
-        self._prev: npt.NDArray[np.float64] = np.zeros((0, 4))
-        self._prev_ids: list[int] = []
+        self._prev: npt.NDArray[np.float64] = np.zeros((4, 0))
+        self._prev_ids: npt.NDArray[np.int64] = np.zeros(0, np.int64)
         self._next = 1
 
     def update(
         self, boxes: npt.NDArray[np.float64], scores: npt.NDArray[np.float64]
     ) -> list[Track]:
+        return _tracks(self.step(boxes, scores))
+
+    def step(self, boxes: npt.ArrayLike, scores: npt.ArrayLike) -> Reported:
+        """``update``'s tracks as lists: ids, boxes and input boxes (the tracks' order)."""
         del scores
-        boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-        pairs, _, new = _match(box_iou_xyxy(self._prev, boxes), self.iou_threshold)
-        ids = [0] * len(boxes)
-        for r, c in pairs:
-            ids[c] = self._prev_ids[r]
-        for c in new:
-            ids[c] = self._next
-            self._next += 1
-        self._prev, self._prev_ids = boxes, ids
-        return [Track(ids[i], _box(boxes[i]), i) for i in range(len(boxes))]
+        now = _columns(boxes)
+        n = now.shape[1]
+        rows, cols, _, new = _match(_iou(self._prev, now), self.iou_threshold)
+        ids = np.zeros(n, np.int64)
+        ids[cols] = self._prev_ids[rows]
+        ids[new] = np.arange(self._next, self._next + len(new))
+        self._next += len(new)
+        self._prev, self._prev_ids = now, ids
+        return ids.tolist(), now.tolist(), list(range(n))
 
 
-# ---------------------------------------------------------------- SORT
+# ------------------------------------------------ Kalman filters as 2x2 blocks
+#
+# Both trackers' filters have a constant-velocity F (state i + 4, the velocity of measured state
+# i, is added to it each frame), H measuring states 0-3, and diagonal Q, R and initial P. Their
+# covariance therefore stays block-diagonal: for each measured state i a 2x2 block of (i, i + 4),
+# every other entry an exact zero. The filters of a tracker's tracks are kept as one array of
+# 24 rows, a column a track: the means x (rows 0-3) and v (4-7), then the blocks' entries
+# P[i, i] (8-11), P[i, i+4] (12-15), P[i+4, i] (16-19) and P[i+4, i+4] (20-23). Predict and
+# update are elementwise operations on these rows, in the order of the products and sums of
+# the matrix form (whose other terms add exact zeros); S^-1 is applied as the LAPACK solve of
+# a diagonal S does it, multiplying by 1/S. SORT's ratio has no velocity: its row 7 and its
+# block's velocity entries stay zero.
+
+_ROWS = 24
 
 
-_SORT_F = np.eye(7)
-_SORT_F[0, 4] = _SORT_F[1, 5] = _SORT_F[2, 6] = 1.0
-_SORT_H = np.eye(4, 7)
-_SORT_R = np.diag([1.0, 1.0, 10.0, 10.0])
-_SORT_Q = np.diag([1.0, 1.0, 1.0, 1.0, 0.01, 0.01, 0.0001])
-_SORT_P0 = np.diag([10.0, 10.0, 10.0, 10.0, 1e4, 1e4, 1e4])
+class _Filters:
+    """The Kalman filters of a tracker's tracks (the layout above)."""
 
+    def __init__(self) -> None:
+        self.s: npt.NDArray[np.float64] = np.zeros((_ROWS, 0))
 
-class _Bank:
-    """The Kalman filters of a tracker's tracks, as one array each: means ``x`` (N x n),
-    covariances ``p`` (N x n x n), predicted and updated for every track in one operation."""
-
-    def __init__(self, f: npt.NDArray[np.float64], h: npt.NDArray[np.float64]) -> None:
-        self.f = f
-        self.h = h
-        n = f.shape[0]
-        m = h.shape[0]
-        #: H measures the first m states (the trackers' H): H P, H P H^T and H x are slices,
-        #: the same numbers as the products (every other term is an exact zero), fewer steps
-        self.select = m if np.array_equal(h, np.eye(m, n)) else None
-        #: F is the identity plus ones off the diagonal, at most one a row (constant velocity):
-        #: F x and F P F^T are sums of two terms, added here without the products (the same
-        #: numbers: the products add exact zeros)
-        off = f - np.eye(n)
-        rows, cols = np.nonzero(off)
-        simple = bool(np.all(off[rows, cols] == 1.0)) and len(set(rows.tolist())) == len(rows)
-        ranges = (
-            simple
-            and len(rows) > 0
-            and np.count_nonzero(off) == len(rows)
-            and np.array_equal(rows, np.arange(rows[0], rows[0] + len(rows)))
-            and np.array_equal(cols, np.arange(cols[0], cols[0] + len(cols)))
-        )
-        self.velocity = (
-            (slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1))
-            if ranges
-            else None
-        )
-        self.x = np.zeros((0, n))
-        self.p = np.zeros((0, n, n))
-
-    def add(self, x: npt.NDArray[np.float64], p: npt.NDArray[np.float64]) -> None:
-        self.x = np.concatenate([self.x, x.reshape(1, -1)])
-        self.p = np.concatenate([self.p, p.reshape(1, *p.shape)])
+    def add(self, z: npt.NDArray[np.float64], paa: npt.ArrayLike, pbb: npt.ArrayLike) -> None:
+        """New tracks at ``z`` (4 x k), velocity zero, P diagonal: ``paa`` for the measured
+        states, ``pbb`` for their velocities (4 x k or 4 x 1)."""
+        new = np.zeros((_ROWS, z.shape[1]))
+        new[0:4] = z
+        new[8:12] = paa
+        new[20:24] = pbb
+        self.s = np.concatenate([self.s, new], axis=1)
 
     def keep(self, mask: npt.NDArray[np.bool_]) -> None:
-        self.x, self.p = self.x[mask], self.p[mask]
+        self.s = self.s[:, mask]
 
-    def predict(self, q: npt.NDArray[np.float64]) -> None:
-        """``q``: the process noise, n x n or N x n x n."""
-        if not len(self.x):
-            return
-        if self.velocity is None:
-            self.x = self.x @ self.f.T
-            self.p = self.f @ self.p @ self.f.T + q
-            return
-        rows, cols = self.velocity
-        x = self.x.copy()
-        x[:, rows] += self.x[:, cols]
-        fp = self.p.copy()
-        fp[:, rows, :] += self.p[:, cols, :]
-        fp[:, :, rows] += fp[:, :, cols]
-        fp += q
-        self.x, self.p = x, fp
+    def predict(self) -> None:
+        """x = F x, P = F P F^T (the process noise is added by the tracker, to rows 8-11 and
+        20-23)."""
+        s = self.s
+        s[0:4] += s[4:8]
+        # F P, then (F P) F^T: Paa = (Paa + Pba) + (Pab + Pbb), Pab += Pbb, Pba += Pbb
+        s[8:12] += s[16:20]
+        s[12:20].reshape(2, 4, -1)[:] += s[20:24]
+        s[8:12] += s[12:16]
 
     def update(
         self, rows: npt.NDArray[np.intp], z: npt.NDArray[np.float64], r: npt.NDArray[np.float64]
     ) -> None:
-        """Tracks ``rows`` measured ``z`` (len(rows) x m), with noise ``r`` (m x m or per row)."""
-        if not len(rows):
-            return
-        x, p, h, m = self.x[rows], self.p[rows], self.h, self.select
-        hp = p[:, :m, :] if m is not None else h @ p
-        s = (hp[:, :, :m] if m is not None else hp @ h.T) + r
-        k = np.linalg.solve(s, hp).transpose(0, 2, 1)  # P H^T S^-1, S symmetric
-        y = z - (x[:, :m] if m is not None else x @ h.T)
-        self.x[rows] = x + np.einsum('nij,nj->ni', k, y)
-        self.p[rows] = p - k @ s @ k.transpose(0, 2, 1)
+        """Tracks ``rows`` (distinct) measured ``z`` (4 x k) with noise variances ``r`` (4 x k or
+        4 x 1)."""
+        k = len(rows)
+        every = k == self.s.shape[1]
+        if every:  # rows is a permutation: z and r put in the tracks' order, the filters in place
+            g = self.s
+            z = _scattered(z, rows)
+            if r.shape[1] > 1:
+                r = _scattered(r, rows)
+        else:
+            g = self.s[:, rows]
+        s = g[8:12] + r
+        gain = g[8:16].reshape(2, 4, k) * (1.0 / s)  # K: Paa / S and Pab / S
+        g[0:8].reshape(2, 4, k)[:] += gain * (z - g[0:4])  # x += Ka y, v += Kb y
+        # P -= K S K^T: (Ka S) Ka, (Ka S) Kb, (Kb S) Ka, (Kb S) Kb
+        g[8:24] -= ((gain * s)[:, None] * gain[None, :]).reshape(16, k)
+        if not every:
+            self.s[:, rows] = g
 
 
-def _to_z_all(boxes: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    w, h = boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]
-    return np.stack(
-        [boxes[:, 0] + w / 2, boxes[:, 1] + h / 2, w * h, w / np.maximum(h, 1e-9)], axis=1
-    )
+def _scattered(
+    values: npt.NDArray[np.float64], rows: npt.NDArray[np.intp]
+) -> npt.NDArray[np.float64]:
+    """``values`` (m x k) with column j moved to column ``rows[j]``."""
+    out = np.empty_like(values)
+    out[:, rows] = values
+    return out
 
 
-def _from_x_all(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    area, ratio = np.maximum(x[:, 2], 1e-9), np.maximum(x[:, 3], 1e-9)
-    w = np.sqrt(area * ratio)
-    h = area / w
-    return np.stack([x[:, 0] - w / 2, x[:, 1] - h / 2, x[:, 0] + w / 2, x[:, 1] + h / 2], axis=1)
+# ---------------------------------------------------------------- SORT
+
+#: Q on rows 8-23 (Paa, Pab, Pba, Pbb): zeros off the diagonal, added as the matrix form adds them
+_SORT_Q = np.array([1.0] * 4 + [0.0] * 8 + [0.01, 0.01, 0.0001, 0.0]).reshape(16, 1)
+_SORT_R = np.array([[1.0], [1.0], [10.0], [10.0]])
+_SORT_PAA = np.array([[10.0], [10.0], [10.0], [10.0]])
+_SORT_PBB = np.array([[1e4], [1e4], [1e4], [0.0]])
+
+
+def _to_z(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Boxes (4 x k) as (centre x, centre y, area, aspect ratio)."""
+    w, h = d[2] - d[0], d[3] - d[1]
+    z = np.empty_like(d)
+    np.add(d[0], w / 2, out=z[0])
+    np.add(d[1], h / 2, out=z[1])
+    np.multiply(w, h, out=z[2])
+    np.divide(w, np.maximum(h, 1e-9), out=z[3])
+    return z
+
+
+def _from_x(s: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """SORT's means (rows 0-3 of ``s``) as boxes (4 x k)."""
+    area = np.maximum(s[2], 1e-9)
+    w = np.sqrt(area * np.maximum(s[3], 1e-9))
+    hh = area / w / 2
+    hw = w / 2
+    out = np.empty((4, s.shape[1]))
+    np.subtract(s[0], hw, out=out[0])
+    np.subtract(s[1], hh, out=out[1])
+    np.add(s[0], hw, out=out[2])
+    np.add(s[1], hh, out=out[3])
+    return out
 
 
 class SortTracker:
@@ -242,67 +317,78 @@ class SortTracker:
         self.max_age = max_age
         self.min_hits = min_hits
         self.det_thresh = det_thresh
-        self.bank = _Bank(_SORT_F, _SORT_H)
-        self.ids = np.zeros(0, np.int64)
-        self.streak = np.zeros(0, np.int64)
-        self.since = np.zeros(0, np.int64)  # frames since the last match
+        self.filters = _Filters()
+        #: per track: its id, its streak of matches, the frames since its last match
+        self.counts = np.zeros((3, 0), np.int64)
         self.frame_count = 0
         self._next = 1
 
     def _keep(self, mask: npt.NDArray[np.bool_]) -> None:
         """Only the tracks of ``mask``: their filters and their counters."""
-        self.bank.keep(mask)
-        self.ids, self.streak, self.since = self.ids[mask], self.streak[mask], self.since[mask]
+        self.filters.keep(mask)
+        self.counts = self.counts[:, mask]
 
     def update(
         self, boxes: npt.NDArray[np.float64], scores: npt.NDArray[np.float64]
     ) -> list[Track]:
+        return _tracks(self.step(boxes, scores))
+
+    def step(self, boxes: npt.ArrayLike, scores: npt.ArrayLike) -> Reported:
+        """``update``'s tracks as lists: ids, boxes and input boxes (in id order)."""
         self.frame_count += 1
-        boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-        scores = np.asarray(scores, dtype=np.float64).reshape(-1)
-        keep = np.flatnonzero(scores >= self.det_thresh)
-        dets = boxes[keep]
-        bank = self.bank
-        if len(bank.x):  # an area that would go negative stops shrinking
-            bank.x[bank.x[:, 6] + bank.x[:, 2] <= 0, 6] = 0.0
-        bank.predict(_SORT_Q)
-        self.streak[self.since > 0] = 0
-        self.since += 1
-        pred = _from_x_all(bank.x)
-        alive = np.all(np.isfinite(pred), axis=1)
-        if not alive.all():
+        scores = np.asarray(scores, dtype=_F64).reshape(-1)
+        dets = _columns(boxes)
+        passed = scores >= self.det_thresh
+        keep = None if passed.all() else _nonzero(passed)  # None: every box
+        if keep is not None:
+            dets = dets[:, keep]
+        f = self.filters
+        s = f.s
+        if s.shape[1]:
+            ahead = s[6] + s[2]
+            if ahead.min() <= 0:  # an area that would go negative stops shrinking
+                s[6, ahead <= 0] = 0.0
+            f.predict()
+            s[8:24] += _SORT_Q
+        counts = self.counts
+        if counts[2].any():  # a streak ends with a frame unmatched
+            counts[1, counts[2] > 0] = 0
+        counts[2] += 1
+        pred = _from_x(s)
+        if not np.isfinite(pred).all():
+            alive = np.all(np.isfinite(pred), axis=0)
             self._keep(alive)
-            pred = pred[alive]
-        pairs, new, _ = _match(box_iou_xyxy(dets, pred), self.iou_threshold)
-        matched: dict[int, int] = {}
-        if pairs:
-            d_rows = np.array([d for d, _ in pairs])
-            t_rows = np.array([t for _, t in pairs])
-            bank.update(t_rows, _to_z_all(dets[d_rows]), _SORT_R)
-            self.since[t_rows] = 0
-            self.streak[t_rows] += 1
-            matched = dict(zip(t_rows.tolist(), keep[d_rows].tolist(), strict=True))
-        for d in new:
-            x = np.zeros(7)
-            x[:4] = _to_z_all(dets[d : d + 1])[0]
-            bank.add(x, _SORT_P0)
-            matched[len(self.ids)] = int(keep[d])
-            self.ids = np.append(self.ids, self._next)
-            self.streak = np.append(self.streak, 1)
-            self.since = np.append(self.since, 0)
-            self._next += 1
-        shown = (self.since < 1) & (
-            (self.streak >= self.min_hits) | (self.frame_count <= self.min_hits)
-        )
-        rows = np.flatnonzero(shown)
-        now = _from_x_all(bank.x[rows]).tolist()
+            pred = pred[:, alive]
+        d_rows, t_rows, new, _ = _match(_iou(dets, pred), self.iou_threshold)
+        matched = np.full(pred.shape[1], -1, np.int64)
+        if len(d_rows):  # d_rows ascending: all of them where as many as the boxes
+            f.update(
+                t_rows, _to_z(dets if len(d_rows) == dets.shape[1] else dets[:, d_rows]), _SORT_R
+            )
+            self.counts[2, t_rows] = 0
+            self.counts[1, t_rows] += 1
+            matched[t_rows] = d_rows if keep is None else keep[d_rows]
+        if len(new):
+            k = len(new)
+            f.add(_to_z(dets[:, new]), _SORT_PAA, _SORT_PBB)
+            matched = np.concatenate([matched, new if keep is None else keep[new]])
+            born = np.zeros((3, k), np.int64)
+            born[0] = np.arange(self._next, self._next + k)
+            born[1] = 1
+            self.counts = np.concatenate([self.counts, born], axis=1)
+            self._next += k
+        ids, streak, since = self.counts
+        shown = since < 1
+        if self.frame_count > self.min_hits:
+            shown &= streak >= self.min_hits
         # in id order: a track's row never moves before an older one's (new tracks are
         # appended with the next id, gone ones removed in place)
-        out = [
-            Track(track_id, (b[0], b[1], b[2], b[3]), matched.get(row))
-            for track_id, b, row in zip(self.ids[rows].tolist(), now, rows.tolist(), strict=True)
-        ]
-        alive = self.since <= self.max_age
+        if shown.all():
+            out = (ids.tolist(), _from_x(f.s).tolist(), matched.tolist())
+        else:
+            rows = _nonzero(shown)
+            out = (ids[rows].tolist(), _from_x(f.s[:, rows]).tolist(), matched[rows].tolist())
+        alive = since <= self.max_age
         if not alive.all():
             self._keep(alive)
         return out
@@ -312,32 +398,37 @@ class SortTracker:
 
 _STD_POS = 1.0 / 20
 _STD_VEL = 1.0 / 160
+_VAR_A = 1e-2 * 1e-2  # the aspect ratio's process noise
+_VAR_VA = 1e-5 * 1e-5  # its velocity's
+_VAR_RA = 1e-1 * 1e-1  # its measurement noise
+#: Q's standard deviations on rows 8-23 per unit of height (the aspect ratio's set apart)
+_BT_STD = np.array([_STD_POS] * 2 + [0.0, _STD_POS] + [0.0] * 8 + [_STD_VEL] * 2 + [0.0, _STD_VEL])
 
 
-def _xyah_all(boxes: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    w, h = boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]
-    return np.stack([boxes[:, 0] + w / 2, boxes[:, 1] + h / 2, w / np.maximum(h, 1e-9), h], axis=1)
+def _xyah(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Boxes (4 x k) as (centre x, centre y, aspect ratio, height)."""
+    w, h = d[2] - d[0], d[3] - d[1]
+    z = np.empty_like(d)
+    np.add(d[0], w / 2, out=z[0])
+    np.add(d[1], h / 2, out=z[1])
+    np.divide(w, np.maximum(h, 1e-9), out=z[2])
+    z[3] = h
+    return z
 
 
-def _xyxy_all(m: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    w = m[:, 2] * m[:, 3]
-    return np.stack(
-        [m[:, 0] - w / 2, m[:, 1] - m[:, 3] / 2, m[:, 0] + w / 2, m[:, 1] + m[:, 3] / 2], axis=1
-    )
-
-
-_BT_F = np.eye(8)
-for _i in range(4):
-    _BT_F[_i, 4 + _i] = 1.0
-_BT_H = np.eye(4, 8)
-
-
-def _diag(std: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """N x k standard deviations as N x k x k diagonal covariances."""
-    n, k = std.shape
-    out = np.zeros((n, k, k))
-    out[:, np.arange(k), np.arange(k)] = std * std
+def _xyxy(m: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """ByteTrack's means (rows 0-3 of ``m``) as boxes (4 x k)."""
+    hw = m[2] * m[3] / 2
+    hh = m[3] / 2
+    out = np.empty((4, m.shape[1]))
+    np.subtract(m[0], hw, out=out[0])
+    np.subtract(m[1], hh, out=out[1])
+    np.add(m[0], hw, out=out[2])
+    np.add(m[1], hh, out=out[3])
     return out
+
+
+_ID, _LAST, _CONFIRMED, _LOST = range(4)
 
 
 class ByteTrackTracker:
@@ -356,94 +447,120 @@ class ByteTrackTracker:
         self.low_thresh = low_thresh
         self.match_thresh = match_thresh
         self.track_buffer = track_buffer
-        self.bank = _Bank(_BT_F, _BT_H)
-        self.ids = np.zeros(0, np.int64)
-        self.confirmed = np.zeros(0, bool)
-        self.lost = np.zeros(0, bool)
-        self.last = np.zeros(0, np.int64)  # the frame of the last match
+        self.filters = _Filters()
+        #: per track: its id, the frame of its last match, confirmed (0/1), lost (0/1)
+        self.state = np.zeros((4, 0), np.int64)
         self.frame = 0
         self._next = 1
-
-    def _update(self, rows: list[int], boxes: npt.NDArray[np.float64]) -> None:
-        if not rows:
-            return
-        index = np.array(rows)
-        h = self.bank.x[index, 3]
-        pos = _STD_POS * h
-        r = _diag(np.stack([pos, pos, np.full_like(h, 1e-1), pos], axis=1))
-        self.bank.update(index, _xyah_all(boxes), r)
-        self.confirmed[index] = True
-        self.lost[index] = False
-        self.last[index] = self.frame
 
     def update(
         self, boxes: npt.NDArray[np.float64], scores: npt.NDArray[np.float64]
     ) -> list[Track]:
+        return _tracks(self.step(boxes, scores))
+
+    def step(self, boxes: npt.ArrayLike, scores: npt.ArrayLike) -> Reported:
+        """``update``'s tracks as lists: ids, boxes and input boxes (in id order)."""
         self.frame += 1
-        boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-        scores = np.asarray(scores, dtype=np.float64).reshape(-1)
-        high = np.flatnonzero(scores >= self.track_thresh)
-        low = np.flatnonzero((scores >= self.low_thresh) & (scores < self.track_thresh))
-        bank = self.bank
-        if len(bank.x):
-            bank.x[self.lost, 7] = 0.0
-            h = bank.x[:, 3]
-            pos, vel = _STD_POS * h, _STD_VEL * h
-            small = np.full_like(h, 1e-2)
-            tiny = np.full_like(h, 1e-5)
-            bank.predict(_diag(np.stack([pos, pos, small, pos, vel, vel, tiny, vel], axis=1)))
-        current = _xyxy_all(bank.x)
-        used: dict[int, int] = {}  # track row -> input box
-        confirmed = np.flatnonzero(self.confirmed)
-        unconfirmed = np.flatnonzero(~self.confirmed)
+        d = _columns(boxes)
+        scores = np.asarray(scores, dtype=_F64).reshape(-1)
+        high = _nonzero(scores >= self.track_thresh)
+        low = _nonzero((scores >= self.low_thresh) & (scores < self.track_thresh))
+        f, state = self.filters, self.state
+        s = f.s
+        n = s.shape[1]
+        lost = state[_LOST] != 0
+        if n:
+            s[7, lost] = 0.0
+            q = np.multiply.outer(_BT_STD, s[3])  # the standard deviations, scaled by the height
+            q *= q
+            q[2] = _VAR_A
+            q[14] = _VAR_VA
+            f.predict()
+            s[8:24] += q
+        current = _xyxy(s)
+        confirmed_now = state[_CONFIRMED] != 0
+        every = bool(confirmed_now.all())  # then confirmed is every row, unconfirmed none
+        confirmed = _ALL if every else _nonzero(confirmed_now)
+        unconfirmed = _NO_ROWS if every else _nonzero(~confirmed_now)
         # 1: the high boxes against every confirmed track, active or lost
-        pairs, left_tracks, left_high = _match(
-            box_iou_xyxy(current[confirmed], boxes[high]), 1.0 - self.match_thresh
+        high_all = len(high) == d.shape[1]
+        t1, d1, left_tracks, left_high = _match(
+            _iou(_cols(current, confirmed), d if high_all else d[:, high]), 1.0 - self.match_thresh
         )
-        self._update([int(confirmed[t]) for t, _ in pairs], boxes[[high[d] for _, d in pairs]])
-        used.update({int(confirmed[t]): int(high[d]) for t, d in pairs})
+        rows = [_at(confirmed, t1)]
+        took = [d1 if high_all else high[d1]]
         # 2: the low boxes against the active tracks still unmatched
-        remaining = [int(confirmed[t]) for t in left_tracks if not self.lost[confirmed[t]]]
-        pairs, left2, _ = _match(box_iou_xyxy(current[remaining], boxes[low]), 0.5)
-        self._update([remaining[t] for t, _ in pairs], boxes[[low[d] for _, d in pairs]])
-        used.update({remaining[t]: int(low[d]) for t, d in pairs})
-        for t in left2:
-            self.lost[remaining[t]] = True
+        if len(left_tracks):
+            remaining = _at(confirmed, left_tracks)
+            remaining = remaining[~lost[remaining]]
+            t2, d2, left2, _ = _match(_iou(current[:, remaining], d[:, low]), 0.5)
+            state[_LOST, remaining[left2]] = 1
+            rows.append(remaining[t2])
+            took.append(low[d2])
         # 3: unconfirmed tracks against the high boxes left (IoU >= 0.3)
         rest = high[left_high]
-        pairs, dead, left_new = _match(box_iou_xyxy(current[unconfirmed], boxes[rest]), 0.3)
-        self._update([int(unconfirmed[t]) for t, _ in pairs], boxes[[rest[d] for _, d in pairs]])
-        used.update({int(unconfirmed[t]): int(rest[d]) for t, d in pairs})
-        removed = np.zeros(len(self.ids), bool)
-        removed[[int(unconfirmed[t]) for t in dead]] = True
+        dead = left_new = _NO_ROWS
+        if len(unconfirmed):
+            t3, d3, dead, left_new = _match(_iou(current[:, unconfirmed], d[:, rest]), 0.3)
+            rows.append(unconfirmed[t3])
+            took.append(rest[d3])
+        else:
+            left_new = np.arange(len(rest))
+        rows_a = rows[0] if len(rows) == 1 else np.concatenate(rows)
+        took_a = took[0] if len(took) == 1 else np.concatenate(took)
+        used = np.full(n, -1, np.int64)
+        if len(rows_a):  # the three stages' rows are distinct: one update for all
+            var = _STD_POS * s[3, rows_a]
+            var *= var
+            r = np.empty((4, len(rows_a)))
+            r[0] = r[1] = r[3] = var
+            r[2] = _VAR_RA
+            f.update(rows_a, _xyah(d[:, took_a]), r)
+            used[rows_a] = took_a
+            state[_CONFIRMED, rows_a] = 1
+            state[_LOST, rows_a] = 0
+            state[_LAST, rows_a] = self.frame
+        removed = np.zeros(n, bool)
+        if len(dead):
+            removed[unconfirmed[dead]] = True
         # 4: new tracks from the high boxes no track took
-        for d in left_new:
-            index = int(rest[d])
-            if scores[index] < self.track_thresh + 0.1:
-                continue
-            z = _xyah_all(boxes[index : index + 1])[0]
-            hz = z[3]
-            std = [2 * _STD_POS * hz, 2 * _STD_POS * hz, 1e-2, 2 * _STD_POS * hz]
-            std += [10 * _STD_VEL * hz, 10 * _STD_VEL * hz, 1e-5, 10 * _STD_VEL * hz]
-            bank.add(np.r_[z, np.zeros(4)], np.diag(np.square(std)))
-            used[len(self.ids)] = index
-            self.ids = np.append(self.ids, self._next)
-            self.confirmed = np.append(self.confirmed, self.frame == 1)
-            self.lost = np.append(self.lost, False)
-            self.last = np.append(self.last, self.frame)
-            removed = np.append(removed, False)
-            self._next += 1
-        now = _xyxy_all(bank.x)
-        shown = self.confirmed & ~self.lost & (self.last == self.frame) & ~removed
-        out = [
-            Track(int(self.ids[i]), _box(now[i]), used.get(int(i))) for i in np.flatnonzero(shown)
-        ]
-        alive = ~removed & (self.frame - self.last <= self.track_buffer)
+        born = rest[left_new]
+        if len(born):
+            born = born[scores[born] >= self.track_thresh + 0.1]
+        if len(born):
+            k = len(born)
+            z = _xyah(d[:, born])
+            a, b = (2 * _STD_POS) * z[3], (10 * _STD_VEL) * z[3]
+            a *= a
+            b *= b
+            f.add(
+                z, np.stack([a, a, np.full(k, _VAR_A), a]), np.stack([b, b, np.full(k, _VAR_VA), b])
+            )
+            new = np.zeros((4, k), np.int64)
+            new[_ID] = np.arange(self._next, self._next + k)
+            new[_LAST] = self.frame
+            new[_CONFIRMED] = self.frame == 1
+            self.state = state = np.concatenate([state, new], axis=1)
+            used = np.concatenate([used, born])
+            removed = np.concatenate([removed, np.zeros(k, bool)])
+            self._next += k
+        last = state[_LAST]
+        shown = (state[_CONFIRMED] != 0) & (state[_LOST] == 0) & (last == self.frame) & ~removed
+        # in id order: rows are kept in the order the tracks were made
+        if shown.all():
+            out = (state[_ID].tolist(), _xyxy(f.s).tolist(), used.tolist())
+        else:
+            shown_rows = _nonzero(shown)
+            out = (
+                state[_ID, shown_rows].tolist(),
+                _xyxy(f.s[:, shown_rows]).tolist(),
+                used[shown_rows].tolist(),
+            )
+        alive = ~removed & (self.frame - last <= self.track_buffer)
         if not alive.all():
-            bank.keep(alive)
-            self.ids, self.confirmed = self.ids[alive], self.confirmed[alive]
-            self.lost, self.last = self.lost[alive], self.last[alive]
-        return sorted(out, key=lambda t: t.id)
+            f.keep(alive)
+            self.state = state[:, alive]
+        return out
 
 
 _TRACKERS = {'iou': IouTracker, 'sort': SortTracker, 'bytetrack': ByteTrackTracker}

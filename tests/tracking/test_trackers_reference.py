@@ -6,6 +6,8 @@ tracking fixture and on the 50-object grid of benchmarks/bench_tracking.py."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -127,6 +129,9 @@ def test_each_tracker_reports_its_references_tracks_on_random_scenes(
 
 
 def test_the_trackers_report_their_references_tracks_on_hsvs_boxes_of_the_fixtures() -> None:
+    repo = str(Path(__file__).resolve().parents[2])
+    if repo not in sys.path:  # the benchmarks package, however pytest was started
+        sys.path.insert(0, repo)
     from benchmarks.bench_tracking import OBJECTS, grid_scene
     from replaybench.fixtures.tracks import TRACKS_FRAMES, TrackScene
 

@@ -88,6 +88,12 @@ def timeline_svg(backend: str, topic: str, timeline: TrackTimeline) -> str:
     def x(frame: float) -> float:
         return _LEFT + frame * step
 
+    seqs = timeline.seqs if len(timeline.seqs) == timeline.frames else ()
+
+    def seq_of(frame: int) -> str:
+        """`` (seq S)``: frames.csv's seq of a frame of the sequence, where known."""
+        return f' (seq {seqs[frame]})' if seqs else ''
+
     title = f'ID switches · {backend} · {topic}'
     total = len(timeline.switches)
     legend = f'{total} ID switch{"" if total == 1 else "es"} (id_switches in summary.csv)'
@@ -131,9 +137,10 @@ def timeline_svg(backend: str, topic: str, timeline: TrackTimeline) -> str:
         for span in lane.spans:
             x0, x1 = x(span.first), x(span.last + 1)
             frames_text = (
-                f'frame {span.first}'
+                f'frame {span.first}{seq_of(span.first)}'
                 if span.first == span.last
                 else f'frames {span.first}–{span.last}'
+                + (f' (seq {seqs[span.first]}–{seqs[span.last]})' if seqs else '')
             )
             if span.track_id is None:
                 parts.append(
@@ -161,7 +168,8 @@ def timeline_svg(backend: str, topic: str, timeline: TrackTimeline) -> str:
         top = _TOP + rows[event.object_id] * _LANE
         px = x(event.frame)
         parts.append(
-            f'<g class="idsw"><title>frame {event.frame}: object {escaped(event.object_id)}, '
+            f'<g class="idsw"><title>frame {event.frame}{seq_of(event.frame)}: '
+            f'object {escaped(event.object_id)}, '
             f'track {escaped(event.from_id)} → {escaped(event.to_id)}</title>'
             f'<line x1="{coord(px)}" y1="{coord(top + 1)}" x2="{coord(px)}" '
             f'y2="{coord(top + _LANE - 1)}" stroke="{_SWITCH}" stroke-width="2"/>'

@@ -85,9 +85,17 @@ def test_the_ticks_name_the_switches_of_run_json_and_the_lanes_show_the_matched_
     for backend in TRACKED:
         timeline = rows[backend]['track_timeline']
         assert len(timeline['switches']) == rows[backend]['task_metrics']['id_switches']
+        # each frame of the sequence named by its frames.csv seq too
+        seqs = timeline['seqs']
+        assert len(seqs) == timeline['frames']
+        assert seqs == sorted(set(seqs))
+        with (run_dir / 'frames.csv').open(newline='', encoding='utf-8') as f:
+            ok = {int(r['seq']) for r in csv.DictReader(f) if r['backend'] == backend}
+        assert set(seqs) <= ok
         tips = re.findall(r'<g class="idsw"><title>([^<]*)</title>', svgs[backend])
         assert tips == [
-            f'frame {s["frame"]}: object {s["object_id"]}, track {s["from_id"]} → {s["to_id"]}'
+            f'frame {s["frame"]} (seq {seqs[s["frame"]]}): object {s["object_id"]}, '
+            f'track {s["from_id"]} → {s["to_id"]}'
             for s in timeline['switches']
         ]
         # each switch is where its object's matched track changes from one span to another

@@ -47,3 +47,6 @@ class TrackTimeline:
     frames: int = 0
     lanes: tuple[TrackLane, ...] = ()
     switches: tuple[IdSwitchEvent, ...] = ()
+    #: each frame's ``seq`` (frames.csv's column), in sequence order; empty where not known
+    #: (a run.json written before it was kept)
+    seqs: tuple[int, ...] = ()

@@ -123,19 +123,22 @@ def _id_order(text: str) -> tuple[int, int, str]:
 
 def timeline_of(
     frames: Sequence[tuple[Sequence[Detection], Sequence[Detection]]],
+    seqs: Sequence[int] = (),
 ) -> TrackTimeline:
     """The id-switch timeline of a sequence scored as ``score_sequence`` scores it (its CLEAR
     matching: ``scored_with_timeline``). ``ValueError`` as ``score_sequence``."""
-    return scored_with_timeline(frames)[1]
+    return scored_with_timeline(frames, seqs)[1]
 
 
 def scored_with_timeline(
     frames: Sequence[tuple[Sequence[Detection], Sequence[Detection]]],
+    seqs: Sequence[int] = (),
 ) -> tuple[TrackScores, TrackTimeline]:
     """``score_sequence`` and the sequence's id-switch timeline in one pass
     (``replaybench.tracking.score_and_match``): each truth object's frames as spans matched to
     one track or missed, and the ID switches, of the CLEAR matching that counted the figures'
-    ``id_switches``. ``ValueError`` as ``score_sequence``."""
+    ``id_switches``; ``seqs``: each frame's ``seq`` (frames.csv), kept in the timeline where
+    given for every frame. ``ValueError`` as ``score_sequence``."""
     from replaybench.results.model import IdSwitchEvent, TrackLane, TrackSpan, TrackTimeline
     from replaybench.tracking import score_and_match
 
@@ -154,6 +157,7 @@ def scored_with_timeline(
                 lane.append(TrackSpan(index, index, track))
     timeline = TrackTimeline(
         frames=len(made),
+        seqs=tuple(seqs) if len(seqs) == len(made) else (),
         lanes=tuple(TrackLane(name, tuple(spans[name])) for name in sorted(spans, key=_id_order)),
         switches=tuple(
             IdSwitchEvent(s.frame, gt_names[s.gt_id], tr_names[s.from_id], tr_names[s.to_id])
@@ -205,6 +209,8 @@ class TracksRecording(TaskRecordingBase):
             tuple[str, str], list[tuple[tuple[Detection, ...], tuple[Detection, ...]]]
         ] = {}
         self.times: dict[tuple[str, str], list[float]] = {}
+        #: the ``seq`` of each frame of ``sequences``, by row
+        self.seqs: dict[tuple[str, str], list[int]] = {}
         #: why a row has no tracking metrics, by row
         self.refused: dict[tuple[str, str], str] = {}
         self._warnings: dict[str, None] = {}
@@ -250,6 +256,7 @@ class TracksRecording(TaskRecordingBase):
         if any(not d.id for d in boxes):
             self.refused.setdefault(row, 'its ground-truth boxes carry no ids (Detection2D.id)')
         self.sequences.setdefault(row, []).append((boxes, tracks))
+        self.seqs.setdefault(row, []).append(seq)
         return {'track_ms': track_ms}
 
     def _scored(self) -> dict[tuple[str, str], dict[str, Any]]:
@@ -265,7 +272,7 @@ class TracksRecording(TaskRecordingBase):
             reason = self.refused.get(row)
             if reason is None and frames:
                 try:
-                    scores, timeline = scored_with_timeline(frames)
+                    scores, timeline = scored_with_timeline(frames, self.seqs.get(row, ()))
                 except ValueError as err:
                     reason = str(err)
                 else:

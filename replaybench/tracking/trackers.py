@@ -36,8 +36,9 @@ give the same ids.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -87,29 +88,35 @@ def _columns(boxes: npt.ArrayLike) -> npt.NDArray[np.float64]:
     return np.ascontiguousarray(np.asarray(boxes, dtype=_F64).reshape(-1, 4).T)
 
 
-def _iou(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """IoU of each box of ``a`` (4 x N, rows x1 y1 x2 y2) with each of ``b`` (4 x M), each row
-    contiguous: the intersection's width and height clipped at 0, their product over the sum of
-    the areas less it (0 where that union is not positive)."""
+def _cost(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """-IoU of each box of ``a`` (4 x N, rows x1 y1 x2 y2) with each of ``b`` (4 x M): the
+    intersection's width and height clipped at 0, their product over the negated union (the
+    sum of the areas less it), which is -IoU exactly; -0.0 where that union is not positive.
+    Both axes in each operation, the areas of ``a`` and ``b`` in one."""
     n, m = a.shape[1], b.shape[1]
     if not (n and m):
         return np.zeros((n, m))
-    inter: npt.NDArray[np.float64] = np.minimum(a[2, :, None], b[2])
-    inter -= np.maximum(a[0, :, None], b[0])
+    inter: npt.NDArray[np.float64] = np.minimum(a[2:4, :, None], b[2:4, None, :])
+    inter -= np.maximum(a[0:2, :, None], b[0:2, None, :])
     np.maximum(inter, 0.0, out=inter)
-    high = np.minimum(a[3, :, None], b[3])
-    high -= np.maximum(a[1, :, None], b[1])
-    np.maximum(high, 0.0, out=high)
-    inter *= high
-    size_a, size_b = a[2:4] - a[0:2], b[2:4] - b[0:2]
-    union = (size_a[0] * size_a[1])[:, None] + size_b[0] * size_b[1]
-    union -= inter
-    if union.min() > 0.0:  # False for a NaN too
-        inter /= union
-        return inter
-    out: npt.NDArray[np.float64] = np.zeros_like(inter)
-    np.divide(inter, union, out=out, where=union > 0)
+    both: npt.NDArray[np.float64] = inter[0] * inter[1]
+    ab = np.concatenate((a, b), axis=1)
+    size = ab[2:4] - ab[0:2]
+    area = size[0] * size[1]
+    union = np.add(area[:n, None], area[n:])
+    np.subtract(both, union, out=union)  # -(union less the intersection), exactly
+    if union.max() < 0.0:  # False for a NaN too
+        both /= union
+        return both
+    out: npt.NDArray[np.float64] = np.full_like(both, -0.0)
+    np.divide(both, union, out=out, where=union < 0)
     return out
+
+
+def _iou(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """IoU of each box of ``a`` (4 x N) with each of ``b`` (4 x M); 0 where the union is not
+    positive."""
+    return np.negative(_cost(a, b))
 
 
 def box_iou_xyxy(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -118,20 +125,43 @@ def box_iou_xyxy(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.
 
 
 def _match(
-    iou: npt.NDArray[np.float64], threshold: float
-) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.intp]]:
-    """One-to-one matches of rows to columns with IoU ≥ ``threshold`` (Hungarian on -IoU): the
-    matched rows (ascending) and their columns, the unmatched rows and the unmatched columns
-    (ascending)."""
-    rows_n, cols_n = iou.shape
-    if not (rows_n and cols_n):
-        return _NO_ROWS, _NO_ROWS, np.arange(rows_n), np.arange(cols_n)
-    np.negative(iou, out=iou)
-    rows, cols = _assign(iou)  # rows ascending
-    good = iou[rows, cols] <= -threshold  # IoU >= threshold, the negation being exact
-    if not good.all():
+    cost: npt.NDArray[np.float64], threshold: float
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """One-to-one matches of rows to columns with IoU ≥ ``threshold`` (Hungarian on ``cost``,
+    -IoU): the matched rows (ascending) and their columns."""
+    if not cost.size:
+        return _NO_ROWS, _NO_ROWS
+    rows, cols = _solve(cost)  # rows ascending
+    picked = cost[rows, cols]
+    if not picked.max() <= -threshold:  # IoU >= threshold, the negation being exact
+        good = picked <= -threshold
         rows, cols = rows[good], cols[good]
+    return rows, cols
+
+
+def _match_free(
+    cost: npt.NDArray[np.float64], threshold: float
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """``_match``'s rows and columns, then the unmatched rows and the unmatched columns
+    (ascending)."""
+    rows, cols = _match(cost, threshold)
+    rows_n, cols_n = cost.shape
     return rows, cols, _free(rows, rows_n), _free(cols, cols_n)
+
+
+_SOLVER: list[Any] = []
+
+
+def _solve(cost: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """``_assign(cost)``: SciPy's solver, looked up once."""
+    if not _SOLVER:
+        rows, cols = _assign(cost)  # MissingDependencyError without SciPy
+        from scipy.optimize import linear_sum_assignment
+
+        _SOLVER.append(linear_sum_assignment)
+        return rows, cols
+    found: tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]] = _SOLVER[0](cost)
+    return found
 
 
 #: ``_at``'s index of every row
@@ -182,7 +212,8 @@ class IouTracker:
         del scores
         now = _columns(boxes)
         n = now.shape[1]
-        rows, cols, _, new = _match(_iou(self._prev, now), self.iou_threshold)
+        rows, cols = _match(_cost(self._prev, now), self.iou_threshold)
+        new = _free(cols, n)
         ids = np.zeros(n, np.int64)
         ids[cols] = self._prev_ids[rows]
         ids[new] = np.arange(self._next, self._next + len(new))
@@ -228,12 +259,13 @@ class _Filters:
     def predict(self) -> None:
         """x = F x, P = F P F^T (the process noise is added by the tracker, to rows 8-11 and
         20-23)."""
-        s = self.s
-        s[0:4] += s[4:8]
-        # F P, then (F P) F^T: Paa = (Paa + Pba) + (Pab + Pbb), Pab += Pbb, Pba += Pbb
-        s[8:12] += s[16:20]
-        s[12:20].reshape(2, 4, -1)[:] += s[20:24]
-        s[8:12] += s[12:16]
+        # the six blocks of four rows: x, v, Paa, Pab, Pba, Pbb
+        x, v, paa, pab, _, pbb = blocks = self.s.reshape(6, 4, self.s.shape[1])
+        # x += v and, F P then (F P) F^T, Paa = (Paa + Pba) + (Pab + Pbb), Pab += Pbb, Pba += Pbb
+        blocks[0:3:2] += blocks[1:5:3]  # x += v, Paa += Pba
+        blocks[3:5] += pbb
+        paa += pab
+        del x, v
 
     def update(
         self, rows: npt.NDArray[np.intp], z: npt.NDArray[np.float64], r: npt.NDArray[np.float64]
@@ -277,27 +309,30 @@ _SORT_PBB = np.array([[1e4], [1e4], [1e4], [0.0]])
 
 
 def _to_z(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """Boxes (4 x k) as (centre x, centre y, area, aspect ratio)."""
-    w, h = d[2] - d[0], d[3] - d[1]
+    """Boxes (4 x k) as (centre x, centre y, area, aspect ratio): w, h = x2 - x1, y2 - y1; the
+    centre x1 + w / 2, y1 + h / 2; w h; w / max(h, 1e-9)."""
+    size = d[2:4] - d[0:2]
+    w, h = size
     z = np.empty_like(d)
-    np.add(d[0], w / 2, out=z[0])
-    np.add(d[1], h / 2, out=z[1])
+    np.add(d[0:2], size / 2, out=z[0:2])
     np.multiply(w, h, out=z[2])
     np.divide(w, np.maximum(h, 1e-9), out=z[3])
     return z
 
 
 def _from_x(s: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """SORT's means (rows 0-3 of ``s``) as boxes (4 x k)."""
-    area = np.maximum(s[2], 1e-9)
-    w = np.sqrt(area * np.maximum(s[3], 1e-9))
-    hh = area / w / 2
-    hw = w / 2
-    out = np.empty((4, s.shape[1]))
-    np.subtract(s[0], hw, out=out[0])
-    np.subtract(s[1], hh, out=out[1])
-    np.add(s[0], hw, out=out[2])
-    np.add(s[1], hh, out=out[3])
+    """SORT's means (rows 0-3 of ``s``) as boxes (4 x k): area a = max(s, 1e-9), ratio max(r,
+    1e-9), w = sqrt(a r), the half sizes w / 2 and a / w / 2 taken from the centre."""
+    k = s.shape[1]
+    floor = np.maximum(s[2:4], 1e-9)  # the area and the ratio
+    area = floor[0]
+    half = np.empty((2, k))
+    np.sqrt(np.multiply(area, floor[1], out=floor[1]), out=half[0])  # w
+    np.divide(area, half[0], out=half[1])  # h
+    half /= 2
+    out = np.empty((4, k))
+    np.subtract(s[0:2], half, out=out[0:2])
+    np.add(s[0:2], half, out=out[2:4])
     return out
 
 
@@ -318,8 +353,9 @@ class SortTracker:
         self.min_hits = min_hits
         self.det_thresh = det_thresh
         self.filters = _Filters()
-        #: per track: its id, its streak of matches, the frames since its last match
-        self.counts = np.zeros((3, 0), np.int64)
+        #: per track: its id, its streak of matches, the frames since its last match and the
+        #: input box it was last matched to (-1 for none yet)
+        self.counts = np.zeros((4, 0), np.int64)
         self.frame_count = 0
         self._next = 1
 
@@ -338,9 +374,9 @@ class SortTracker:
         self.frame_count += 1
         scores = np.asarray(scores, dtype=_F64).reshape(-1)
         dets = _columns(boxes)
-        passed = scores >= self.det_thresh
-        keep = None if passed.all() else _nonzero(passed)  # None: every box
-        if keep is not None:
+        keep = None  # None: every box
+        if scores.size and not scores.min() >= self.det_thresh:  # a NaN among them too
+            keep = _nonzero(scores >= self.det_thresh)
             dets = dets[:, keep]
         f = self.filters
         s = f.s
@@ -350,47 +386,68 @@ class SortTracker:
                 s[6, ahead <= 0] = 0.0
             f.predict()
             s[8:24] += _SORT_Q
-        counts = self.counts
-        if counts[2].any():  # a streak ends with a frame unmatched
-            counts[1, counts[2] > 0] = 0
-        counts[2] += 1
         pred = _from_x(s)
-        if not np.isfinite(pred).all():
+        if not math.isfinite(pred.sum()):  # a NaN or an infinity (or a finite sum's overflow)
             alive = np.all(np.isfinite(pred), axis=0)
             self._keep(alive)
             pred = pred[:, alive]
-        d_rows, t_rows, new, _ = _match(_iou(dets, pred), self.iou_threshold)
-        matched = np.full(pred.shape[1], -1, np.int64)
-        if len(d_rows):  # d_rows ascending: all of them where as many as the boxes
-            f.update(
-                t_rows, _to_z(dets if len(d_rows) == dets.shape[1] else dets[:, d_rows]), _SORT_R
-            )
-            self.counts[2, t_rows] = 0
-            self.counts[1, t_rows] += 1
-            matched[t_rows] = d_rows if keep is None else keep[d_rows]
+        n = dets.shape[1]
+        d_rows, t_rows = _match(_cost(dets, pred), self.iou_threshold)
+        new = _free(d_rows, n)
+        # the counters: a streak ends with a frame unmatched; the frames since the last match
+        # count on; a matched track's streak grows and its count restarts at 0
+        counts = self.counts
+        k, m = counts.shape[1], len(d_rows)
+        since = counts[2]
+        stale = k and since.any()
+        if stale:
+            counts[1, since > 0] = 0
+        if m == k:  # every track matched: t_rows is a permutation
+            counts[1] += 1
+            if stale:
+                since[:] = 0
+        else:
+            since += 1
+            since[t_rows] = 0
+            counts[1, t_rows] += 1
+        z = _to_z(dets) if n else dets  # every box is matched or new
+        if m:  # d_rows ascending: all of them where as many as the boxes
+            f.update(t_rows, z if m == n else z[:, d_rows], _SORT_R)
+            counts[3, t_rows] = d_rows if keep is None else keep[d_rows]
         if len(new):
-            k = len(new)
-            f.add(_to_z(dets[:, new]), _SORT_PAA, _SORT_PBB)
-            matched = np.concatenate([matched, new if keep is None else keep[new]])
-            born = np.zeros((3, k), np.int64)
-            born[0] = np.arange(self._next, self._next + k)
+            b = len(new)
+            f.add(z[:, new], _SORT_PAA, _SORT_PBB)
+            born = np.zeros((4, b), np.int64)
+            born[0] = np.arange(self._next, self._next + b)
             born[1] = 1
-            self.counts = np.concatenate([self.counts, born], axis=1)
-            self._next += k
-        ids, streak, since = self.counts
-        shown = since < 1
-        if self.frame_count > self.min_hits:
-            shown &= streak >= self.min_hits
+            born[3] = new if keep is None else keep[new]
+            self.counts = counts = np.concatenate([counts, born], axis=1)
+            self._next += b
+        # shown: matched or new this frame (since 0; where every track matched, all of them),
+        # past the first min_hits frames with a streak of min_hits
+        shown = None  # None: every track
+        if m != k:
+            shown = counts[2] < 1
+        if self.frame_count > self.min_hits and counts.shape[1]:
+            streak = counts[1]
+            if shown is not None:
+                shown &= streak >= self.min_hits
+            elif streak.min() < self.min_hits:
+                shown = streak >= self.min_hits
         # in id order: a track's row never moves before an older one's (new tracks are
-        # appended with the next id, gone ones removed in place)
-        if shown.all():
-            out = (ids.tolist(), _from_x(f.s).tolist(), matched.tolist())
+        # appended with the next id, gone ones removed in place); a shown track's row 3 is its
+        # input box of this frame
+        if shown is None or shown.all():
+            ids, matched = counts[0:4:3].tolist()
+            out = (ids, _from_x(f.s).tolist(), matched)
         else:
             rows = _nonzero(shown)
-            out = (ids[rows].tolist(), _from_x(f.s[:, rows]).tolist(), matched[rows].tolist())
-        alive = since <= self.max_age
-        if not alive.all():
-            self._keep(alive)
+            ids, matched = counts[0:4:3, rows].tolist()
+            out = (ids, _from_x(f.s[0:4, rows]).tolist(), matched)
+        if m != k or self.max_age < 0:  # else every count is 0
+            alive = counts[2] <= self.max_age
+            if not alive.all():
+                self._keep(alive)
         return out
 
 
@@ -484,8 +541,8 @@ class ByteTrackTracker:
         unconfirmed = _NO_ROWS if every else _nonzero(~confirmed_now)
         # 1: the high boxes against every confirmed track, active or lost
         high_all = len(high) == d.shape[1]
-        t1, d1, left_tracks, left_high = _match(
-            _iou(_cols(current, confirmed), d if high_all else d[:, high]), 1.0 - self.match_thresh
+        t1, d1, left_tracks, left_high = _match_free(
+            _cost(_cols(current, confirmed), d if high_all else d[:, high]), 1.0 - self.match_thresh
         )
         rows = [_at(confirmed, t1)]
         took = [d1 if high_all else high[d1]]
@@ -493,7 +550,8 @@ class ByteTrackTracker:
         if len(left_tracks):
             remaining = _at(confirmed, left_tracks)
             remaining = remaining[~lost[remaining]]
-            t2, d2, left2, _ = _match(_iou(current[:, remaining], d[:, low]), 0.5)
+            t2, d2 = _match(_cost(current[:, remaining], d[:, low]), 0.5)
+            left2 = _free(t2, len(remaining))
             state[_LOST, remaining[left2]] = 1
             rows.append(remaining[t2])
             took.append(low[d2])
@@ -501,7 +559,7 @@ class ByteTrackTracker:
         rest = high[left_high]
         dead = left_new = _NO_ROWS
         if len(unconfirmed):
-            t3, d3, dead, left_new = _match(_iou(current[:, unconfirmed], d[:, rest]), 0.3)
+            t3, d3, dead, left_new = _match_free(_cost(current[:, unconfirmed], d[:, rest]), 0.3)
             rows.append(unconfirmed[t3])
             took.append(rest[d3])
         else:

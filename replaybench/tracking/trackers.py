@@ -45,6 +45,8 @@ import numpy as np
 from replaybench.tracking.metrics import _assign
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     import numpy.typing as npt
 
 __all__ = ['ByteTrackTracker', 'IouTracker', 'SortTracker', 'Track', 'box_iou_xyxy', 'make_tracker']
@@ -268,19 +270,22 @@ class _Filters:
         del x, v
 
     def update(
-        self, rows: npt.NDArray[np.intp], z: npt.NDArray[np.float64], r: npt.NDArray[np.float64]
+        self,
+        rows: npt.NDArray[np.intp],
+        z: npt.NDArray[np.float64],
+        r: npt.NDArray[np.float64] | Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]],
     ) -> None:
-        """Tracks ``rows`` (distinct) measured ``z`` (4 x k) with noise variances ``r`` (4 x k or
-        4 x 1)."""
+        """Tracks ``rows`` (distinct) measured ``z`` (4 x k) with noise variances ``r`` (4 x 1),
+        or ``r(g)`` (4 x k) of the tracks' filters ``g`` (24 x k, in the order of ``rows``)."""
         k = len(rows)
         every = k == self.s.shape[1]
-        if every:  # rows is a permutation: z and r put in the tracks' order, the filters in place
+        if every:  # rows is a permutation: z put in the tracks' order, the filters in place
             g = self.s
             z = _scattered(z, rows)
-            if r.shape[1] > 1:
-                r = _scattered(r, rows)
         else:
             g = self.s[:, rows]
+        if callable(r):
+            r = r(g)
         s = g[8:12] + r
         gain = g[8:16].reshape(2, 4, k) * (1.0 / s)  # K: Paa / S and Pab / S
         g[0:8].reshape(2, 4, k)[:] += gain * (z - g[0:4])  # x += Ka y, v += Kb y
@@ -460,32 +465,48 @@ _VAR_VA = 1e-5 * 1e-5  # its velocity's
 _VAR_RA = 1e-1 * 1e-1  # its measurement noise
 #: Q's standard deviations on rows 8-23 per unit of height (the aspect ratio's set apart)
 _BT_STD = np.array([_STD_POS] * 2 + [0.0, _STD_POS] + [0.0] * 8 + [_STD_VEL] * 2 + [0.0, _STD_VEL])
+#: the aspect ratio's variances, rows 2 and 14 of Q (``2:15:12``)
+_BT_VAR_A = np.array([[_VAR_A], [_VAR_VA]])
+#: R's standard deviations per unit of height (the aspect ratio's set apart)
+_BT_R_STD = np.array([_STD_POS, _STD_POS, 0.0, _STD_POS])
+
+
+def _bt_noise(g: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """ByteTrack's measurement noise variances (4 x k) for the filters ``g``: (h / 20)^2 but
+    the aspect ratio's 0.01."""
+    r: npt.NDArray[np.float64] = np.multiply.outer(_BT_R_STD, g[3])
+    r *= r
+    r[2] = _VAR_RA
+    return r
 
 
 def _xyah(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """Boxes (4 x k) as (centre x, centre y, aspect ratio, height)."""
-    w, h = d[2] - d[0], d[3] - d[1]
+    """Boxes (4 x k) as (centre x, centre y, aspect ratio, height): w, h = x2 - x1, y2 - y1; the
+    centre x1 + w / 2, y1 + h / 2; w / max(h, 1e-9); h."""
+    size = d[2:4] - d[0:2]
+    w, h = size
     z = np.empty_like(d)
-    np.add(d[0], w / 2, out=z[0])
-    np.add(d[1], h / 2, out=z[1])
+    np.add(d[0:2], size / 2, out=z[0:2])
     np.divide(w, np.maximum(h, 1e-9), out=z[2])
     z[3] = h
     return z
 
 
 def _xyxy(m: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """ByteTrack's means (rows 0-3 of ``m``) as boxes (4 x k)."""
-    hw = m[2] * m[3] / 2
-    hh = m[3] / 2
-    out = np.empty((4, m.shape[1]))
-    np.subtract(m[0], hw, out=out[0])
-    np.subtract(m[1], hh, out=out[1])
-    np.add(m[0], hw, out=out[2])
-    np.add(m[1], hh, out=out[3])
+    """ByteTrack's means (rows 0-3 of ``m``) as boxes (4 x k): half sizes a h / 2 and h / 2
+    taken from the centre."""
+    k = m.shape[1]
+    half = np.empty((2, k))
+    np.multiply(m[2], m[3], out=half[0])
+    half[1] = m[3]
+    half /= 2
+    out = np.empty((4, k))
+    np.subtract(m[0:2], half, out=out[0:2])
+    np.add(m[0:2], half, out=out[2:4])
     return out
 
 
-_ID, _LAST, _CONFIRMED, _LOST = range(4)
+_ID, _LAST, _CONFIRMED, _LOST, _USED = range(5)
 
 
 class ByteTrackTracker:
@@ -505,8 +526,9 @@ class ByteTrackTracker:
         self.match_thresh = match_thresh
         self.track_buffer = track_buffer
         self.filters = _Filters()
-        #: per track: its id, the frame of its last match, confirmed (0/1), lost (0/1)
-        self.state = np.zeros((4, 0), np.int64)
+        #: per track: its id, the frame of its last match, confirmed (0/1), lost (0/1), the
+        #: input box of its last match
+        self.state = np.zeros((5, 0), np.int64)
         self.frame = 0
         self._next = 1
 
@@ -520,8 +542,11 @@ class ByteTrackTracker:
         self.frame += 1
         d = _columns(boxes)
         scores = np.asarray(scores, dtype=_F64).reshape(-1)
-        high = _nonzero(scores >= self.track_thresh)
-        low = _nonzero((scores >= self.low_thresh) & (scores < self.track_thresh))
+        is_high = scores >= self.track_thresh
+        high = _nonzero(is_high)
+        low = _NO_ROWS
+        if len(high) < len(scores):
+            low = _nonzero((scores >= self.low_thresh) & ~is_high)
         f, state = self.filters, self.state
         s = f.s
         n = s.shape[1]
@@ -530,15 +555,16 @@ class ByteTrackTracker:
             s[7, lost] = 0.0
             q = np.multiply.outer(_BT_STD, s[3])  # the standard deviations, scaled by the height
             q *= q
-            q[2] = _VAR_A
-            q[14] = _VAR_VA
+            q[2:15:12] = _BT_VAR_A
             f.predict()
             s[8:24] += q
         current = _xyxy(s)
-        confirmed_now = state[_CONFIRMED] != 0
-        every = bool(confirmed_now.all())  # then confirmed is every row, unconfirmed none
-        confirmed = _ALL if every else _nonzero(confirmed_now)
-        unconfirmed = _NO_ROWS if every else _nonzero(~confirmed_now)
+        every = n == 0 or state[_CONFIRMED].min() != 0  # then confirmed is every row
+        if every:
+            confirmed, unconfirmed = _ALL, _NO_ROWS
+        else:
+            confirmed_now = state[_CONFIRMED] != 0
+            confirmed, unconfirmed = _nonzero(confirmed_now), _nonzero(~confirmed_now)
         # 1: the high boxes against every confirmed track, active or lost
         high_all = len(high) == d.shape[1]
         t1, d1, left_tracks, left_high = _match_free(
@@ -550,11 +576,13 @@ class ByteTrackTracker:
         if len(left_tracks):
             remaining = _at(confirmed, left_tracks)
             remaining = remaining[~lost[remaining]]
-            t2, d2 = _match(_cost(current[:, remaining], d[:, low]), 0.5)
-            left2 = _free(t2, len(remaining))
-            state[_LOST, remaining[left2]] = 1
-            rows.append(remaining[t2])
-            took.append(low[d2])
+            if len(low):
+                t2, d2 = _match(_cost(current[:, remaining], d[:, low]), 0.5)
+                state[_LOST, remaining[_free(t2, len(remaining))]] = 1
+                rows.append(remaining[t2])
+                took.append(low[d2])
+            else:
+                state[_LOST, remaining] = 1
         # 3: unconfirmed tracks against the high boxes left (IoU >= 0.3)
         rest = high[left_high]
         dead = left_new = _NO_ROWS
@@ -566,21 +594,10 @@ class ByteTrackTracker:
             left_new = np.arange(len(rest))
         rows_a = rows[0] if len(rows) == 1 else np.concatenate(rows)
         took_a = took[0] if len(took) == 1 else np.concatenate(took)
-        used = np.full(n, -1, np.int64)
         if len(rows_a):  # the three stages' rows are distinct: one update for all
-            var = _STD_POS * s[3, rows_a]
-            var *= var
-            r = np.empty((4, len(rows_a)))
-            r[0] = r[1] = r[3] = var
-            r[2] = _VAR_RA
-            f.update(rows_a, _xyah(d[:, took_a]), r)
-            used[rows_a] = took_a
-            state[_CONFIRMED, rows_a] = 1
-            state[_LOST, rows_a] = 0
-            state[_LAST, rows_a] = self.frame
-        removed = np.zeros(n, bool)
-        if len(dead):
-            removed[unconfirmed[dead]] = True
+            f.update(rows_a, _xyah(d[:, took_a]), _bt_noise)
+            state[_LAST : _LOST + 1, rows_a] = ((self.frame,), (1,), (0,))  # confirmed, not lost
+            state[_USED, rows_a] = took_a
         # 4: new tracks from the high boxes no track took
         born = rest[left_new]
         if len(born):
@@ -594,28 +611,28 @@ class ByteTrackTracker:
             f.add(
                 z, np.stack([a, a, np.full(k, _VAR_A), a]), np.stack([b, b, np.full(k, _VAR_VA), b])
             )
-            new = np.zeros((4, k), np.int64)
+            new = np.zeros((5, k), np.int64)
             new[_ID] = np.arange(self._next, self._next + k)
             new[_LAST] = self.frame
             new[_CONFIRMED] = self.frame == 1
+            new[_USED] = born
             self.state = state = np.concatenate([state, new], axis=1)
-            used = np.concatenate([used, born])
-            removed = np.concatenate([removed, np.zeros(k, bool)])
             self._next += k
+        # shown: confirmed and matched in this frame (so not lost, and not removed, whose
+        # unconfirmed tracks were not matched); their row _USED is their input box of this frame
         last = state[_LAST]
-        shown = (state[_CONFIRMED] != 0) & (state[_LOST] == 0) & (last == self.frame) & ~removed
+        shown = last * state[_CONFIRMED] == self.frame  # confirmed is 0 or 1, the frame >= 1
         # in id order: rows are kept in the order the tracks were made
         if shown.all():
-            out = (state[_ID].tolist(), _xyxy(f.s).tolist(), used.tolist())
+            ids, used = state[0:5:4].tolist()
+            out = (ids, _xyxy(f.s).tolist(), used)
         else:
             shown_rows = _nonzero(shown)
-            out = (
-                state[_ID, shown_rows].tolist(),
-                _xyxy(f.s[:, shown_rows]).tolist(),
-                used[shown_rows].tolist(),
-            )
-        alive = ~removed & (self.frame - last <= self.track_buffer)
-        if not alive.all():
+            ids, used = state[0:5:4, shown_rows].tolist()
+            out = (ids, _xyxy(f.s[0:4, shown_rows]).tolist(), used)
+        if len(dead) or (len(last) and last.min() < self.frame - self.track_buffer):
+            alive = self.frame - last <= self.track_buffer
+            alive[unconfirmed[dead]] = False
             f.keep(alive)
             self.state = state[:, alive]
         return out

@@ -91,27 +91,28 @@ def _columns(boxes: npt.ArrayLike) -> npt.NDArray[np.float64]:
 
 
 def _cost(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """-IoU of each box of ``a`` (4 x N, rows x1 y1 x2 y2) with each of ``b`` (4 x M): the
-    intersection's width and height clipped at 0, their product over the negated union (the
-    sum of the areas less it), which is -IoU exactly; -0.0 where that union is not positive.
-    Both axes in each operation, the areas of ``a`` and ``b`` in one."""
+    """-IoU of each box of ``a`` (4 x N, rows x1 y1 x2 y2) with each of ``b`` (4 x M), each row
+    contiguous: the intersection's width and height clipped at 0, their product over the
+    negated union (the intersection less the sum of the areas), which is -IoU exactly; -0.0
+    where that union is not positive."""
     n, m = a.shape[1], b.shape[1]
     if not (n and m):
         return np.zeros((n, m))
-    inter: npt.NDArray[np.float64] = np.minimum(a[2:4, :, None], b[2:4, None, :])
-    inter -= np.maximum(a[0:2, :, None], b[0:2, None, :])
+    inter: npt.NDArray[np.float64] = np.minimum(a[2, :, None], b[2])
+    inter -= np.maximum(a[0, :, None], b[0])
     np.maximum(inter, 0.0, out=inter)
-    both: npt.NDArray[np.float64] = inter[0] * inter[1]
-    ab = np.concatenate((a, b), axis=1)
-    size = ab[2:4] - ab[0:2]
-    area = size[0] * size[1]
-    union = np.add(area[:n, None], area[n:])
-    np.subtract(both, union, out=union)  # -(union less the intersection), exactly
+    high = np.minimum(a[3, :, None], b[3])
+    high -= np.maximum(a[1, :, None], b[1])
+    np.maximum(high, 0.0, out=high)
+    inter *= high
+    size_a, size_b = a[2:4] - a[0:2], b[2:4] - b[0:2]
+    union = (size_a[0] * size_a[1])[:, None] + size_b[0] * size_b[1]
+    np.subtract(inter, union, out=union)  # -(union less the intersection), exactly
     if union.max() < 0.0:  # False for a NaN too
-        both /= union
-        return both
-    out: npt.NDArray[np.float64] = np.full_like(both, -0.0)
-    np.divide(both, union, out=out, where=union < 0)
+        inter /= union
+        return inter
+    out: npt.NDArray[np.float64] = np.full_like(inter, -0.0)
+    np.divide(inter, union, out=out, where=union < 0)
     return out
 
 
@@ -261,13 +262,12 @@ class _Filters:
     def predict(self) -> None:
         """x = F x, P = F P F^T (the process noise is added by the tracker, to rows 8-11 and
         20-23)."""
-        # the six blocks of four rows: x, v, Paa, Pab, Pba, Pbb
-        x, v, paa, pab, _, pbb = blocks = self.s.reshape(6, 4, self.s.shape[1])
-        # x += v and, F P then (F P) F^T, Paa = (Paa + Pba) + (Pab + Pbb), Pab += Pbb, Pba += Pbb
-        blocks[0:3:2] += blocks[1:5:3]  # x += v, Paa += Pba
-        blocks[3:5] += pbb
-        paa += pab
-        del x, v
+        s = self.s
+        s[0:4] += s[4:8]
+        # F P, then (F P) F^T: Paa = (Paa + Pba) + (Pab + Pbb), Pab += Pbb, Pba += Pbb
+        s[8:12] += s[16:20]
+        s[12:20].reshape(2, 4, -1)[:] += s[20:24]
+        s[8:12] += s[12:16]
 
     def update(
         self,
@@ -314,30 +314,27 @@ _SORT_PBB = np.array([[1e4], [1e4], [1e4], [0.0]])
 
 
 def _to_z(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """Boxes (4 x k) as (centre x, centre y, area, aspect ratio): w, h = x2 - x1, y2 - y1; the
-    centre x1 + w / 2, y1 + h / 2; w h; w / max(h, 1e-9)."""
-    size = d[2:4] - d[0:2]
-    w, h = size
+    """Boxes (4 x k) as (centre x, centre y, area, aspect ratio)."""
+    w, h = d[2] - d[0], d[3] - d[1]
     z = np.empty_like(d)
-    np.add(d[0:2], size / 2, out=z[0:2])
+    np.add(d[0], w / 2, out=z[0])
+    np.add(d[1], h / 2, out=z[1])
     np.multiply(w, h, out=z[2])
     np.divide(w, np.maximum(h, 1e-9), out=z[3])
     return z
 
 
 def _from_x(s: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """SORT's means (rows 0-3 of ``s``) as boxes (4 x k): area a = max(s, 1e-9), ratio max(r,
-    1e-9), w = sqrt(a r), the half sizes w / 2 and a / w / 2 taken from the centre."""
-    k = s.shape[1]
-    floor = np.maximum(s[2:4], 1e-9)  # the area and the ratio
-    area = floor[0]
-    half = np.empty((2, k))
-    np.sqrt(np.multiply(area, floor[1], out=floor[1]), out=half[0])  # w
-    np.divide(area, half[0], out=half[1])  # h
-    half /= 2
-    out = np.empty((4, k))
-    np.subtract(s[0:2], half, out=out[0:2])
-    np.add(s[0:2], half, out=out[2:4])
+    """SORT's means (rows 0-3 of ``s``) as boxes (4 x k)."""
+    area = np.maximum(s[2], 1e-9)
+    w = np.sqrt(area * np.maximum(s[3], 1e-9))
+    hh = area / w / 2
+    hw = w / 2
+    out = np.empty((4, s.shape[1]))
+    np.subtract(s[0], hw, out=out[0])
+    np.subtract(s[1], hh, out=out[1])
+    np.add(s[0], hw, out=out[2])
+    np.add(s[1], hh, out=out[3])
     return out
 
 
@@ -481,28 +478,25 @@ def _bt_noise(g: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
 
 
 def _xyah(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """Boxes (4 x k) as (centre x, centre y, aspect ratio, height): w, h = x2 - x1, y2 - y1; the
-    centre x1 + w / 2, y1 + h / 2; w / max(h, 1e-9); h."""
-    size = d[2:4] - d[0:2]
-    w, h = size
+    """Boxes (4 x k) as (centre x, centre y, aspect ratio, height)."""
+    w, h = d[2] - d[0], d[3] - d[1]
     z = np.empty_like(d)
-    np.add(d[0:2], size / 2, out=z[0:2])
+    np.add(d[0], w / 2, out=z[0])
+    np.add(d[1], h / 2, out=z[1])
     np.divide(w, np.maximum(h, 1e-9), out=z[2])
     z[3] = h
     return z
 
 
 def _xyxy(m: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """ByteTrack's means (rows 0-3 of ``m``) as boxes (4 x k): half sizes a h / 2 and h / 2
-    taken from the centre."""
-    k = m.shape[1]
-    half = np.empty((2, k))
-    np.multiply(m[2], m[3], out=half[0])
-    half[1] = m[3]
-    half /= 2
-    out = np.empty((4, k))
-    np.subtract(m[0:2], half, out=out[0:2])
-    np.add(m[0:2], half, out=out[2:4])
+    """ByteTrack's means (rows 0-3 of ``m``) as boxes (4 x k)."""
+    hw = m[2] * m[3] / 2
+    hh = m[3] / 2
+    out = np.empty((4, m.shape[1]))
+    np.subtract(m[0], hw, out=out[0])
+    np.subtract(m[1], hh, out=out[1])
+    np.add(m[0], hw, out=out[2])
+    np.add(m[1], hh, out=out[3])
     return out
 
 

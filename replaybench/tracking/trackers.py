@@ -286,11 +286,21 @@ class _Filters:
             g = self.s[:, rows]
         if callable(r):
             r = r(g)
+        # one contiguous block of rows an operation (cheaper than a strided or 3-D one)
         s = g[8:12] + r
-        gain = g[8:16].reshape(2, 4, k) * (1.0 / s)  # K: Paa / S and Pab / S
-        g[0:8].reshape(2, 4, k)[:] += gain * (z - g[0:4])  # x += Ka y, v += Kb y
+        inv = 1.0 / s
+        ka = g[8:12] * inv  # K: Paa / S and Pab / S
+        kb = g[12:16] * inv
+        y = z - g[0:4]
+        g[0:4] += ka * y  # x += Ka y, v += Kb y
+        g[4:8] += kb * y
         # P -= K S K^T: (Ka S) Ka, (Ka S) Kb, (Kb S) Ka, (Kb S) Kb
-        g[8:24] -= ((gain * s)[:, None] * gain[None, :]).reshape(16, k)
+        kas = ka * s
+        kbs = kb * s
+        g[8:12] -= kas * ka
+        g[12:16] -= kas * kb
+        g[16:20] -= kbs * ka
+        g[20:24] -= kbs * kb
         if not every:
             self.s[:, rows] = g
 

@@ -45,16 +45,14 @@ import numpy as np
 
 from replaybench.backends.base import Availability, BackendOptions
 from replaybench.backends.onnx_cpu import onnx_cpu_available, session_options
-from replaybench.backends.sgbm import StereoMatcherBackend, pair_rectifier
+from replaybench.backends.sgbm import StereoPairs
 from replaybench.errors import BackendError, BackendUnavailableError, StereoError
-from replaybench.stereo.topics import pair_by_name
 from replaybench.types import BackendResult, StageTimes
 
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-    from replaybench.stereo import Rectifier
-    from replaybench.types import Frame, FrameSet
+    from replaybench.types import FrameSet
 
 __all__ = ['DEFAULT_STEREO_MODEL', 'EXTRA_KEYS', 'LAYOUTS', 'OnnxStereoBackend', 'StereoModelSpec']
 
@@ -228,7 +226,7 @@ def load_stereo_spec(
     )
 
 
-class OnnxStereoBackend:
+class OnnxStereoBackend(StereoPairs):
     """ONNX Runtime ``InferenceSession`` (``CPUExecutionProvider``) of a stereo model.
 
     Session options as ``onnx-cpu``'s (``session_options``). Returns a
@@ -241,16 +239,6 @@ class OnnxStereoBackend:
     )
     providers: ClassVar[tuple[str, ...]] = ('CPUExecutionProvider',)
     task: ClassVar[str] = 'stereo'
-    takes_frame_sets: ClassVar[bool] = True
-    reads_camera_info: ClassVar[bool] = True
-    #: without --sync, a pair's images are paired by equal stamps (``--sync exact``)
-    default_sync: ClassVar[str] = 'exact'
-
-    #: without --topic or --stereo: the pair by name, as the matchers take it
-    frame_set_topics = staticmethod(pair_by_name)
-
-    #: before the replay: a left and a right topic, CameraInfo of one size and a baseline
-    check_frame_set = StereoMatcherBackend.check_frame_set
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         self.options = options if options is not None else BackendOptions()
@@ -275,16 +263,12 @@ class OnnxStereoBackend:
             )
             raise BackendError(msg)
         self.spinning = spinning in ('1', 'true')
-        from replaybench.stereo import rectify_maps
-
-        #: the rectification maps (``fixed`` or ``float``; replaybench.stereo.calibration)
-        self.rectify_maps = rectify_maps(opts.extra.get('rectify_maps'), self.name)
+        self.take_pairs(opts.extra.get('rectify_maps'))
         self.model_path: Path = opts.model if opts.model is not None else DEFAULT_STEREO_MODEL
         self.spec: StereoModelSpec | None = None
         self._session: Any = None
         self._buffers: tuple[npt.NDArray[np.float32], ...] = ()
         self._feed: dict[str, Any] = {}
-        self._rectifiers: dict[tuple[int, str, str], Rectifier] = {}
         self._ort_version = ''
         self._providers_used: list[str] = []
         self._intra_threads = 0
@@ -336,10 +320,6 @@ class OnnxStereoBackend:
         self._buffers = ()
         self._feed = {}
         self._rectifiers.clear()
-
-    def rectifier(self, left: Frame, right: Frame) -> Rectifier:
-        """The pair's rectifier, built on its first set (``pair_rectifier``)."""
-        return pair_rectifier(self._rectifiers, left, right, self.rectify_maps)
 
     def _channels(self, image: npt.NDArray[Any], encoding: str) -> npt.NDArray[np.uint8]:
         """An image as the network's channels (HxW grey, or HxWx3 in its order), uint8."""
@@ -472,7 +452,7 @@ class OnnxStereoBackend:
                 'scale': spec.scale,
                 'max_disparity': spec.max_disparity,
                 'resize': 'area to the network, bilinear back, values x width ratio',
-                'rectified': sorted({r.pair.rectified for r in self._rectifiers.values()}),
+                'rectified': self.rectified(),
                 'rectify_maps': self.rectify_maps,
                 'engine': 'onnxruntime',
                 'onnxruntime': self._ort_version,

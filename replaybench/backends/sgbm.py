@@ -32,7 +32,13 @@ if TYPE_CHECKING:
     from replaybench.stereo.matchers import MatcherKind
     from replaybench.types import CameraInfo, Frame, FrameSet
 
-__all__ = ['SgbmBackend', 'StereoMatcherBackend', 'matcher_parameters', 'pair_rectifier']
+__all__ = [
+    'SgbmBackend',
+    'StereoMatcherBackend',
+    'StereoPairs',
+    'matcher_parameters',
+    'pair_rectifier',
+]
 
 
 def _option_value(key: str, text: str) -> object:
@@ -92,13 +98,13 @@ def pair_rectifier(
     return found
 
 
-class StereoMatcherBackend:
-    """A stereo matcher of ``replaybench.stereo.matchers`` over synchronised pairs."""
+class StereoPairs:
+    """What every stereo backend declares and does with its pairs: synchronised left/right
+    sets (paired by equal stamps without --sync), found by stereo_image_proc's names, checked
+    before the replay, rectified with the maps its ``rectify_maps`` option names, built on a
+    pair's first set. ``take_pairs`` in the backend's ``__init__`` sets the state."""
 
     name: ClassVar[str]
-    description: ClassVar[str]
-    kind: ClassVar[MatcherKind]
-    task: ClassVar[str] = 'stereo'
     takes_frame_sets: ClassVar[bool] = True
     reads_camera_info: ClassVar[bool] = True
     #: without --sync, a pair's images are paired by equal stamps (``--sync exact``)
@@ -108,23 +114,14 @@ class StereoMatcherBackend:
     #: make, left first
     frame_set_topics = staticmethod(pair_by_name)
 
-    def __init__(self, options: BackendOptions | None = None) -> None:
-        from replaybench.stereo import Matcher, rectify_maps
+    def take_pairs(self, rectify_maps: object) -> None:
+        """No rectifier built yet; the maps ``rectify_maps`` names (None: ``fixed``;
+        ``StereoError`` for another value)."""
+        from replaybench.stereo import rectify_maps as maps_named
 
-        self.options = options if options is not None else BackendOptions()
-        table = matcher_parameters(self.kind, self.options)
         #: the rectification maps (``fixed`` or ``float``; replaybench.stereo.calibration)
-        self.rectify_maps = rectify_maps(table.pop('rectify_maps', None), self.kind)
-        self.matcher: Matcher = Matcher.from_mapping(self.kind, table)
+        self.rectify_maps = maps_named(rectify_maps, self.name)
         self._rectifiers: dict[tuple[int, str, str], Rectifier] = {}
-
-    @classmethod
-    def available(cls) -> Availability:
-        return Availability(ok=True)
-
-    def open(self) -> None:
-        """Nothing to load: the matcher is built with the backend, the maps on a pair's first
-        set."""
 
     def check_frame_set(
         self, topics: tuple[str, ...], infos: tuple[CameraInfo | None, ...]
@@ -148,6 +145,35 @@ class StereoMatcherBackend:
     def rectifier(self, left: Frame, right: Frame) -> Rectifier:
         """The pair's rectifier, built on its first set (``pair_rectifier``)."""
         return pair_rectifier(self._rectifiers, left, right, self.rectify_maps)
+
+    def rectified(self) -> list[bool]:
+        """Whether each pair replayed so far was used as it was (run.json's ``rectified``)."""
+        return sorted({r.pair.rectified for r in self._rectifiers.values()})
+
+
+class StereoMatcherBackend(StereoPairs):
+    """A stereo matcher of ``replaybench.stereo.matchers`` over synchronised pairs."""
+
+    name: ClassVar[str]
+    description: ClassVar[str]
+    kind: ClassVar[MatcherKind]
+    task: ClassVar[str] = 'stereo'
+
+    def __init__(self, options: BackendOptions | None = None) -> None:
+        from replaybench.stereo import Matcher
+
+        self.options = options if options is not None else BackendOptions()
+        table = matcher_parameters(self.kind, self.options)
+        self.take_pairs(table.pop('rectify_maps', None))
+        self.matcher: Matcher = Matcher.from_mapping(self.kind, table)
+
+    @classmethod
+    def available(cls) -> Availability:
+        return Availability(ok=True)
+
+    def open(self) -> None:
+        """Nothing to load: the matcher is built with the backend, the maps on a pair's first
+        set."""
 
     def detect(self, frame_set: FrameSet) -> BackendResult:
         from replaybench.stereo import Disparity, to_mono8
@@ -190,11 +216,10 @@ class StereoMatcherBackend:
         from dataclasses import asdict
 
         params: Mapping[str, Any] = asdict(self.matcher.params)
-        rectified = sorted({r.pair.rectified for r in self._rectifiers.values()})
         return {
             'matcher': self.kind,
             'parameters': dict(params),
-            'rectified': rectified,
+            'rectified': self.rectified(),
             'rectify_maps': self.rectify_maps,
         }
 

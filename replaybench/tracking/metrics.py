@@ -32,6 +32,7 @@ timeline), from the same code that counts ``id_switches``.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -40,7 +41,7 @@ import numpy as np
 from replaybench.errors import MissingDependencyError
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
 
     import numpy.typing as npt
 
@@ -188,9 +189,10 @@ class _Sequence:
         self.tr_dets = sum(len(t) for t in self.tr)
 
 
-def _assign(cost: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
-    """The minimum-cost one-to-one assignment: SciPy's ``linear_sum_assignment``, TrackEval's
-    solver (the same solver breaks ties the same way)."""
+@functools.cache
+def _solver() -> Callable[..., tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]]:
+    """SciPy's ``linear_sum_assignment``, imported once (``MissingDependencyError`` without
+    SciPy, on every call until it is there)."""
     try:
         from scipy.optimize import linear_sum_assignment
     except ImportError as err:
@@ -199,8 +201,14 @@ def _assign(cost: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.intp], npt.ND
             f'({type(err).__name__}: {err})'
         )
         raise MissingDependencyError(msg) from err
-    rows, cols = linear_sum_assignment(cost)
-    return rows, cols
+    solver: Callable[..., tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]] = linear_sum_assignment
+    return solver
+
+
+def _assign(cost: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """The minimum-cost one-to-one assignment: SciPy's ``linear_sum_assignment``, TrackEval's
+    solver (the same solver breaks ties the same way)."""
+    return _solver()(cost)
 
 
 def _hota(s: _Sequence) -> dict[str, npt.NDArray[np.float64]]:

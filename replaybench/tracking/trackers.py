@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -133,7 +133,7 @@ def _match(
     -IoU): the matched rows (ascending) and their columns."""
     if not cost.size:
         return _NO_ROWS, _NO_ROWS
-    rows, cols = _solve(cost)  # rows ascending
+    rows, cols = _assign(cost)  # rows ascending
     picked = cost[rows, cols]
     if not picked.max() <= -threshold:  # IoU >= threshold, the negation being exact
         good = picked <= -threshold
@@ -149,21 +149,6 @@ def _match_free(
     rows, cols = _match(cost, threshold)
     rows_n, cols_n = cost.shape
     return rows, cols, _free(rows, rows_n), _free(cols, cols_n)
-
-
-_SOLVER: list[Any] = []
-
-
-def _solve(cost: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
-    """``_assign(cost)``: SciPy's solver, looked up once."""
-    if not _SOLVER:
-        rows, cols = _assign(cost)  # MissingDependencyError without SciPy
-        from scipy.optimize import linear_sum_assignment
-
-        _SOLVER.append(linear_sum_assignment)
-        return rows, cols
-    found: tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]] = _SOLVER[0](cost)
-    return found
 
 
 #: ``_at``'s index of every row

@@ -90,20 +90,30 @@ def test_a_pair_that_cannot_be_used_is_one_line_with_exit_status_2(change, messa
     assert err.value.exit_code == 2
 
 
-@pytest.mark.parametrize('model', ['plumb_bob', 'equidistant'])
-def test_the_maps_are_opencvs_initundistortrectifymap_of_k_d_r_and_p(model):
+def _camera(model: str) -> CameraInfo:
+    """The raw fixture's left camera, with a fisheye model for ``equidistant``."""
     info = raw_camera_infos(SIZE, 0)[0]
     if model == 'equidistant':
         info = replace(info, distortion_model='equidistant', d=(0.05, -0.01, 0.002, 0.0))
+    return info
+
+
+def _opencv_maps(info: CameraInfo, kind: int) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's own rectification maps of a camera, of type ``kind``."""
     k = np.array(info.k).reshape(3, 3)
     r = np.array(info.r).reshape(3, 3)
     p = np.array(info.p).reshape(3, 4)[:, :3]
-    if model == 'equidistant':
-        want = cv2.fisheye.initUndistortRectifyMap(
-            k, np.array(info.d).reshape(1, 4), r, p, SIZE, cv2.CV_16SC2
+    if info.distortion_model == 'equidistant':
+        return cv2.fisheye.initUndistortRectifyMap(
+            k, np.array(info.d).reshape(1, 4), r, p, SIZE, kind
         )
-    else:
-        want = cv2.initUndistortRectifyMap(k, np.array(info.d), r, p, SIZE, cv2.CV_16SC2)
+    return cv2.initUndistortRectifyMap(k, np.array(info.d), r, p, SIZE, kind)
+
+
+@pytest.mark.parametrize('model', ['plumb_bob', 'equidistant'])
+def test_the_maps_are_opencvs_initundistortrectifymap_of_k_d_r_and_p(model):
+    info = _camera(model)
+    want = _opencv_maps(info, cv2.CV_16SC2)
     got = _maps(info)
     assert np.array_equal(got[0], want[0])
     assert np.array_equal(got[1], want[1])
@@ -159,18 +169,8 @@ def test_euroc_pairs_rectified_from_their_real_calibration_have_matching_rows():
 
 @pytest.mark.parametrize('model', ['plumb_bob', 'equidistant'])
 def test_float_maps_are_opencvs_32_bit_maps_and_rectify_as_bilinear_sampling_at_them(model):
-    info = raw_camera_infos(SIZE, 0)[0]
-    if model == 'equidistant':
-        info = replace(info, distortion_model='equidistant', d=(0.05, -0.01, 0.002, 0.0))
-    k = np.array(info.k).reshape(3, 3)
-    r = np.array(info.r).reshape(3, 3)
-    p = np.array(info.p).reshape(3, 4)[:, :3]
-    if model == 'equidistant':
-        want = cv2.fisheye.initUndistortRectifyMap(
-            k, np.array(info.d).reshape(1, 4), r, p, SIZE, cv2.CV_32FC1
-        )
-    else:
-        want = cv2.initUndistortRectifyMap(k, np.array(info.d), r, p, SIZE, cv2.CV_32FC1)
+    info = _camera(model)
+    want = _opencv_maps(info, cv2.CV_32FC1)
     got = _maps(info, 'float')
     assert got[0].dtype == np.float32
     assert np.array_equal(got[0], want[0])

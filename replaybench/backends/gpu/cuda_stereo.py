@@ -50,9 +50,8 @@ from replaybench.backends.onnx_stereo import (
     LAYOUTS,
     load_stereo_spec,
 )
-from replaybench.backends.sgbm import StereoMatcherBackend, pair_rectifier
+from replaybench.backends.sgbm import StereoPairs
 from replaybench.errors import BackendError, BackendUnavailableError, StereoError
-from replaybench.stereo.topics import pair_by_name
 from replaybench.types import BackendResult, StageTimes
 
 if TYPE_CHECKING:
@@ -62,8 +61,7 @@ if TYPE_CHECKING:
 
     from replaybench.backends.base import BackendOptions
     from replaybench.backends.onnx_stereo import StereoModelSpec
-    from replaybench.stereo import Rectifier
-    from replaybench.types import Frame, FrameSet
+    from replaybench.types import FrameSet
 
 __all__ = ['STEREO_EXTRA_KEYS', 'CudaStereoBackend']
 
@@ -72,7 +70,7 @@ STEREO_EXTRA_KEYS = ('channel_order', 'scale', 'max_disparity', 'cuda_graph', 'r
 _SPEC_KEYS = ('channel_order', 'scale', 'max_disparity')
 
 
-class CudaStereoBackend(CudaBackend):
+class CudaStereoBackend(StereoPairs, CudaBackend):
     """ONNX stereo models on an NVIDIA GPU; ``options.engine`` picks onnxruntime or torch.
 
     Options as ``onnx-stereo`` (``--model``, ``--model-family`` two-inputs / six-channel, the
@@ -85,26 +83,12 @@ class CudaStereoBackend(CudaBackend):
         'ONNX stereo network on an NVIDIA GPU: onnxruntime-gpu or PyTorch (--model, --sync)'
     )
     task: str = 'stereo'
-    takes_frame_sets: ClassVar[bool] = True
-    reads_camera_info: ClassVar[bool] = True
-    #: without --sync, a pair's images are paired by equal stamps (``--sync exact``)
-    default_sync: ClassVar[str] = 'exact'
-
-    #: without --topic or --stereo: the pair by name, as the matchers take it
-    frame_set_topics = staticmethod(pair_by_name)
-
-    #: before the replay: a left and a right topic, CameraInfo of one size and a baseline
-    check_frame_set = StereoMatcherBackend.check_frame_set
 
     def __init__(self, options: BackendOptions | None = None) -> None:
         super().__init__(options)
-        from replaybench.stereo import rectify_maps
-
-        #: the rectification maps (``fixed`` or ``float``; replaybench.stereo.calibration)
-        self.rectify_maps = rectify_maps(self.options.extra.get('rectify_maps'), self.name)
+        self.take_pairs(self.options.extra.get('rectify_maps'))
         self.stereo_spec: StereoModelSpec | None = None
         self._stereo: StereoPipeline | None = None
-        self._rectifiers: dict[tuple[int, str, str], Rectifier] = {}
 
     @classmethod
     def _accepted_extra_keys(cls) -> tuple[str, ...]:
@@ -229,10 +213,6 @@ class CudaStereoBackend(CudaBackend):
 
     # -- pairs ---------------------------------------------------------------------------
 
-    def rectifier(self, left: Frame, right: Frame) -> Rectifier:
-        """The pair's rectifier, built on its first set (``pair_rectifier``)."""
-        return pair_rectifier(self._rectifiers, left, right, self.rectify_maps)
-
     def detect(self, frame_set: FrameSet) -> BackendResult:  # type: ignore[override]  # a stereo backend takes frame sets
         from replaybench.stereo import Disparity
 
@@ -346,7 +326,7 @@ class CudaStereoBackend(CudaBackend):
         spec = self.stereo_spec
         if spec is not None:
             facts.update(stereo_facts(spec))
-            facts['rectified'] = sorted({r.pair.rectified for r in self._rectifiers.values()})
+            facts['rectified'] = self.rectified()
             facts['rectify_maps'] = self.rectify_maps
         facts.update(self._facts)
         return facts

@@ -15,6 +15,11 @@ one 2 frames late), written here into a temporary folder:
   time from the first release to the last detection) of ``per-topic`` over ``shared``; the
   median of ``--repeats`` pairs, each pair run back to back. Its limit is the machine's cores
   (2x on two) where ``hsv`` releases the GIL; it stays near 1x where it does not.
+* **worker processes**: the hsv case again with ``--workers processes`` (each pipeline's
+  ``hsv`` in a worker process, frames handed over in shared memory), and the ``busy`` backend
+  spinning 5 ms of CPU time a frame in Python (the GIL held all along) at 320x240, shared against
+  per-topic with threads and with processes: where ``detect`` holds the GIL, threads stay near
+  1x and processes go to the cores.
 * **GIL**: ``HsvBackend.detect`` on decoded frames in one thread and in two at once (no
   replay): two threads' throughput over one thread's, the share of ``detect`` that runs
   outside the GIL.
@@ -50,6 +55,8 @@ if TYPE_CHECKING:
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / 'benchmarks' / 'results' / 'rig.json'
 WAIT_S = 0.020
+#: the busy backend spinning 5 ms of its thread's CPU time per frame, in Python: the GIL held
+BUSY = {'busy_ms': '5', 'busy_clock': 'cpu'}
 
 
 class Waiting:
@@ -81,8 +88,15 @@ class Waiting:
 
 
 def _run(
-    bag: Path, backend: str, pipelines: str, rate: str, threads: int | None, prefetch: int = 4
+    bag: Path,
+    backend: str,
+    pipelines: str,
+    rate: str,
+    threads: int | None,
+    prefetch: int = 4,
+    workers: str = 'threads',
 ) -> Any:
+    from replaybench.backends.base import BackendOptions
     from replaybench.replay.rate import parse_rate
     from replaybench.replay.runner import RunConfig, run_benchmark
     from replaybench.replay.sessions import make_backend
@@ -100,6 +114,8 @@ def _run(
         report=False,
         hash_inputs=False,
         prefetch=prefetch,
+        workers=workers,
+        options=BackendOptions(extra=BUSY if backend == 'busy' else {}),
     )
     return run_benchmark(config, backend_factory=factory if backend == 'waiting' else None)
 
@@ -275,18 +291,40 @@ def main(argv: Sequence[str] | None = None) -> int:
             mode: _drop_rate(_run(small, 'waiting', mode, 'recorded', None))
             for mode in ('shared', 'per-topic')
         }
-        pairs = []
+        pairs: list[dict[str, float]] = []
+        busy: list[dict[str, float]] = []
         for _ in range(args.repeats):
             shared = _throughput(_run(large, 'hsv', 'shared', 'max', 1))
             serial = _throughput(_run(large, 'hsv', 'shared', 'max', 1, prefetch=0))
             per_topic = _throughput(_run(large, 'hsv', 'per-topic', 'max', 1))
+            in_processes = _throughput(
+                _run(large, 'hsv', 'per-topic', 'max', 1, workers='processes')
+            )
             pairs.append(
-                {'shared_fps': shared, 'shared_serial_fps': serial, 'per_topic_fps': per_topic}
+                {
+                    'shared_fps': shared,
+                    'shared_serial_fps': serial,
+                    'per_topic_fps': per_topic,
+                    'per_topic_processes_fps': in_processes,
+                }
+            )
+            busy.append(
+                {
+                    'shared_fps': _throughput(_run(small, 'busy', 'shared', 'max', 1)),
+                    'per_topic_fps': _throughput(_run(small, 'busy', 'per-topic', 'max', 1)),
+                    'per_topic_processes_fps': _throughput(
+                        _run(small, 'busy', 'per-topic', 'max', 1, workers='processes')
+                    ),
+                }
             )
         gil = _gil_share(large)
         processes = _process_share(large)
     ratios = [p['per_topic_fps'] / p['shared_fps'] for p in pairs]
     serial_ratios = [p['per_topic_fps'] / p['shared_serial_fps'] for p in pairs]
+    process_ratios = [p['per_topic_processes_fps'] / p['shared_fps'] for p in pairs]
+    process_over_threads = [p['per_topic_processes_fps'] / p['per_topic_fps'] for p in pairs]
+    busy_threads = [b['per_topic_fps'] / b['shared_fps'] for b in busy]
+    busy_processes = [b['per_topic_processes_fps'] / b['shared_fps'] for b in busy]
     document = {
         'measured_at': dt.datetime.now(dt.UTC).isoformat(timespec='seconds'),
         'cores': len(os.sched_getaffinity(0)),
@@ -306,6 +344,18 @@ def main(argv: Sequence[str] | None = None) -> int:
             # of the target assumes
             'over_serial_shared_median': statistics.median(serial_ratios),
             'over_serial_shared': serial_ratios,
+            # --workers processes: each pipeline's hsv in a worker process
+            'processes_over_shared_median': statistics.median(process_ratios),
+            'processes_over_shared': process_ratios,
+            'processes_over_threads_median': statistics.median(process_over_threads),
+            'processes_over_threads': process_over_threads,
+        },
+        'busy_5ms_cpu_320x240_4_cameras_max_threads_1': {
+            'runs': busy,
+            'per_topic_threads_over_shared_median': statistics.median(busy_threads),
+            'per_topic_threads_over_shared': busy_threads,
+            'per_topic_processes_over_shared_median': statistics.median(busy_processes),
+            'per_topic_processes_over_shared': busy_processes,
         },
         'hsv_detect_two_threads_over_one': gil,
         'hsv_detect_two_processes_shared_memory': {
@@ -322,6 +372,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         f'hsv 640x480 at max, 4 cameras, --threads 1: per-topic / shared '
         f'{statistics.median(ratios):.2f}x (pairs: {", ".join(f"{r:.2f}" for r in ratios)}); '
         f'over shared without read-ahead (prefetch=0) {statistics.median(serial_ratios):.2f}x'
+    )
+    print(
+        f'hsv, --workers processes: over shared {statistics.median(process_ratios):.2f}x, over '
+        f'threads {statistics.median(process_over_threads):.2f}x'
+    )
+    print(
+        'busy 5 ms of CPU in Python (the GIL held), 4 cameras at max: per-topic over shared, '
+        f'threads {statistics.median(busy_threads):.2f}x, processes '
+        f'{statistics.median(busy_processes):.2f}x'
     )
     print(f'hsv detect, two threads over one: {gil["ratio"]:.2f}x')
     print(

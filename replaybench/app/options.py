@@ -245,6 +245,15 @@ class RunOptions:
         choices=('shared', 'per-topic'),
         metavar='MODE',
     )
+    workers: str = _opt(
+        'threads',
+        '--workers',
+        "With --pipelines per-topic: threads: each pipeline's backend runs in its worker "
+        'thread; processes: each in a worker process of its own, frames handed over in shared '
+        'memory, for backends whose Python holds the GIL (docs/rigs.md).',
+        choices=('threads', 'processes'),
+        metavar='KIND',
+    )
     ground_truth_masks: str | None = _opt(
         None,
         '--ground-truth-masks',

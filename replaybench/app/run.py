@@ -177,6 +177,7 @@ def config_of(
         input_sha256=input_sha256,
         repeat=options.repeat,
         pipelines=options.pipelines,
+        workers=options.workers,
         ground_truth_masks=(
             None if options.ground_truth_masks is None else str(options.ground_truth_masks)
         ),

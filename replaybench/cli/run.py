@@ -270,6 +270,10 @@ def _rig_lines(run: RunResult) -> list[str]:
     if run.rig is None:
         return []
     lines = []
+    pipelines = run.settings.pipelines
+    mode = run.rig.mode
+    if pipelines is not None and pipelines.workers != 'threads':
+        mode = f'{mode}, {pipelines.workers}'
     for rig in run.rig.backends:
         rate = f'{rig.drop_rate * 100:.1f} %' if rig.drop_rate is not None else 'n/a'
         p99 = f'{rig.latency_ms_p99:.2f} ms' if rig.latency_ms_p99 is not None else 'n/a'
@@ -286,7 +290,7 @@ def _rig_lines(run: RunResult) -> list[str]:
         )
         lines.append(
             f'rig {visible(rig.backend)}: {len(rig.cameras)} camera(s), {rig.pipelines} '
-            f'pipeline(s) ({run.rig.mode}): {rig.frames} frames, {rig.dropped} dropped ({rate}), '
+            f'pipeline(s) ({mode}): {rig.frames} frames, {rig.dropped} dropped ({rate}), '
             f'p99 {p99}, {fps}; worst p99: {worst_p99}; worst drop rate: {worst_drop}'
         )
     return lines

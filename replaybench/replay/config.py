@@ -109,6 +109,9 @@ class RunConfig:
     #: --pipelines: 'shared' (one backend instance serves every camera topic's queue in turn)
     #: or 'per-topic' (one instance per camera topic, each in a worker thread of its own)
     pipelines: str = 'shared'
+    #: --workers: how per-topic pipelines run their backends: 'threads' (in the pipeline's
+    #: worker thread) or 'processes' (each in a worker process, ``replaybench.replay.workers``)
+    workers: str = 'threads'
     #: the instances of ``backends`` by label (``replaybench.replay.instances``): the backend
     #: each is made of and its own ``--param`` values; a label not here is the backend of
     #: that name with no parameter of its own

@@ -83,6 +83,7 @@ from replaybench.replay.sessions import (
     run_repeated,
 )
 from replaybench.replay.threads import thread_limits
+from replaybench.replay.workers import WORKERS
 from replaybench.results.machine import describe_machine, load_snapshot
 from replaybench.results.runfolder import RunFolder, check_out_dir
 
@@ -172,13 +173,13 @@ def run_benchmark(
     threads for the run (``thread_limits``); they are restored when it returns.
     """
     _check_config(config, check_available=backend_factory is None)
-    factory = backend_factory or make_backend
+    factory: Callable[[str, BackendOptions], Backend] = backend_factory or make_backend
     truths = load_truths(config)
     started = dt.datetime.now(dt.UTC)
     t_start = time.perf_counter()
     calls = _Calls(clock or MonotonicClock(), progress, stop, render, notice)
     if config.added_latency_ms:  # every instance made, per-topic pipelines' too
-        factory = _slower(factory, config.added_latency_ms, calls.clock)
+        factory = _Slower(factory, config.added_latency_ms, calls.clock)
     input_options = config.input_options()
     # in memory (no out_dir): no folder, no file
     folder = RunFolder(config.out_dir, force=config.force) if config.out_dir is not None else None
@@ -212,7 +213,7 @@ def run_benchmark(
                 hand_frame_sets(opened, pairing, inputs)
             topics = _camera_topics(inputs)
             if config.pipelines == 'per-topic' and len(topics) > 1:
-                open_pipelines(opened, topics, inputs, factory, base)
+                open_pipelines(opened, topics, inputs, factory, base, workers=config.workers)
             outcome = _execute(
                 config,
                 calls,
@@ -249,16 +250,17 @@ def _task_columns(opened: Sequence[OpenBackend], inputs: Sequence[OpenedInput]) 
     return frame_columns({entry.task(inp.number) for entry in opened for inp in inputs})
 
 
-def _slower(
-    factory: Callable[[str, BackendOptions], Backend], added_ms: float, clock: Clock
-) -> Callable[[str, BackendOptions], Backend]:
+class _Slower:
     """``factory`` whose backends wait ``added_ms`` after each detect (``--added-latency-ms``,
-    ``replaybench.replay.latency``)."""
+    ``replaybench.replay.latency``); picklable, for ``--workers processes``."""
 
-    def made(name: str, options: BackendOptions) -> Backend:
-        return with_added_latency(factory(name, options), added_ms, clock)
+    def __init__(
+        self, factory: Callable[[str, BackendOptions], Backend], added_ms: float, clock: Clock
+    ) -> None:
+        self.factory, self.added_ms, self.clock = factory, added_ms, clock
 
-    return made
+    def __call__(self, name: str, options: BackendOptions) -> Backend:
+        return with_added_latency(self.factory(name, options), self.added_ms, self.clock)
 
 
 def _refused(metrics: Mapping[str, float | None]) -> bool:
@@ -299,7 +301,10 @@ def _pipelines(
     count = max((len(e.pipelines) for e in opened), default=0) or 1
     cores = len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else os.cpu_count()
     settings = Pipelines(
-        pipelines=count, threads_per_pipeline=config.threads, cores=max(1, cores or 1)
+        pipelines=count,
+        workers=config.workers,
+        threads_per_pipeline=config.threads,
+        cores=max(1, cores or 1),
     )
     topics = _camera_topics(inputs)
     sets = [backend_label(e.name) for e in opened if e.frame_sets]
@@ -342,6 +347,12 @@ def _check_config(config: RunConfig, *, check_available: bool) -> None:
         raise UsageError(msg)
     if config.pipelines not in PIPELINES:
         msg = f'unknown --pipelines {config.pipelines!r}: use shared or per-topic'
+        raise UsageError(msg)
+    if config.workers not in WORKERS:
+        msg = f'unknown --workers {config.workers!r}: use threads or processes'
+        raise UsageError(msg)
+    if config.workers != 'threads' and config.pipelines != 'per-topic':
+        msg = f'--workers {config.workers} runs the pipelines of --pipelines per-topic: give both'
         raise UsageError(msg)
     if config.detections_format not in {'mcap', 'rosbag2'}:
         msg = f'unknown --format {config.detections_format!r}: use mcap or rosbag2'

@@ -230,19 +230,39 @@ def open_pipelines(
     inputs: Sequence[OpenedInput],
     factory: Callable[[str, BackendOptions], Backend],
     options: BackendOptions,
+    *,
+    workers: str = 'threads',
 ) -> None:
     """``--pipelines per-topic``: each opened backend gets an instance per camera topic in
     ``topics`` (its own for the first topic, the others made with ``factory`` and opened as
     ``open_backends`` opens one). A backend that takes frame sets keeps its one instance: the
-    input's set stream, every camera topic's frames grouped, is one pipeline. What fails is
-    raised in one line; the caller closes them."""
+    input's set stream, every camera topic's frames grouped, is one pipeline. With
+    ``workers='processes'`` every topic's instance is a ``ProcessBackend`` (made and opened in
+    a worker process of its own with ``factory``, which must then be picklable), the first
+    topic's too; the backend opened here stays for what the run asks of it besides frames.
+    What fails is raised in one line; the caller closes them."""
     for entry in opened:
         if backend_traits(entry.backend).takes_frame_sets:
             continue
-        entry.pipelines = {topics[0]: entry.backend}
-        for topic in topics[1:]:
+        if workers == 'processes' and backend_traits(entry.backend).uses_recorded_detections:
+            msg = (
+                f'--workers processes: backend {entry.name!r} replays recorded detections, '
+                'which have nothing to compute: use --workers threads'
+            )
+            raise UsageError(msg)
+        in_processes = workers == 'processes'
+        entry.pipelines = {} if in_processes else {topics[0]: entry.backend}
+        for topic in topics if in_processes else topics[1:]:
+            made_options = instance_options(options, entry.instance)
             try:
-                backend = factory(entry.instance.backend, instance_options(options, entry.instance))
+                if in_processes:
+                    from replaybench.replay.workers import ProcessBackend
+
+                    backend: Backend = ProcessBackend(  # type: ignore[assignment]
+                        entry.instance.backend, made_options, factory, entry.backend
+                    )
+                else:
+                    backend = factory(entry.instance.backend, made_options)
                 backend_traits(backend)
             except ReplaybenchError:
                 raise

@@ -228,7 +228,7 @@ def _argmax_planes(planes: npt.NDArray[np.float32]) -> npt.NDArray[np.uint8] | N
         plane = np.ascontiguousarray(planes[c])
         cv2.compare(plane, best, cv2.CMP_GT, dst=beats)
         cv2.max(best, plane, dst=best)
-        cv2.add(ids, c, dst=labels, mask=beats)  # type: ignore[call-overload]
+        cv2.add(ids, c, dst=labels, mask=beats)  # type: ignore[call-overload, unused-ignore]
     return labels
 
 
@@ -311,7 +311,7 @@ class SourceMapper:
             resized = cv2.resize(labels, size, interpolation=cv2.INTER_NEAREST_EXACT)
             return cast('npt.NDArray[np.uint8]', resized)
         if self._map is not None:
-            mapped = cv2.remap(labels, self._map, None, cv2.INTER_NEAREST)  # type: ignore[call-overload]
+            mapped = cv2.remap(labels, self._map, None, cv2.INTER_NEAREST)  # type: ignore[call-overload, unused-ignore]
             return cast('npt.NDArray[np.uint8]', mapped)
         assert self._rows is not None
         assert self._cols is not None

@@ -52,6 +52,7 @@ CHANGED: dict[str, Any] = {
     'hash_inputs': False,
     'repeat': 3,
     'pipelines': 'per-topic',
+    'workers': 'processes',
     'ground_truth_masks': '/labels',
     'ground_truth_disparity': '/gt/disparity',
     'ground_truth_depth': '/gt/depth',

@@ -166,13 +166,17 @@ def extra_ms(item: str, name: str, slower: Measurement, faster: Measurement) -> 
         return 1e3 / s - 1e3 / f
 
     if len(slower.values) == len(faster.values):
+        # paired rounds: the median of their differences, inside their spread (the difference
+        # of the two medians need not be)
         rounds = [cost(s, f) for s, f in zip(slower.values, faster.values, strict=True)]
+        value = statistics.median(rounds)
     else:
         rounds = [cost(slower.max, faster.min), cost(slower.min, faster.max)]
+        value = cost(slower.median, faster.median)
     return Check(
         item,
         name,
-        cost(slower.median, faster.median),
+        value,
         min(rounds),
         max(rounds),
         'ms',

@@ -241,23 +241,23 @@ def open_pipelines(
     a worker process of its own with ``factory``, which must then be picklable), the first
     topic's too; the backend opened here stays for what the run asks of it besides frames.
     What fails is raised in one line; the caller closes them."""
+    in_processes = workers == 'processes'
+    if in_processes:
+        from replaybench.replay.workers import ProcessBackend
     for entry in opened:
         if backend_traits(entry.backend).takes_frame_sets:
             continue
-        if workers == 'processes' and backend_traits(entry.backend).uses_recorded_detections:
+        if in_processes and backend_traits(entry.backend).uses_recorded_detections:
             msg = (
                 f'--workers processes: backend {entry.name!r} replays recorded detections, '
                 'which have nothing to compute: use --workers threads'
             )
             raise UsageError(msg)
-        in_processes = workers == 'processes'
         entry.pipelines = {} if in_processes else {topics[0]: entry.backend}
         for topic in topics if in_processes else topics[1:]:
             made_options = instance_options(options, entry.instance)
             try:
                 if in_processes:
-                    from replaybench.replay.workers import ProcessBackend
-
                     backend: Backend = ProcessBackend(  # type: ignore[assignment]
                         entry.instance.backend, made_options, factory, entry.backend
                     )

@@ -27,7 +27,7 @@ import pickle
 import sys
 from typing import TYPE_CHECKING, Any
 
-from replaybench.errors import BackendError
+from replaybench.errors import BackendError, one_line
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -47,16 +47,11 @@ _TRAITS = ('name', 'device', 'measures_latency', 'reads_camera_info', 'task')
 _MIN_BLOCK = 1 << 20
 
 
-def _one_line(err: BaseException) -> str:
-    text = ' '.join(str(err).split())
-    return f'{type(err).__name__}: {text}' if text else type(err).__name__
-
-
 def _picklable(err: BaseException) -> BaseException:
     try:
         pickle.loads(pickle.dumps(err))
     except Exception:  # noqa: BLE001 - anything that does not survive the trip
-        return BackendError(_one_line(err))
+        return BackendError(one_line(err))
     return err
 
 

@@ -371,8 +371,12 @@ def run_alone(
         print(note)
     for c in result.checks:
         verdict = {True: 'PASS', False: 'FAIL', None: 'info'}[c.passed]
-        target = '' if c.target is None else f' (target {c.op} {c.target:.2f}x)'
-        print(f'{c.name}: {c.value:.3f}x [{c.low:.3f} .. {c.high:.3f}]{target} {verdict}')
+        unit = c.unit if c.unit in ('x', '') else f' {c.unit}'
+        target = '' if c.target is None else f' (target {c.op} {c.target:.2f}{unit})'
+        note = f' ({c.note})' if c.note else ''
+        print(
+            f'{c.name}: {c.value:.3f}{unit} [{c.low:.3f} .. {c.high:.3f}]{target} {verdict}{note}'
+        )
     document: dict[str, Any] = {
         'item': result.as_dict(),
         'threads': threads,

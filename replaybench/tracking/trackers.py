@@ -42,6 +42,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from replaybench.tracking import kernels
 from replaybench.tracking.kalman import Filters
 from replaybench.tracking.metrics import _assign
 
@@ -55,6 +56,12 @@ __all__ = ['ByteTrackTracker', 'IouTracker', 'SortTracker', 'Track', 'box_iou_xy
 Reported = tuple[list[int], list[list[float]], list[int]]
 
 _F64 = np.float64
+
+
+def _c(values: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """``values`` C-contiguous, as the kernels take them (the array itself where it is; a
+    copy of a column selection such as ``s[0:4, rows]``, which numpy lays out by columns)."""
+    return np.ascontiguousarray(values, dtype=_F64)
 
 
 def _nonzero(mask: npt.NDArray[np.bool_]) -> npt.NDArray[np.intp]:
@@ -93,25 +100,11 @@ def _cost(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray
     """-IoU of each box of ``a`` (4 x N, rows x1 y1 x2 y2) with each of ``b`` (4 x M), each row
     contiguous: the intersection's width and height clipped at 0, their product over the
     negated union (the intersection less the sum of the areas), which is -IoU exactly; -0.0
-    where that union is not positive."""
+    where that union is not negative (``kernels.cost``)."""
     n, m = a.shape[1], b.shape[1]
     if not (n and m):
         return np.zeros((n, m))
-    inter: npt.NDArray[np.float64] = np.minimum(a[2, :, None], b[2])
-    inter -= np.maximum(a[0, :, None], b[0])
-    np.maximum(inter, 0.0, out=inter)
-    high = np.minimum(a[3, :, None], b[3])
-    high -= np.maximum(a[1, :, None], b[1])
-    np.maximum(high, 0.0, out=high)
-    inter *= high
-    size_a, size_b = a[2:4] - a[0:2], b[2:4] - b[0:2]
-    union = (size_a[0] * size_a[1])[:, None] + size_b[0] * size_b[1]
-    np.subtract(inter, union, out=union)  # -(union less the intersection), exactly
-    if union.max() < 0.0:  # False for a NaN too
-        inter /= union
-        return inter
-    out: npt.NDArray[np.float64] = np.full_like(inter, -0.0)
-    np.divide(inter, union, out=out, where=union < 0)
+    out: npt.NDArray[np.float64] = kernels.cost(_c(a), _c(b))
     return out
 
 
@@ -220,26 +213,13 @@ _SORT_PBB = np.array([[1e4], [1e4], [1e4], [0.0]])
 
 def _to_z(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Boxes (4 x k) as (centre x, centre y, area, aspect ratio)."""
-    w, h = d[2] - d[0], d[3] - d[1]
-    z = np.empty_like(d)
-    np.add(d[0], w / 2, out=z[0])
-    np.add(d[1], h / 2, out=z[1])
-    np.multiply(w, h, out=z[2])
-    np.divide(w, np.maximum(h, 1e-9), out=z[3])
+    z: npt.NDArray[np.float64] = kernels.sort_z(_c(d))
     return z
 
 
 def _from_x(s: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """SORT's means (rows 0-3 of ``s``) as boxes (4 x k)."""
-    area = np.maximum(s[2], 1e-9)
-    w = np.sqrt(area * np.maximum(s[3], 1e-9))
-    hh = area / w / 2
-    hw = w / 2
-    out = np.empty((4, s.shape[1]))
-    np.subtract(s[0], hw, out=out[0])
-    np.subtract(s[1], hh, out=out[1])
-    np.add(s[0], hw, out=out[2])
-    np.add(s[1], hh, out=out[3])
+    out: npt.NDArray[np.float64] = kernels.sort_boxes(_c(s))
     return out
 
 
@@ -291,8 +271,7 @@ class SortTracker:
             ahead = s[6] + s[2]
             if ahead.min() <= 0:  # an area that would go negative stops shrinking
                 s[6, ahead <= 0] = 0.0
-            f.predict()
-            s[8:24] += _SORT_Q
+            f.predict(_SORT_Q)
         pred = _from_x(s)
         if not math.isfinite(pred.sum()):  # a NaN or an infinity (or a finite sum's overflow)
             alive = np.all(np.isfinite(pred), axis=0)
@@ -373,10 +352,10 @@ _BT_VAR_A = np.array([[_VAR_A], [_VAR_VA]])
 _BT_R_STD = np.array([_STD_POS, _STD_POS, 0.0, _STD_POS])
 
 
-def _bt_noise(g: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """ByteTrack's measurement noise variances (4 x k) for the filters ``g``: (h / 20)^2 but
-    the aspect ratio's 0.01."""
-    r: npt.NDArray[np.float64] = np.multiply.outer(_BT_R_STD, g[3])
+def _bt_noise(heights: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """ByteTrack's measurement noise variances (4 x k) for filters of these heights (row 3 of
+    their means): (h / 20)^2 but the aspect ratio's 0.01."""
+    r: npt.NDArray[np.float64] = np.multiply.outer(_BT_R_STD, heights)
     r *= r
     r[2] = _VAR_RA
     return r
@@ -384,24 +363,13 @@ def _bt_noise(g: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
 
 def _xyah(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Boxes (4 x k) as (centre x, centre y, aspect ratio, height)."""
-    w, h = d[2] - d[0], d[3] - d[1]
-    z = np.empty_like(d)
-    np.add(d[0], w / 2, out=z[0])
-    np.add(d[1], h / 2, out=z[1])
-    np.divide(w, np.maximum(h, 1e-9), out=z[2])
-    z[3] = h
+    z: npt.NDArray[np.float64] = kernels.bt_xyah(_c(d))
     return z
 
 
 def _xyxy(m: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """ByteTrack's means (rows 0-3 of ``m``) as boxes (4 x k)."""
-    hw = m[2] * m[3] / 2
-    hh = m[3] / 2
-    out = np.empty((4, m.shape[1]))
-    np.subtract(m[0], hw, out=out[0])
-    np.subtract(m[1], hh, out=out[1])
-    np.add(m[0], hw, out=out[2])
-    np.add(m[1], hh, out=out[3])
+    out: npt.NDArray[np.float64] = kernels.bt_boxes(_c(m))
     return out
 
 
@@ -455,8 +423,7 @@ class ByteTrackTracker:
             q = np.multiply.outer(_BT_STD, s[3])  # the standard deviations, scaled by the height
             q *= q
             q[2:15:12] = _BT_VAR_A
-            f.predict()
-            s[8:24] += q
+            f.predict(q)
         current = _xyxy(s)
         every = n == 0 or state[_CONFIRMED].min() != 0  # then confirmed is every row
         if every:
@@ -494,7 +461,7 @@ class ByteTrackTracker:
         rows_a = rows[0] if len(rows) == 1 else np.concatenate(rows)
         took_a = took[0] if len(took) == 1 else np.concatenate(took)
         if len(rows_a):  # the three stages' rows are distinct: one update for all
-            f.update(rows_a, _xyah(d[:, took_a]), _bt_noise)
+            f.update(rows_a, _xyah(d[:, took_a]), _bt_noise(f.s[3, rows_a]))
             state[_LAST : _LOST + 1, rows_a] = ((self.frame,), (1,), (0,))  # confirmed, not lost
             state[_USED, rows_a] = took_a
         # 4: new tracks from the high boxes no track took

@@ -51,11 +51,18 @@ _I1 = numba.intp[::1]
 
 def _compiled(signature: Any = None) -> Callable[[_F], _F]:
     """``numba.njit``: compiled for ``signature`` at once (lazily for each caller's types
-    without one), cached on disk, run without the GIL."""
-    options = {'cache': True, 'nogil': True}
-    decorate: Callable[[_F], _F] = (
-        numba.njit(**options) if signature is None else numba.njit(signature, **options)
-    )
+    without one), run without the GIL, cached on disk where Numba finds a folder it can write
+    (beside this file, else the user's cache folder); where it finds none, compiled again at
+    each import (the same code, a second or two more before the replay)."""
+
+    def decorate(function: _F) -> _F:
+        args = () if signature is None else (signature,)
+        try:
+            compiled: _F = numba.njit(*args, cache=True, nogil=True)(function)
+        except RuntimeError:  # "cannot cache function ...: no locator available"
+            compiled = numba.njit(*args, nogil=True)(function)
+        return compiled
+
     return decorate
 
 

@@ -8,6 +8,8 @@ its own time limit, one after the other: nvidia-smi, the versions of the stack,
 run holds ``onnx-cpu`` beside ``cuda``, so run.json's ``agreement`` compares them),
 ``cuda-stereo --engine torch`` beside ``onnx-stereo`` on the stereo fixture (run.json's
 ``stereo_agreement``: the GPU disparity against the CPU one; EPE and bad-2 against the truth),
+``cuda`` fp16 on the four-camera rig fixture with ``--pipelines shared`` and ``per-topic``
+(four instances sharing one GPU: run.json's ``rig`` section, per-camera and rig rows),
 ``cuda --engine ort``, ``replaybench compare``, a ``peak`` search for ``cuda``,
 ``pytest tests/backends/gpu -rs``, one Ray sweep cell where Ray is installed, and the summary.
 
@@ -19,7 +21,7 @@ with copies of ``check.log``, ``steps.json`` and ``summary.md`` beside it: four 
 ``--dry-run`` is the same script on a machine without a GPU: small inputs, no wheels, each GPU
 step replaced by its CPU counterpart (``hsv`` beside ``null`` for ``hsv`` beside ``hsv-cuda``,
 ``onnx-cpu`` alone for ``onnx-cpu`` beside ``cuda``, ``onnx-stereo`` alone for it beside
-``cuda-stereo``, ``peak`` of ``null``) or skipped with the
+``cuda-stereo``, ``hsv`` for ``cuda`` on the rig, ``peak`` of ``null``) or skipped with the
 reason. ``--fail STEP`` and ``--hang STEP`` replace a step's command with one that fails or that
 outlasts its limit (2 s), so the test of the script can show both are logged and the rest runs.
 """
@@ -136,6 +138,8 @@ def plan(config: Config) -> list[Step]:
     bag = str(inputs / 'rgb8_raw.mcap')
     jpeg = str(inputs / 'jpeg.mcap')
     stereo = str(inputs / 'stereo.mcap')
+    rig = str(inputs / 'rig.mcap')
+    per_topic = ('--pipelines', 'per-topic')
     stereo_gpu = ('-b', 'onnx-stereo', '-b', 'cuda-stereo', '--engine', 'torch')
     yolox = config.models / 'yolox_nano.onnx'
     no_yolox = (
@@ -260,6 +264,20 @@ def plan(config: Config) -> list[Step]:
             skip=no_yolox,
         ),
         Step('peak-cuda', peak_gpu, 150, gpu=True, cpu_argv=peak_cpu),
+        Step(
+            'rig-cuda-shared',
+            run('rig-cuda-shared', rig, '-b', 'cuda', '--engine', 'torch', *fp16),
+            90,
+            gpu=True,
+            cpu_argv=run('rig-cuda-shared', rig, '-b', 'hsv'),
+        ),
+        Step(
+            'rig-cuda-per-topic',
+            run('rig-cuda-per-topic', rig, '-b', 'cuda', '--engine', 'torch', *fp16, *per_topic),
+            90,
+            gpu=True,
+            cpu_argv=run('rig-cuda-per-topic', rig, '-b', 'hsv', *per_topic),
+        ),
         Step(
             'pytest-gpu',
             (*pytest, 'tests/backends/gpu'),

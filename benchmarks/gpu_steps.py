@@ -4,7 +4,10 @@
 ``jpeg.mcap`` with the project's fixture writer (``replaybench.fixtures.writer.write_mcap``: the
 same scene, ground truth and camera as ``replaybench fixtures``, only those two bags), and
 ``stereo.mcap``, the stereo fixture (``replaybench.fixtures.stereo.write_stereo_mcap``: rectified
-320x240 pairs with exact ground-truth disparity, at most ``STEREO_PAIRS`` of them).
+320x240 pairs with exact ground-truth disparity, at most ``STEREO_PAIRS`` of them), and
+``rig.mcap``, the rig fixture (``replaybench.fixtures.rig.write_rig_mcap``: ``RIG_CAMERAS``
+JPEG cameras at 30 Hz, 640x480 or the given size where smaller, at most ``RIG_FRAMES`` frames
+a camera).
 
 ``python -m benchmarks.gpu_steps summary WORK OUT`` reads the run folders under ``WORK/runs``
 and the peak folder ``WORK/peak`` and writes ``OUT/summary.json`` and ``OUT/summary.md``: per run
@@ -30,6 +33,10 @@ __all__ = ['main', 'summarise', 'write_inputs']
 STAGES = ('h2d', 'preprocess', 'infer', 'postprocess', 'd2h')
 #: the stereo bag's pairs (320x240, the bundled stereo model's input size)
 STEREO_PAIRS = 60
+#: the rig bag: four cameras sharing one GPU, three seconds of them
+RIG_CAMERAS = 4
+RIG_FRAMES = 90
+RIG_SIZE = (640, 480)
 #: run.json backends[].info keys copied into the summary (docs/gpu.md, run.json info)
 INFO_KEYS = (
     'engine',
@@ -89,17 +96,25 @@ AGREEMENT_KEYS = (
 
 
 def write_inputs(out: Path, frames: int, size: tuple[int, int]) -> list[Path]:
-    """Write the check's bags (raw rgb8, zstd JPEG, and the stereo pairs) into ``out``, one
-    process each (the first two render the same frames; 300 at 1080p take tens of seconds);
-    return their paths."""
+    """Write the check's bags (raw rgb8, zstd JPEG, the stereo pairs and a four-camera JPEG
+    rig) into ``out``, one process each (the first two render the same frames; 300 at 1080p
+    take tens of seconds); return their paths."""
     from concurrent.futures import ProcessPoolExecutor
 
     out.mkdir(parents=True, exist_ok=True)
-    with ProcessPoolExecutor(max_workers=3) as pool:
+    rig_size = RIG_SIZE if size[0] >= RIG_SIZE[0] else size
+    with ProcessPoolExecutor(max_workers=4) as pool:
         raw = pool.submit(_write, out / 'rgb8_raw.mcap', frames, size, 'rgb8')
         jpeg = pool.submit(_write, out / 'jpeg.mcap', frames, size, 'jpeg')
         stereo = pool.submit(_write_stereo, out / 'stereo.mcap', min(frames, STEREO_PAIRS))
-        return [raw.result(), jpeg.result(), stereo.result()]
+        rig = pool.submit(_write_rig, out / 'rig.mcap', min(frames, RIG_FRAMES), rig_size)
+        return [raw.result(), jpeg.result(), stereo.result(), rig.result()]
+
+
+def _write_rig(path: Path, frames: int, size: tuple[int, int]) -> Path:
+    from replaybench.fixtures.rig import write_rig_mcap
+
+    return write_rig_mcap(path, frames, size, RIG_CAMERAS)
 
 
 def _write_stereo(path: Path, pairs: int) -> Path:
@@ -298,7 +313,9 @@ def _size(text: str) -> tuple[int, int]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='python -m benchmarks.gpu_steps')
     commands = parser.add_subparsers(dest='command', required=True)
-    inputs = commands.add_parser('inputs', help='write rgb8_raw.mcap, jpeg.mcap and stereo.mcap')
+    inputs = commands.add_parser(
+        'inputs', help='write rgb8_raw.mcap, jpeg.mcap, stereo.mcap and rig.mcap'
+    )
     inputs.add_argument('out', type=Path)
     inputs.add_argument('--frames', type=int, default=300)
     inputs.add_argument('--size', type=_size, default=(1920, 1080))

@@ -91,6 +91,8 @@ def test_every_step_is_listed_in_order_with_its_status_and_why_it_was_skipped(dr
         'stereo-cuda-torch',
         'compare-bundled',
         'peak-cuda',
+        'rig-cuda-shared',
+        'rig-cuda-per-topic',
     ):
         assert steps[name]['status'] == 'ok', name
     assert steps['pytest-gpu']['status'] == 'ok'

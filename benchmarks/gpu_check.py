@@ -8,7 +8,9 @@ its own time limit, one after the other: nvidia-smi, the versions of the stack,
 run holds ``onnx-cpu`` beside ``cuda``, so run.json's ``agreement`` compares them),
 ``cuda-stereo --engine torch`` beside ``onnx-stereo`` on the stereo fixture (run.json's
 ``stereo_agreement``: the GPU disparity against the CPU one; EPE and bad-2 against the truth),
-``cuda`` fp16 on the four-camera rig fixture with ``--pipelines shared`` and ``per-topic``
+``cuda --engine torch`` beside ``onnx-seg`` with the bundled segmentation model on JPEG
+frames with truth masks (mIoU and pixel accuracy of each), ``cuda`` fp16 on the four-camera
+rig fixture with ``--pipelines shared`` and ``per-topic``
 (four instances sharing one GPU: run.json's ``rig`` section, per-camera and rig rows),
 ``cuda --engine ort``, ``replaybench compare``, a ``peak`` search for ``cuda``,
 ``pytest tests/backends/gpu -rs``, one Ray sweep cell where Ray is installed, and the summary.
@@ -21,7 +23,8 @@ with copies of ``check.log``, ``steps.json`` and ``summary.md`` beside it: four 
 ``--dry-run`` is the same script on a machine without a GPU: small inputs, no wheels, each GPU
 step replaced by its CPU counterpart (``hsv`` beside ``null`` for ``hsv`` beside ``hsv-cuda``,
 ``onnx-cpu`` alone for ``onnx-cpu`` beside ``cuda``, ``onnx-stereo`` alone for it beside
-``cuda-stereo``, ``hsv`` for ``cuda`` on the rig, ``peak`` of ``null``) or skipped with the
+``cuda-stereo``, ``onnx-seg`` alone for it beside ``cuda``, ``hsv`` for ``cuda`` on the
+rig, ``peak`` of ``null``) or skipped with the
 reason. ``--fail STEP`` and ``--hang STEP`` replace a step's command with one that fails or that
 outlasts its limit (2 s), so the test of the script can show both are logged and the rest runs.
 """
@@ -139,6 +142,8 @@ def plan(config: Config) -> list[Step]:
     jpeg = str(inputs / 'jpeg.mcap')
     stereo = str(inputs / 'stereo.mcap')
     rig = str(inputs / 'rig.mcap')
+    seg = str(inputs / 'seg.mcap')
+    seg_model = ('--model', str(REPO / 'replaybench' / 'models' / 'blobs_seg.onnx'))
     per_topic = ('--pipelines', 'per-topic')
     stereo_gpu = ('-b', 'onnx-stereo', '-b', 'cuda-stereo', '--engine', 'torch')
     yolox = config.models / 'yolox_nano.onnx'
@@ -235,6 +240,23 @@ def plan(config: Config) -> list[Step]:
             90,
             gpu=True,
             cpu_argv=run('stereo-cuda-torch', stereo, '-b', 'onnx-stereo'),
+        ),
+        Step(
+            'seg-cuda-torch',
+            run(
+                'seg-cuda-torch',
+                seg,
+                '-b',
+                'onnx-seg',
+                '-b',
+                'cuda',
+                '--engine',
+                'torch',
+                *seg_model,
+            ),
+            90,
+            gpu=True,
+            cpu_argv=run('seg-cuda-torch', seg, '-b', 'onnx-seg', *seg_model),
         ),
         Step(
             'yolox-torch-fp16-jpeg',

@@ -7,7 +7,8 @@ same scene, ground truth and camera as ``replaybench fixtures``, only those two 
 320x240 pairs with exact ground-truth disparity, at most ``STEREO_PAIRS`` of them), and
 ``rig.mcap``, the rig fixture (``replaybench.fixtures.rig.write_rig_mcap``: ``RIG_CAMERAS``
 JPEG cameras at 30 Hz, 640x480 or the given size where smaller, at most ``RIG_FRAMES`` frames
-a camera).
+a camera), and ``seg.mcap`` (``write_mcap`` with ``masks``: JPEG frames with truth label masks,
+320x240, at most ``SEG_FRAMES``).
 
 ``python -m benchmarks.gpu_steps summary WORK OUT`` reads the run folders under ``WORK/runs``
 and the peak folder ``WORK/peak`` and writes ``OUT/summary.json`` and ``OUT/summary.md``: per run
@@ -37,6 +38,9 @@ STEREO_PAIRS = 60
 RIG_CAMERAS = 4
 RIG_FRAMES = 90
 RIG_SIZE = (640, 480)
+#: the segmentation bag: JPEG frames with truth masks at the bundled blobs_seg model's size
+SEG_FRAMES = 60
+SEG_SIZE = (320, 240)
 #: run.json backends[].info keys copied into the summary (docs/gpu.md, run.json info)
 INFO_KEYS = (
     'engine',
@@ -96,19 +100,26 @@ AGREEMENT_KEYS = (
 
 
 def write_inputs(out: Path, frames: int, size: tuple[int, int]) -> list[Path]:
-    """Write the check's bags (raw rgb8, zstd JPEG, the stereo pairs and a four-camera JPEG
-    rig) into ``out``, one process each (the first two render the same frames; 300 at 1080p
-    take tens of seconds); return their paths."""
+    """Write the check's bags (raw rgb8, zstd JPEG, the stereo pairs, a four-camera JPEG rig
+    and JPEG frames with truth label masks) into ``out``, one process each (the first two
+    render the same frames; 300 at 1080p take tens of seconds); return their paths."""
     from concurrent.futures import ProcessPoolExecutor
 
     out.mkdir(parents=True, exist_ok=True)
     rig_size = RIG_SIZE if size[0] >= RIG_SIZE[0] else size
-    with ProcessPoolExecutor(max_workers=4) as pool:
+    with ProcessPoolExecutor(max_workers=5) as pool:
         raw = pool.submit(_write, out / 'rgb8_raw.mcap', frames, size, 'rgb8')
         jpeg = pool.submit(_write, out / 'jpeg.mcap', frames, size, 'jpeg')
         stereo = pool.submit(_write_stereo, out / 'stereo.mcap', min(frames, STEREO_PAIRS))
         rig = pool.submit(_write_rig, out / 'rig.mcap', min(frames, RIG_FRAMES), rig_size)
-        return [raw.result(), jpeg.result(), stereo.result(), rig.result()]
+        seg = pool.submit(_write_seg, out / 'seg.mcap', min(frames, SEG_FRAMES))
+        return [raw.result(), jpeg.result(), stereo.result(), rig.result(), seg.result()]
+
+
+def _write_seg(path: Path, frames: int) -> Path:
+    from replaybench.fixtures.writer import write_mcap
+
+    return write_mcap(path, frames, SEG_SIZE, 'jpeg', masks=True)
 
 
 def _write_rig(path: Path, frames: int, size: tuple[int, int]) -> Path:
@@ -314,7 +325,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='python -m benchmarks.gpu_steps')
     commands = parser.add_subparsers(dest='command', required=True)
     inputs = commands.add_parser(
-        'inputs', help='write rgb8_raw.mcap, jpeg.mcap, stereo.mcap and rig.mcap'
+        'inputs', help='write rgb8_raw.mcap, jpeg.mcap, stereo.mcap, rig.mcap and seg.mcap'
     )
     inputs.add_argument('out', type=Path)
     inputs.add_argument('--frames', type=int, default=300)

@@ -91,6 +91,7 @@ def test_every_step_is_listed_in_order_with_its_status_and_why_it_was_skipped(dr
         'stereo-cuda-torch',
         'compare-bundled',
         'peak-cuda',
+        'seg-cuda-torch',
         'rig-cuda-shared',
         'rig-cuda-per-topic',
     ):

@@ -13,7 +13,7 @@ BIN    := $(VENV)/bin
 CORE_STAMP := $(VENV)/.installed-core
 DEV_STAMP  := $(VENV)/.installed-dev
 
-.PHONY: install install-core run test lint typecheck pytest bench fuzz fixtures gpu-wheels gpu-check-dry clean
+.PHONY: install install-core run test lint typecheck pytest bench fuzz fixtures gpu-wheels gpu-ort-parts gpu-check-dry clean
 
 install: $(DEV_STAMP)
 
@@ -70,8 +70,8 @@ fixtures: install-core
 # x86_64, no registry there) and YOLOX-Nano, into the git-ignored .whl/ that the device call
 # carries. Exact pins, each one's needs named too (--no-deps): the core dependencies that machine
 # lacks, onnx2torch (engine torch) and jsonschema (the test suite checks every run.json).
-# Not carried, over the 64 MiB the tree may carry: onnxruntime-gpu 1.31.1 (243.7 MiB), so neither
-# `cuda --engine ort` nor `tensorrt`; ray 2.60.0 (75.6 MiB), so no Ray sweep cell.
+# Not carried, over the 64 MiB the tree may carry: onnxruntime-gpu 1.31.1 (243.7 MiB), which
+# travels in parts instead (gpu-ort-parts below), and ray 2.60.0 (75.6 MiB), so no Ray sweep cell.
 GPU_WHEELS := mcap==1.6.0 mcap-ros2-support==0.6.0 mcap-protobuf-support==0.6.0 \
 	rosbags==0.11.9 apsw==3.54.1.0 backports.zstd==1.8.0 zstandard==0.25.0 lz4==4.4.5 \
 	ruamel.yaml==0.19.1 onnx2torch==1.5.15 jsonschema==4.26.0 jsonschema-specifications==2025.9.1 \
@@ -87,6 +87,19 @@ gpu-wheels:
 	if [ -f $(YOLOX) ]; then cp $(YOLOX) .whl/models/; else echo "$(YOLOX) not found: the YOLOX-Nano steps will be skipped"; fi
 	du -sb .whl
 	@echo 'tracked tree:' $$(git ls-files -z | xargs -0 du -cb | tail -1)
+
+# onnxruntime-gpu for `cuda --engine ort`, cut into the git-ignored .ortparts/ (40 MiB parts and
+# their manifest), one part a device call, joined there into .whl/ before the GPU check
+# (benchmarks/wheel_parts.py, docs/gpu.md); `calls` prints the device calls
+ORT_GPU := onnxruntime-gpu==1.31.1
+
+gpu-ort-parts:
+	rm -rf .ortparts && mkdir -p .ortparts/download
+	$(PYTHON) -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
+		--implementation cp $(GPU_PLATFORMS) -d .ortparts/download $(ORT_GPU)
+	$(PYTHON) -m benchmarks.wheel_parts split .ortparts/download/*.whl .ortparts
+	rm -rf .ortparts/download
+	$(PYTHON) -m benchmarks.wheel_parts calls .ortparts
 
 # the GPU check on the CPU: small inputs, no wheels, GPU steps replaced or skipped with the reason
 gpu-check-dry:

@@ -98,26 +98,30 @@ def join(folder: Path, out: Path) -> Path:
     """The wheel of ``folder``'s parts, written to ``out`` once every part and the whole are
     what the manifest says; ``PartsError`` (nothing written) otherwise."""
     manifest = _manifest(folder)
-    whole = hashlib.sha256()
-    for part in manifest['parts']:
-        path = folder / part['name']
-        if not path.is_file():
-            msg = f'{path}: part missing ({len(manifest["parts"])} parts in the manifest)'
-            raise PartsError(msg)
-        data = path.read_bytes()
-        if len(data) != part['size'] or hashlib.sha256(data).hexdigest() != part['sha256']:
-            msg = f'{path}: not the part the manifest names (size or SHA-256 differs)'
-            raise PartsError(msg)
-        whole.update(data)
-    if whole.hexdigest() != manifest['sha256']:
-        msg = f'{folder}: the joined parts are not {manifest["wheel"]} (SHA-256 differs)'
-        raise PartsError(msg)
     out.mkdir(parents=True, exist_ok=True)
     target: Path = out / str(manifest['wheel'])
     partial = target.with_name(target.name + '.partial')
-    with partial.open('wb') as f:
-        for part in manifest['parts']:
-            f.write((folder / part['name']).read_bytes())
+    whole = hashlib.sha256()
+    try:
+        with partial.open('wb') as f:  # each part read once: checked, hashed, written
+            for part in manifest['parts']:
+                path = folder / part['name']
+                if not path.is_file():
+                    msg = f'{path}: part missing ({len(manifest["parts"])} parts in the manifest)'
+                    raise PartsError(msg)
+                data = path.read_bytes()
+                digest = hashlib.sha256(data).hexdigest()
+                if len(data) != part['size'] or digest != part['sha256']:
+                    msg = f'{path}: not the part the manifest names (size or SHA-256 differs)'
+                    raise PartsError(msg)
+                whole.update(data)
+                f.write(data)
+        if whole.hexdigest() != manifest['sha256']:
+            msg = f'{folder}: the joined parts are not {manifest["wheel"]} (SHA-256 differs)'
+            raise PartsError(msg)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
     partial.replace(target)
     return target
 

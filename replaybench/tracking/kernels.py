@@ -100,50 +100,55 @@ def cost(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray[
     return out
 
 
+@_compiled()
+def _centre(d: npt.NDArray[np.float64], j: int, z: npt.NDArray[np.float64]) -> tuple[float, float]:
+    """Box ``j`` of ``d``'s centre into rows 0-1 of ``z``'s column ``j``; its width, height."""
+    w = d[2, j] - d[0, j]
+    h = d[3, j] - d[1, j]
+    z[0, j] = d[0, j] + w / 2
+    z[1, j] = d[1, j] + h / 2
+    return w, h
+
+
+@_compiled()
+def _corners(
+    out: npt.NDArray[np.float64], j: int, cx: float, cy: float, hw: float, hh: float
+) -> None:
+    """The box of centre (cx, cy) and half sizes (hw, hh) as x1 y1 x2 y2 into column ``j``."""
+    out[0, j] = cx - hw
+    out[1, j] = cy - hh
+    out[2, j] = cx + hw
+    out[3, j] = cy + hh
+
+
 @_compiled(_F2(_F2))
 def sort_z(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Boxes (4 x k) as SORT's measurements (centre x, centre y, area, aspect ratio)."""
-    k = d.shape[1]
-    z = np.empty((4, k))
-    for j in range(k):
-        w = d[2, j] - d[0, j]
-        h = d[3, j] - d[1, j]
-        z[0, j] = d[0, j] + w / 2
-        z[1, j] = d[1, j] + h / 2
+    z = np.empty((4, d.shape[1]))
+    for j in range(d.shape[1]):
+        w, h = _centre(d, j, z)
         z[2, j] = w * h
         z[3, j] = w / _max(h, 1e-9)
     return z
 
 
 @_compiled(_F2(_F2))
-def sort_boxes(
-    s: npt.NDArray[np.float64],
-) -> npt.NDArray[np.float64]:
+def sort_boxes(s: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """SORT's means (rows 0-3 of ``s``) as boxes (4 x k)."""
-    k = s.shape[1]
-    out = np.empty((4, k))
-    for j in range(k):
+    out = np.empty((4, s.shape[1]))
+    for j in range(s.shape[1]):
         area = _max(s[2, j], 1e-9)
         w = np.sqrt(area * _max(s[3, j], 1e-9))
-        hh = area / w / 2
-        hw = w / 2
-        out[0, j] = s[0, j] - hw
-        out[1, j] = s[1, j] - hh
-        out[2, j] = s[0, j] + hw
-        out[3, j] = s[1, j] + hh
+        _corners(out, j, s[0, j], s[1, j], w / 2, area / w / 2)
     return out
 
 
 @_compiled(_F2(_F2))
 def bt_xyah(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Boxes (4 x k) as ByteTrack's measurements (centre x, centre y, aspect ratio, height)."""
-    k = d.shape[1]
-    z = np.empty((4, k))
-    for j in range(k):
-        w = d[2, j] - d[0, j]
-        h = d[3, j] - d[1, j]
-        z[0, j] = d[0, j] + w / 2
-        z[1, j] = d[1, j] + h / 2
+    z = np.empty((4, d.shape[1]))
+    for j in range(d.shape[1]):
+        w, h = _centre(d, j, z)
         z[2, j] = w / _max(h, 1e-9)
         z[3, j] = h
     return z
@@ -152,15 +157,9 @@ def bt_xyah(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
 @_compiled(_F2(_F2))
 def bt_boxes(m: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """ByteTrack's means (rows 0-3 of ``m``) as boxes (4 x k)."""
-    k = m.shape[1]
-    out = np.empty((4, k))
-    for j in range(k):
-        hw = m[2, j] * m[3, j] / 2
-        hh = m[3, j] / 2
-        out[0, j] = m[0, j] - hw
-        out[1, j] = m[1, j] - hh
-        out[2, j] = m[0, j] + hw
-        out[3, j] = m[1, j] + hh
+    out = np.empty((4, m.shape[1]))
+    for j in range(m.shape[1]):
+        _corners(out, j, m[0, j], m[1, j], m[2, j] * m[3, j] / 2, m[3, j] / 2)
     return out
 
 
